@@ -1,0 +1,196 @@
+"""Versioned YAML calibration files, written atomically.
+
+Layout (keys other tools read are the first six; the rest is ours):
+
+    accel_calibration:
+      format_version: 1
+      model: sphere9
+      gravity: 9.80665          # m/s^2
+      bias: [bx, by, bz]        # m/s^2, a_true = M (a_raw - b)
+      matrix: [[..], [..], [..]]
+      quality: {residual_rms_mg: .., residual_max_mg: .., poses: .., condition_number: ..}
+      uncertainty: {bias: [..], matrix: [[..]..]}   # 1 sigma
+      quadratic: [qx, qy, qz]   # reference15 only, s^2/m
+      created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from .calibration import Calibration, Quality
+from .errors import CalibrationError
+
+FORMAT_VERSION = 1
+ROOT_KEY = "accel_calibration"
+
+
+def calibration_to_dict(calibration: Calibration) -> dict:
+    c = calibration
+    body = {
+        "format_version": FORMAT_VERSION,
+        "model": c.model,
+        "gravity": c.gravity,
+        "bias": c.bias.tolist(),
+        "matrix": c.matrix.tolist(),
+    }
+    if c.quality is not None:
+        body["quality"] = {
+            "residual_rms_mg": float(c.quality.residual_rms_mg),
+            "residual_max_mg": float(c.quality.residual_max_mg),
+            "poses": int(c.quality.poses),
+        }
+        if c.quality.condition_number is not None:
+            body["quality"]["condition_number"] = float(c.quality.condition_number)
+    uncertainty = {}
+    if c.bias_sigma is not None:
+        uncertainty["bias"] = c.bias_sigma.tolist()
+    if c.matrix_sigma is not None:
+        uncertainty["matrix"] = c.matrix_sigma.tolist()
+    if uncertainty:
+        body["uncertainty"] = uncertainty
+    if c.quadratic is not None:
+        body["quadratic"] = c.quadratic.tolist()
+    if c.reference_temperature_degc is not None:
+        body["reference_temperature_degc"] = float(c.reference_temperature_degc)
+    body["units"] = {"bias": "m/s^2", "matrix": "1", "gravity": "m/s^2", "quadratic": "s^2/m"}
+    body["created"] = c.created
+    body["frame_id"] = c.frame_id
+    body["sensor_id"] = c.sensor_id
+    return {ROOT_KEY: body}
+
+
+def calibration_to_yaml(calibration: Calibration) -> str:
+    return yaml.safe_dump(calibration_to_dict(calibration), sort_keys=False, default_flow_style=None)
+
+
+def _number(value, name) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CalibrationError(f"{name} must be a finite number, got {value!r:.60}")
+    return float(value)
+
+
+def calibration_from_dict(document, source: str = "calibration") -> Calibration:
+    """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
+    if not isinstance(document, dict) or ROOT_KEY not in document:
+        raise CalibrationError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
+    body = document[ROOT_KEY]
+    if not isinstance(body, dict):
+        raise CalibrationError(f"{source}: '{ROOT_KEY}' must be a mapping")
+    version = body.get("format_version", 1)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise CalibrationError(f"{source}: format_version must be an integer, got {version!r:.40}")
+    if version > FORMAT_VERSION:
+        raise CalibrationError(
+            f"{source}: written by a newer accel_calibration (format {version}; this version reads up to "
+            f"{FORMAT_VERSION}): upgrade to use it"
+        )
+    for key in ("model", "bias", "matrix"):
+        if key not in body:
+            raise CalibrationError(f"{source}: missing key '{key}'")
+    try:
+        quality = None
+        if body.get("quality") is not None:
+            q = body["quality"]
+            if not isinstance(q, dict):
+                raise CalibrationError("quality must be a mapping")
+            poses = q.get("poses", 0)
+            if isinstance(poses, bool) or not isinstance(poses, int) or poses < 0:
+                raise CalibrationError(f"quality.poses must be a non-negative integer, got {poses!r:.40}")
+            cond = q.get("condition_number")
+            quality = Quality(
+                residual_rms_mg=_number(q.get("residual_rms_mg", float("nan")), "quality.residual_rms_mg")
+                if "residual_rms_mg" in q
+                else float("nan"),
+                residual_max_mg=_number(q.get("residual_max_mg"), "quality.residual_max_mg")
+                if "residual_max_mg" in q
+                else float("nan"),
+                poses=poses,
+                condition_number=None if cond is None else _number(cond, "quality.condition_number"),
+            )
+        uncertainty = body.get("uncertainty") or {}
+        if not isinstance(uncertainty, dict):
+            raise CalibrationError("uncertainty must be a mapping")
+        ref_t = body.get("reference_temperature_degc")
+        model = body["model"]
+        if not isinstance(model, str):
+            raise CalibrationError(f"model must be a name, got {model!r:.40}")
+        return Calibration(
+            bias=body["bias"],
+            matrix=body["matrix"],
+            model=model,
+            gravity=_number(body.get("gravity", 9.80665), "gravity"),
+            quadratic=body.get("quadratic"),
+            bias_sigma=uncertainty.get("bias"),
+            matrix_sigma=uncertainty.get("matrix"),
+            quality=quality,
+            created=str(body.get("created", "")),
+            frame_id=str(body.get("frame_id", "") or ""),
+            sensor_id=str(body.get("sensor_id", "") or ""),
+            reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),
+        )
+    except CalibrationError as error:
+        raise CalibrationError(f"{source}: {error}") from None
+
+
+def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration:
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        first = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise CalibrationError(f"{source}: not valid YAML ({first})") from None
+    return calibration_from_dict(document, source)
+
+
+def load_calibration(path) -> Calibration:
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise CalibrationError(f"calibration file {path} not found") from None
+    except IsADirectoryError:
+        raise CalibrationError(f"calibration file {path} is a directory") from None
+    except OSError as error:
+        raise CalibrationError(f"cannot read calibration file {path}: {error.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{path}: not a text file (binary content)") from None
+    return calibration_from_yaml(text, str(path))
+
+
+def write_text_atomically(path, text: str) -> None:
+    """Write next to the target and rename over it, so a reader (or a crash) never sees half a file
+    and the old file stays whole when the write fails."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    except OSError as error:
+        raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as tmp:
+            tmp.write(text)
+            tmp.flush()
+            os.fsync(tmp.fileno())
+        os.replace(tmp_name, path)
+    except OSError as error:
+        try:
+            os.unlink(tmp_name)
+        except OSError:
+            pass
+        raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
+    except BaseException:
+        try:
+            os.unlink(tmp_name)
+        except OSError:
+            pass
+        raise
+
+
+def save_calibration(calibration: Calibration, path) -> None:
+    write_text_atomically(path, calibration_to_yaml(calibration))

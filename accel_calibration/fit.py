@@ -1,0 +1,310 @@
+"""fit(): the one entry point from pose means to a Calibration, shared by the node, replay, CLI and notebooks.
+
+Bad arguments raise CalibrationError (a ValueError). A fit that cannot be done from good
+arguments -- too few poses, poses that leave the model unobservable, no convergence -- is reported
+in the result (success False, message saying what is missing), never raised.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
+from .coverage import (
+    CONDITION_LIMIT,
+    SAME_DIRECTION_DEG,
+    angular_spread_deg,
+    describe_missing,
+    missing_directions,
+    scaled_condition_number,
+)
+from .errors import CalibrationError
+from .gauss_newton import gauss_newton
+from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, matrix_entries, parameter_count, seed_sphere
+from .pose import Pose
+
+AXES = "xyz"
+
+
+@dataclass(frozen=True)
+class Sigma:
+    """One-sigma uncertainties, from the normal matrix and the residual variance."""
+
+    bias: np.ndarray
+    matrix: np.ndarray  # zero where the model fixes the entry
+    quadratic: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FitResult:
+    success: bool
+    message: str
+    model: str
+    iterations: int = 0
+    calibration: Calibration | None = None
+    sigma: Sigma | None = None
+    residuals_mg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cost: float = float("nan")
+    condition_number: float = float("nan")
+    missing_directions: tuple[str, ...] = ()
+    poses: int = 0
+
+    def summary(self) -> str:
+        """A readable multi-line summary: parameters with +-sigma and residuals in mg."""
+        lines = [f"model {self.model}: {'OK' if self.success else 'FAILED'} - {self.message}"]
+        if self.calibration is None:
+            return "\n".join(lines)
+        c, s = self.calibration, self.sigma
+        lines.append(f"poses {self.poses}, iterations {self.iterations}, condition number {self.condition_number:.3g}")
+        lines.append(
+            "bias b (raw units; m/s^2 for SI input):  "
+            + "  ".join(f"{AXES[i]} {c.bias[i]:+.6g} ± {s.bias[i]:.2g}" for i in range(3))
+        )
+        lines.append("matrix M (a_true = M (a_raw - b)), ± 1 sigma:")
+        for i in range(3):
+            lines.append(
+                "  [" + "  ".join(f"{c.matrix[i, j]:+.7g} ± {s.matrix[i, j]:.2g}" for j in range(3)) + "]"
+            )
+        if c.quadratic is not None:
+            lines.append(
+                "quadratic q (s^2/m): "
+                + "  ".join(f"{AXES[i]} {c.quadratic[i]:+.4g} ± {s.quadratic[i]:.2g}" for i in range(3))
+            )
+        lines.append(
+            f"residuals: rms {c.quality.residual_rms_mg:.3f} mg, max {c.quality.residual_max_mg:.3f} mg"
+        )
+        if self.missing_directions:
+            lines.append("not covered (fit still observable): " + ", ".join(self.missing_directions))
+        return "\n".join(lines)
+
+
+def _as_points(accel, name) -> np.ndarray:
+    try:
+        array = np.array(accel, dtype=float)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{name} must be an N x 3 array of numbers") from None
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise CalibrationError(f"{name} must be an N x 3 array, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(array), axis=1))[0])
+        raise CalibrationError(f"{name} has a non-finite value (row {bad})")
+    return array
+
+
+def _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial):
+    if isinstance(accel_mps2, (list, tuple)) and accel_mps2 and isinstance(accel_mps2[0], Pose):
+        poses: Sequence[Pose] = accel_mps2
+        accel_mps2 = [p.accel_mps2 for p in poses]
+        if temperature_degc is None and all(p.temperature_degc is not None for p in poses):
+            temperature_degc = [p.temperature_degc for p in poses]
+    accel = _as_points(accel_mps2, "accel_mps2")
+    if model not in MODELS:
+        raise CalibrationError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+    if isinstance(gravity, bool) or not isinstance(gravity, (int, float, np.floating)) or not np.isfinite(gravity) or gravity <= 0:
+        raise CalibrationError(f"gravity must be a positive number of m/s^2, got {gravity!r}")
+    temps = None
+    if temperature_degc is not None:
+        temps = np.array(temperature_degc, dtype=float).reshape(-1)
+        if temps.shape != (len(accel),):
+            raise CalibrationError(f"temperature_degc must have one value per pose ({len(accel)}), got {temps.shape}")
+        if not np.all(np.isfinite(temps)):
+            raise CalibrationError("temperature_degc has a non-finite value")
+    ref = None
+    if model in REFERENCE_MODELS:
+        if reference is None:
+            raise CalibrationError(f"model {model} needs reference gravity directions (reference=N x 3)")
+        ref = _as_points(reference, "reference")
+        if ref.shape != accel.shape:
+            raise CalibrationError(f"reference must have one row per pose ({len(accel)}), got {len(ref)}")
+        norms = np.linalg.norm(ref, axis=1)
+        if np.any(norms == 0):
+            raise CalibrationError(f"reference row {int(np.flatnonzero(norms == 0)[0])} is zero: give a direction")
+        ref = ref / norms[:, None]
+    elif reference is not None:
+        raise CalibrationError(f"model {model} fits without reference directions; use reference12/reference15")
+    if initial is not None and not isinstance(initial, Calibration):
+        raise CalibrationError("initial must be a Calibration (warm start) or None")
+    return accel, float(gravity), temps, ref
+
+
+def fit(
+    accel_mps2,
+    *,
+    model: str = "sphere9",
+    gravity: float = STANDARD_GRAVITY,
+    temperature_degc=None,
+    reference=None,
+    initial: Calibration | None = None,
+    frame_id: str = "",
+) -> FitResult:
+    """Fit a calibration to static pose means.
+
+    accel_mps2: N x 3 mean raw accelerations of static poses (or a list of Pose). Any consistent raw
+    unit works (counts too); the corrected output is in m/s^2 scaled to `gravity`.
+    reference: N x 3 directions of the gravity reaction in the sensor frame (reference models only).
+    initial: warm start for the sphere models (e.g. the calibration in force).
+    """
+    accel, gravity, temps, ref = _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial)
+    n = len(accel)
+    # Reference models are separate linear fits per axis (4 or 5 unknowns each), sphere models one joint fit.
+    size = {"reference12": 4, "reference15": 5}.get(model, parameter_count(model))
+    if n < size:
+        return FitResult(False, f"model {model} needs at least {size} poses, got {n}", model, poses=n)
+    ref_temperature = None if temps is None else float(temps.mean())
+    if model in SPHERE_MODELS:
+        return _fit_sphere(accel, model, gravity, initial, ref_temperature, frame_id)
+    return _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
+
+
+def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
+    return Quality(
+        residual_rms_mg=float(np.sqrt(np.mean(residuals_mg**2))),
+        residual_max_mg=float(np.max(np.abs(residuals_mg))),
+        poses=len(residuals_mg),
+        condition_number=float(condition),
+    )
+
+
+def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> FitResult:
+    model = SphereModel(name)
+    n = len(accel)
+    if initial is not None:
+        bias0, matrix0 = initial.bias, initial.matrix
+    else:
+        bias0, matrix0 = seed_sphere(accel, gravity)
+    directions = (accel - bias0) @ matrix0.T
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    missing = tuple(missing_directions(directions))
+    spread = angular_spread_deg(directions)
+    if spread < SAME_DIRECTION_DEG:
+        return FitResult(
+            False,
+            f"all {n} poses point the same way (within {spread:.1f} deg): turn the sensor ({describe_missing(list(missing))})",
+            name,
+            missing_directions=missing,
+            poses=n,
+        )
+    solution = gauss_newton(
+        lambda p: model.residual_and_jacobian(p, accel, gravity), model.project(bias0, matrix0)
+    )
+    condition = scaled_condition_number(solution.jacobian)
+    residuals_mg = solution.residuals / MG
+    common = dict(
+        model=name,
+        iterations=solution.iterations,
+        residuals_mg=residuals_mg,
+        cost=solution.cost,
+        condition_number=condition,
+        missing_directions=missing,
+        poses=n,
+    )
+    if not solution.success:
+        return FitResult(False, solution.message, **common)
+    if condition > CONDITION_LIMIT:
+        return FitResult(
+            False,
+            f"poses do not constrain model {name} (condition number {condition:.3g} > {CONDITION_LIMIT:.0g}): "
+            + describe_missing(list(missing)),
+            **common,
+        )
+    bias, matrix = model.unpack(solution.x)
+    if np.linalg.det(matrix) <= 0:
+        return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
+    dof = n - model.size
+    variance = 2.0 * solution.cost / dof if dof > 0 else float("nan")
+    try:
+        covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
+    except np.linalg.LinAlgError:
+        covariance = np.full((model.size, model.size), np.nan)
+    stds = np.sqrt(np.abs(np.diag(covariance)))
+    _, matrix_sigma = model.unpack(stds)
+    sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
+    calibration = Calibration(
+        bias=bias,
+        matrix=matrix,
+        model=name,
+        gravity=gravity,
+        bias_sigma=sigma.bias,
+        matrix_sigma=sigma.matrix,
+        quality=_quality(residuals_mg, condition),
+        frame_id=frame_id,
+        reference_temperature_degc=ref_temperature,
+    )
+    return FitResult(True, solution.message, calibration=calibration, sigma=sigma, **common)
+
+
+def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) -> FitResult:
+    """Forward model per axis j: a_raw_j = b_j + sum_k S_jk a_k (+ q_j a_j^2), linear least squares."""
+    n = len(accel)
+    true = gravity * directions
+    quadratic = name == "reference15"
+    k = 5 if quadratic else 4
+    missing = tuple(missing_directions(directions))
+    coefficients = np.zeros((3, k))
+    covariances = np.zeros((3, k, k))
+    residual_raw = np.zeros((n, 3))
+    condition = 0.0
+    for j in range(3):
+        columns = [np.ones(n), true[:, 0], true[:, 1], true[:, 2]]
+        if quadratic:
+            columns.append(true[:, j] ** 2)
+        design = np.column_stack(columns)
+        condition = max(condition, scaled_condition_number(design))
+        if not np.isfinite(condition) or condition > 1e10 or np.linalg.matrix_rank(design) < k:
+            return FitResult(
+                False,
+                f"reference directions do not determine model {name}: " + describe_missing(list(missing)),
+                name,
+                condition_number=condition,
+                missing_directions=missing,
+                poses=n,
+            )
+        solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
+        coefficients[j] = solution
+        residual_raw[:, j] = accel[:, j] - design @ solution
+        dof = n - k
+        variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof if dof > 0 else float("nan")
+        covariances[j] = variance * np.linalg.inv(design.T @ design)
+    bias = coefficients[:, 0]
+    forward = coefficients[:, 1:4]
+    q = coefficients[:, 4] if quadratic else None
+    matrix = np.linalg.inv(forward)
+    # sigma of M = S^-1 by first-order propagation: dM = -M dS M; rows of S are independent fits.
+    matrix_var = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            for j in range(3):
+                grad = -matrix[a, j] * matrix[:, b]  # d M_ab / d S_jk for k = 0..2
+                matrix_var[a, b] += grad @ covariances[j, 1:4, 1:4] @ grad
+    stds = np.sqrt(np.abs(np.array([np.diag(c) for c in covariances])))
+    sigma = Sigma(bias=stds[:, 0], matrix=np.sqrt(matrix_var), quadratic=stds[:, 4] if quadratic else None)
+    calibration = Calibration(
+        bias=bias,
+        matrix=matrix,
+        model=name,
+        gravity=gravity,
+        quadratic=q,
+        bias_sigma=sigma.bias,
+        matrix_sigma=sigma.matrix,
+        quality=None,
+        frame_id=frame_id,
+        reference_temperature_degc=ref_temperature,
+    )
+    errors = calibration.apply(accel) - true
+    residuals_mg = np.linalg.norm(errors, axis=1) / MG
+    calibration = calibration.replace(quality=_quality(residuals_mg, condition))
+    return FitResult(
+        True,
+        "linear least squares",
+        name,
+        iterations=1,
+        calibration=calibration,
+        sigma=sigma,
+        residuals_mg=residuals_mg,
+        cost=0.5 * float(np.sum(residual_raw**2)),
+        condition_number=condition,
+        missing_directions=missing,
+        poses=n,
+    )

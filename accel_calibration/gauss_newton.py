@@ -1,0 +1,80 @@
+"""Gauss-Newton least squares with Levenberg-Marquardt damping only when a step fails to reduce the cost.
+
+Small dense problems (9-15 parameters, tens to hundreds of poses) solved by normal equations with
+Jacobi column scaling; this is what makes the online refit after every new pose cheap.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+ResidualFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class LeastSquaresSolution:
+    x: np.ndarray
+    cost: float  # 0.5 * sum(residuals**2)
+    residuals: np.ndarray
+    jacobian: np.ndarray
+    iterations: int
+    success: bool
+    message: str
+
+
+def gauss_newton(
+    residual_and_jacobian: ResidualFunction,
+    x0: np.ndarray,
+    *,
+    ftol: float = 1e-12,
+    xtol: float = 1e-12,
+    max_iterations: int = 50,
+) -> LeastSquaresSolution:
+    """Minimise 0.5*|r(x)|^2 from x0.
+
+    Stops when the relative cost change falls below `ftol`, or the relative step below `xtol`,
+    and reports non-convergence after `max_iterations` in the result rather than raising.
+    """
+    x = np.array(x0, dtype=float)
+    r, jac = residual_and_jacobian(x)
+    cost = 0.5 * float(r @ r)
+    damping = 0.0
+    identity = np.eye(len(x))
+    for iteration in range(1, max_iterations + 1):
+        normal = jac.T @ jac
+        gradient = jac.T @ r
+        # Jacobi scaling: parameters in very different units (bias in counts, matrix ~1e-3) stay conditioned.
+        diag = np.sqrt(normal.diagonal())
+        diag[diag == 0.0] = 1.0
+        scaled = normal / np.outer(diag, diag)
+        scaled_gradient = gradient / diag
+        while True:
+            system = scaled + damping * identity if damping else scaled
+            try:
+                step = -np.linalg.solve(system, scaled_gradient) / diag
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(system, scaled_gradient, rcond=None)[0] / diag
+            x_new = x + step
+            r_new, jac_new = residual_and_jacobian(x_new)
+            cost_new = 0.5 * float(r_new @ r_new)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                break
+            # The Gauss-Newton step overshot: damp it (Levenberg-Marquardt) and try again.
+            damping = 1e-3 if damping == 0.0 else damping * 10.0
+            if damping > 1e12:
+                return LeastSquaresSolution(
+                    x, cost, r, jac, iteration, False, "no step reduces the cost (damping exhausted)"
+                )
+        step_small = np.sqrt(step @ step) <= xtol * (xtol + np.sqrt(x @ x))
+        cost_small = (cost - cost_new) <= ftol * cost
+        x, r, jac, cost = x_new, r_new, jac_new, cost_new
+        damping = 0.0 if damping < 1e-9 else damping / 10.0
+        if cost_small:
+            return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
+        if step_small:
+            return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative step below xtol")
+    return LeastSquaresSolution(
+        x, cost, r, jac, max_iterations, False, f"did not converge in {max_iterations} iterations"
+    )

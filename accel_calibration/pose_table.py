@@ -1,0 +1,108 @@
+"""CSV tables of poses or samples: a header row, then numbers. `ax,ay,az` required; `temperature`
+and `ref_x,ref_y,ref_z` optional. Every problem is one CalibrationError naming the row and column."""
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CalibrationError
+
+ACCEL_COLUMNS = ("ax", "ay", "az")
+REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
+TEMPERATURE_COLUMN = "temperature"
+
+
+@dataclass(frozen=True)
+class Table:
+    header: list[str]
+    rows: list[list[str]]  # as read, for columns passed through unchanged
+    accel: np.ndarray  # (N, 3) in the file's units
+    temperature_degc: np.ndarray | None
+    reference: np.ndarray | None
+
+
+def read_text(path) -> str:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise CalibrationError(f"{path}: is a directory, expected a CSV file") from None
+    except OSError as error:
+        raise CalibrationError(f"{path}: cannot read ({error.strerror})") from None
+    if b"\x00" in data:
+        raise CalibrationError(f"{path}: binary content, expected a CSV text file")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise CalibrationError(f"{path}: not UTF-8 text, expected a CSV file") from None
+
+
+def _numbers(rows, header, names, path) -> np.ndarray:
+    indices = [header.index(name) for name in names]
+    values = np.empty((len(rows), len(names)))
+    for r, row in enumerate(rows):
+        for c, index in enumerate(indices):
+            cell = row[index].strip() if index < len(row) else ""
+            try:
+                number = float(cell)
+            except ValueError:
+                raise CalibrationError(
+                    f"{path}: row {r + 2}, column {names[c]}: {cell[:20]!r} is not a number"
+                ) from None
+            if not math.isfinite(number):
+                raise CalibrationError(f"{path}: row {r + 2}, column {names[c]}: {cell!r} is not finite")
+            values[r, c] = number
+    return values
+
+
+def read_table(path) -> Table:
+    text = read_text(path)
+    try:
+        records = [row for row in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in row)]
+    except csv.Error as error:
+        raise CalibrationError(f"{path}: malformed CSV ({error})") from None
+    if not records:
+        raise CalibrationError(f"{path}: empty file, expected a header row with {','.join(ACCEL_COLUMNS)}")
+    header = [cell.strip().lower() for cell in records[0]]
+    missing = [name for name in ACCEL_COLUMNS if name not in header]
+    if missing:
+        raise CalibrationError(
+            f"{path}: missing column(s) {','.join(missing)} in header {','.join(header)[:80]!r}; "
+            f"expected {','.join(ACCEL_COLUMNS)}"
+        )
+    rows = records[1:]
+    if not rows:
+        raise CalibrationError(f"{path}: header only, no data rows")
+    for r, row in enumerate(rows):
+        if len(row) != len(header):
+            raise CalibrationError(f"{path}: row {r + 2} has {len(row)} fields, header has {len(header)}")
+    accel = _numbers(rows, header, ACCEL_COLUMNS, path)
+    temperature = _numbers(rows, header, (TEMPERATURE_COLUMN,), path)[:, 0] if TEMPERATURE_COLUMN in header else None
+    reference = None
+    present = [name in header for name in REFERENCE_COLUMNS]
+    if any(present):
+        if not all(present):
+            raise CalibrationError(f"{path}: reference columns must be all of {','.join(REFERENCE_COLUMNS)}")
+        reference = _numbers(rows, header, REFERENCE_COLUMNS, path)
+    return Table(header, rows, accel, temperature, reference)
+
+
+def table_with_accel(table: Table, accel: np.ndarray) -> str:
+    """CSV text of `table` with its ax,ay,az columns replaced by `accel`; other columns unchanged."""
+    indices = [table.header.index(name) for name in ACCEL_COLUMNS]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(table.header)
+    for row, values in zip(table.rows, accel):
+        row = list(row)
+        for index, value in zip(indices, values):
+            row[index] = repr(float(value))
+        writer.writerow(row)
+    return out.getvalue()

@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import setup
+
+package_name = "accel_calibration"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=[package_name, "msg_tools"],
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools", "numpy", "scipy", "PyYAML"],
+    zip_safe=True,
+    maintainer="accel_calibration developers",
+    maintainer_email="dev@accel-calibration.invalid",
+    description="Online MEMS accelerometer calibration for ROS 2",
+    license="BSD-3-Clause",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "accel-calib = accel_calibration.cli:main",
+            "calibration_node = accel_calibration.calibration_node:main",
+        ],
+    },
+)

@@ -1,0 +1,33 @@
+"""Test-session isolation and access to ../shared reference data."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+# Each test session gets its own DDS domain and stays on this machine, so parallel sessions and
+# other ROS graphs never see each other. Set before anything initialises rclpy.
+os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def shared_path(relative: str) -> Path:
+    """Path of a file under ../shared/data. Skips where ../shared is absent (a user's own clone);
+    fails under CI, where it must be present."""
+    path = SHARED_DATA / relative
+    if not path.exists():
+        reason = f"reference data {path} not found (../shared is not beside this clone)"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return path
+
+
+@pytest.fixture
+def shared():
+    return shared_path
