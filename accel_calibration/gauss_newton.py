@@ -41,40 +41,46 @@ def gauss_newton(
     r, jac = residual_and_jacobian(x)
     cost = 0.5 * float(r @ r)
     damping = 0.0
-    identity = np.eye(len(x))
     for iteration in range(1, max_iterations + 1):
         normal = jac.T @ jac
         gradient = jac.T @ r
-        # Jacobi scaling: parameters in very different units (bias in counts, matrix ~1e-3) stay conditioned.
-        diag = np.sqrt(normal.diagonal())
-        diag[diag == 0.0] = 1.0
-        scaled = normal / np.outer(diag, diag)
-        scaled_gradient = gradient / diag
         while True:
-            system = scaled + damping * identity if damping else scaled
+            if damping:
+                # Marquardt's scaling (diag of J^T J) keeps the damped step sensible whatever the
+                # parameters' units (bias in counts, matrix ~1e-3).
+                system = normal + damping * np.diag(normal.diagonal())
+            else:
+                system = normal
             try:
-                step = -np.linalg.solve(system, scaled_gradient) / diag
+                step = np.linalg.solve(system, -gradient)
             except np.linalg.LinAlgError:
-                step = -np.linalg.lstsq(system, scaled_gradient, rcond=None)[0] / diag
+                step = np.linalg.lstsq(system, -gradient, rcond=None)[0]
+            # Converged when the step, or the cost decrease it promises (exact for Gauss-Newton near
+            # the optimum), is below tolerance: no need to evaluate a point that changes nothing.
+            predicted_decrease = -float(step @ gradient) - 0.5 * float(step @ (normal @ step))
+            if not damping and predicted_decrease <= ftol * cost:
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
+            if not damping and float(step @ step) <= (xtol * (xtol + np.sqrt(x @ x))) ** 2:
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative step below xtol")
             x_new = x + step
             r_new, jac_new = residual_and_jacobian(x_new)
             cost_new = 0.5 * float(r_new @ r_new)
-            if np.isfinite(cost_new) and cost_new <= cost:
+            if cost_new <= cost:  # False for NaN too
                 break
+            if cost_new - cost <= ftol * cost:
+                # At the optimum to within rounding: no step can do better, so stop here.
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
             # The Gauss-Newton step overshot: damp it (Levenberg-Marquardt) and try again.
             damping = 1e-3 if damping == 0.0 else damping * 10.0
             if damping > 1e12:
                 return LeastSquaresSolution(
                     x, cost, r, jac, iteration, False, "no step reduces the cost (damping exhausted)"
                 )
-        step_small = np.sqrt(step @ step) <= xtol * (xtol + np.sqrt(x @ x))
         cost_small = (cost - cost_new) <= ftol * cost
         x, r, jac, cost = x_new, r_new, jac_new, cost_new
         damping = 0.0 if damping < 1e-9 else damping / 10.0
         if cost_small:
             return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
-        if step_small:
-            return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative step below xtol")
     return LeastSquaresSolution(
         x, cost, r, jac, max_iterations, False, f"did not converge in {max_iterations} iterations"
     )

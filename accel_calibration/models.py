@@ -36,6 +36,9 @@ _ENTRY_INDEX = {
 }
 
 
+_FLAT_INDEX = {name: rows * 3 + cols for name, (rows, cols) in _ENTRY_INDEX.items()}
+
+
 def parameter_count(model: str) -> int:
     return {"six": 6, "sphere9": 9, "reference12": 12, "reference15": 15}[model]
 
@@ -74,6 +77,10 @@ class SphereModel:
     def _index(self):
         return _ENTRY_INDEX[self.name]
 
+    @property
+    def _flat_index(self):
+        return _FLAT_INDEX[self.name]
+
     def project(self, bias: np.ndarray, matrix: np.ndarray) -> np.ndarray:
         """Closest parameter vector for a warm start from any calibration: M is brought to this
         model's form by a rotation (QR), which leaves |M v| unchanged."""
@@ -91,15 +98,17 @@ class SphereModel:
         """r_i = |M (a_i - b)| - g and its Jacobian (N x size). Called every Gauss-Newton iteration:
         kept to a handful of vectorised numpy calls."""
         rows, cols = self._index
-        matrix = np.zeros((3, 3))
-        matrix[rows, cols] = p[3:]
+        matrix = np.zeros(9)
+        matrix[self._flat_index] = p[3:]
+        matrix = matrix.reshape(3, 3)
         centred = accel - p[:3]
         corrected = centred @ matrix.T
-        norm = np.sqrt(np.einsum("ij,ij->i", corrected, corrected))
-        unit = corrected / norm[:, None]
+        norm = np.sqrt((corrected * corrected).sum(axis=1))
         jac = np.empty((len(accel), self.size))
-        jac[:, :3] = -(unit @ matrix)
-        np.multiply(unit[:, rows], centred[:, cols], out=jac[:, 3:])
+        # d|Mv|/db = -(Mv)^T M / |Mv|;  d|Mv|/dM_ij = (Mv)_i v_j / |Mv| for the free entries (i, j).
+        np.matmul(corrected, -matrix, out=jac[:, :3])
+        np.multiply(corrected[:, rows], centred[:, cols], out=jac[:, 3:])
+        jac /= norm[:, None]
         return norm - gravity, jac
 
     def parameter_names(self) -> list[str]:
