@@ -55,6 +55,7 @@ class Calibration:
     frame_id: str = ""
     sensor_id: str = ""
     reference_temperature_degc: float | None = None
+    gyro_bias_radps: np.ndarray | None = None  # (3,) mean gyro output at rest, from the static poses
 
     def __post_init__(self):
         set_ = object.__setattr__
@@ -69,6 +70,8 @@ class Calibration:
             raise CalibrationError("matrix is singular: it would collapse the measurement")
         if self.quadratic is not None:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
+        if self.gyro_bias_radps is not None:
+            set_(self, "gyro_bias_radps", _frozen(self.gyro_bias_radps, (3,), "gyro_bias_radps"))
         if self.bias_sigma is not None:
             set_(self, "bias_sigma", _frozen(self.bias_sigma, (3,), "bias_sigma"))
         if self.matrix_sigma is not None:
@@ -120,6 +123,7 @@ class Calibration:
             and same(self.quadratic, other.quadratic)
             and same(self.bias_sigma, other.bias_sigma)
             and same(self.matrix_sigma, other.matrix_sigma)
+            and same(self.gyro_bias_radps, other.gyro_bias_radps)
             and (self.model, self.gravity, self.quality, self.created, self.frame_id, self.sensor_id)
             == (other.model, other.gravity, other.quality, other.created, other.frame_id, other.sensor_id)
             and self.reference_temperature_degc == other.reference_temperature_degc

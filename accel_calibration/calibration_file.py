@@ -11,6 +11,7 @@ Layout (keys other tools read are the first six; the rest is ours):
       quality: {residual_rms_mg: .., residual_max_mg: .., poses: .., condition_number: ..}
       uncertainty: {bias: [..], matrix: [[..]..]}   # 1 sigma
       quadratic: [qx, qy, qz]   # reference15 only, s^2/m
+      gyro_bias_radps: [..]     # mean gyro output at rest (rad/s), when the poses had a gyro
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
 """
 from __future__ import annotations
@@ -55,6 +56,8 @@ def calibration_to_dict(calibration: Calibration) -> dict:
         body["uncertainty"] = uncertainty
     if c.quadratic is not None:
         body["quadratic"] = c.quadratic.tolist()
+    if c.gyro_bias_radps is not None:
+        body["gyro_bias_radps"] = c.gyro_bias_radps.tolist()
     if c.reference_temperature_degc is not None:
         body["reference_temperature_degc"] = float(c.reference_temperature_degc)
     body["units"] = {"bias": "m/s^2", "matrix": "1", "gravity": "m/s^2", "quadratic": "s^2/m"}
@@ -132,6 +135,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
             reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),
+            gyro_bias_radps=body.get("gyro_bias_radps"),
         )
     except CalibrationError as error:
         raise CalibrationError(f"{source}: {error}") from None

@@ -56,5 +56,7 @@ def scaled_condition_number(jacobian: np.ndarray) -> float:
 
 def describe_missing(missing: list[str]) -> str:
     if not missing:
-        return "poses are too alike in direction"
+        # Every face is covered, yet some parameter combination is not: the cross-axis terms need
+        # poses where two axes both feel gravity.
+        return "every face is covered but too few poses lie between the axes: add poses tilted about two axes"
     return "no pose with " + ", no pose with ".join(missing)

@@ -200,8 +200,8 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
         missing_directions=missing,
         poses=n,
     )
-    if not solution.success:
-        return FitResult(False, solution.message, **common)
+    # Observability first: a fit that wanders along an unobservable direction also fails to converge,
+    # and "turn x down" helps the person more than "did not converge".
     if condition > CONDITION_LIMIT:
         return FitResult(
             False,
@@ -209,6 +209,8 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
             + describe_missing(list(missing)),
             **common,
         )
+    if not solution.success:
+        return FitResult(False, solution.message, **common)
     bias, matrix = model.unpack(solution.x)
     if np.linalg.det(matrix) <= 0:
         return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)

@@ -152,3 +152,14 @@ def test_apply_is_vectorised_and_follows_the_convention():
     expected = (raw - cal.bias) @ cal.matrix.T
     assert_allclose(cal.apply(raw), expected, rtol=1e-15)
     assert_allclose(cal.apply(raw[0]), expected[0], rtol=1e-15)
+
+
+def test_refuses_poses_that_leave_cross_axis_terms_unobservable():
+    """All six faces, but the only other poses lie along one diagonal: M_yx, M_zx, M_zy are then
+    inseparable (their Jacobian columns are proportional)."""
+    diagonal = np.ones((6, 3)) / np.sqrt(3.0)
+    diagonal[3:] *= -1
+    rng = np.random.default_rng(9)
+    result = fit(simulated_poses(rng, np.zeros(3), np.eye(3), directions=np.vstack([FACES, diagonal])))
+    assert not result.success
+    assert "between the axes" in result.message

@@ -1,0 +1,363 @@
+"""Streaming static-pose detector: O(1) per sample, windows in seconds of stream time.
+
+A sliding window (default 0.5 s of header time) keeps running sums of the acceleration (and gyro)
+so its variance costs a few float operations per sample, whatever the rate (50 Hz..2 kHz). The
+window is still when its variance is below k * the measured noise floor -- as imu_tk thresholds at
+k * sigma^2 of an initial still period, but the floor here is learned continuously as a low
+quantile of all window variances seen (a log-spaced histogram), so no initial still period is
+needed and any raw unit (counts, g, m/s^2) works. Explicit thresholds override.
+
+A still interval becomes a Pose when motion starts again (or at `max_pose_s`), if it lasted
+`min_hold_s`; `trim_s` is dropped at both ends (settling after the last motion, the onset of the
+next one before the window noticed it).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from .errors import CalibrationError
+from .pose import Pose
+
+_BINS_PER_DECADE = 10
+_LOG_MIN, _LOG_MAX = -14, 14  # variance range the histogram covers, decades
+_NBINS = (_LOG_MAX - _LOG_MIN) * _BINS_PER_DECADE
+
+
+class _VarianceFloor:
+    """Low quantile of a stream of variances, via a decaying log histogram (O(1) per value)."""
+
+    def __init__(self, quantile: float, half_life_values: int = 200_000):
+        self.quantile = quantile
+        self.counts = [0.0] * _NBINS
+        self.total = 0.0
+        self.half_life = half_life_values
+        self._since_decay = 0
+        self.value: float | None = None
+        self._since_query = 0
+
+    def add(self, variance: float) -> None:
+        if variance <= 0.0:
+            index = 0
+        else:
+            index = int((math.log10(variance) - _LOG_MIN) * _BINS_PER_DECADE)
+            index = 0 if index < 0 else (_NBINS - 1 if index >= _NBINS else index)
+        self.counts[index] += 1.0
+        self.total += 1.0
+        self._since_decay += 1
+        self._since_query += 1
+        if self._since_decay >= self.half_life:  # old conditions fade: vibration, temperature
+            self.counts = [c * 0.5 for c in self.counts]
+            self.total *= 0.5
+            self._since_decay = 0
+        if self._since_query >= 64 or self.value is None:
+            self._since_query = 0
+            self.value = self._query()
+
+    def _query(self) -> float:
+        target = self.quantile * self.total
+        running = 0.0
+        for index, count in enumerate(self.counts):
+            running += count
+            if running >= target and count > 0:
+                return 10 ** (_LOG_MIN + (index + 0.5) / _BINS_PER_DECADE)
+        return 10 ** _LOG_MAX
+
+
+class StaticDetector:
+    """Feed samples in time order with `update`; it returns a Pose when a still interval ends.
+
+    Parameters (all times in seconds of the stream's own clock):
+      window_s: sliding window for the variance test.
+      min_hold_s: shortest still interval kept as a pose.
+      accel_var_threshold: explicit threshold on the window's total acceleration variance (sum of the
+        three axes, input units squared); None = k_sigma * learned noise floor.
+      gyro_var_threshold: same for the gyro (rad/s)^2; None = learned. Used only when gyro samples come.
+      k_sigma: accel threshold as a multiple of the noise-floor variance.
+      gyro_k_sigma: gyro threshold multiple. Looser: MEMS gyro noise is far less steady than the
+        accelerometer's (a hand-held still pose varies 10-100x above the quietest windows), while
+        rotation raises it 1000x and more.
+      noise_quantile: quantile of window variances taken as the noise floor (the fraction of time the
+        sensor must be still for the floor to be right).
+      warmup_s: stream time of full windows needed before the learned floor is trusted.
+      trim_s: dropped from the end of each interval (motion onset inside the window).
+      max_pose_s: a longer still interval is cut into poses of this length (tracks temperature drift).
+    """
+
+    def __init__(
+        self,
+        *,
+        window_s: float = 0.5,
+        min_hold_s: float = 1.0,
+        accel_var_threshold: float | None = None,
+        gyro_var_threshold: float | None = None,
+        k_sigma: float = 6.0,
+        gyro_k_sigma: float = 300.0,
+        noise_quantile: float = 0.05,
+        warmup_s: float = 2.0,
+        trim_s: float | None = None,
+        max_pose_s: float = 60.0,
+    ):
+        def positive(name, value):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise CalibrationError(f"{name} must be a positive number, got {value!r}")
+            return float(value)
+
+        self.window_s = positive("window_s", window_s)
+        self.min_hold_s = positive("min_hold_s", min_hold_s)
+        self.k_sigma = positive("k_sigma", k_sigma)
+        self.gyro_k_sigma = positive("gyro_k_sigma", gyro_k_sigma)
+        self.warmup_s = positive("warmup_s", warmup_s)
+        self.max_pose_s = positive("max_pose_s", max_pose_s)
+        self.trim_s = self.window_s / 2 if trim_s is None else float(trim_s)
+        if not (0.0 <= self.trim_s < self.min_hold_s):
+            raise CalibrationError(f"trim_s must be in [0, min_hold_s), got {trim_s!r}")
+        if self.max_pose_s < self.min_hold_s:
+            raise CalibrationError("max_pose_s must be at least min_hold_s")
+        if not (isinstance(noise_quantile, float) and 0.0 < noise_quantile < 0.5):
+            raise CalibrationError(f"noise_quantile must be in (0, 0.5), got {noise_quantile!r}")
+        self.accel_var_threshold = None if accel_var_threshold is None else positive("accel_var_threshold", accel_var_threshold)
+        self.gyro_var_threshold = None if gyro_var_threshold is None else positive("gyro_var_threshold", gyro_var_threshold)
+        self._window_ns = int(self.window_s * 1e9)
+        self._full_ns = int(0.9 * self.window_s * 1e9)
+        self._gap_ns = self._window_ns  # a hole longer than a window breaks continuity
+        self._accel_floor = _VarianceFloor(noise_quantile)
+        self._gyro_floor = _VarianceFloor(noise_quantile)
+        self.rejected_samples = 0
+        self.reset()
+
+    # ---------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Forget the stream (not the learned noise floor)."""
+        self._window: deque = deque()
+        self._sums = [0.0] * 8  # ax ay az |a|^2 gx gy gz |g|^2, of values minus the shift
+        self._shift = None
+        self._refresh_countdown = 10_000
+        self._last_ns = None
+        self._full_time_ns = 0
+        self._interval = None  # running sums of the current still interval
+        self._pending: deque = deque()  # the interval's newest trim_s of samples, not yet committed
+        self.state = "waiting"
+
+    @property
+    def noise_floor_accel_var(self) -> float | None:
+        """Per-axis variance of the acceleration noise (window total / 3), when learned."""
+        value = self._accel_floor.value
+        return None if value is None or self._full_time_ns < self.warmup_s * 1e9 else value / 3.0
+
+    @property
+    def thresholds(self) -> tuple[float | None, float | None]:
+        """(accel, gyro) window-variance thresholds in force; None where not yet known."""
+        accel = self.accel_var_threshold
+        if accel is None and self._full_time_ns >= self.warmup_s * 1e9 and self._accel_floor.value is not None:
+            accel = self.k_sigma * self._accel_floor.value
+        gyro = self.gyro_var_threshold
+        if gyro is None and self._full_time_ns >= self.warmup_s * 1e9 and self._gyro_floor.value is not None:
+            gyro = self.gyro_k_sigma * self._gyro_floor.value
+        return accel, gyro
+
+    # ---------------------------------------------------------------- per sample
+    def update(self, t_ns, ax, ay, az, gx=None, gy=None, gz=None, temperature_degc=None) -> Pose | None:
+        """One sample (plain floats; called per message). Returns a Pose when a still interval ends."""
+        if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
+            self.rejected_samples += 1
+            return None
+        has_gyro = gx is not None
+        if has_gyro and not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+            self.rejected_samples += 1
+            return None
+        last = self._last_ns
+        if last is not None and t_ns <= last:
+            self.rejected_samples += 1
+            return None
+        emitted = None
+        if last is not None and t_ns - last > self._gap_ns:
+            emitted = self._end_interval()
+            self._clear_window()
+        self._last_ns = t_ns
+        if self._shift is None:
+            self._shift = (ax, ay, az, gx or 0.0, gy or 0.0, gz or 0.0)
+        sx, sy, sz, sgx, sgy, sgz = self._shift
+        dx, dy, dz = ax - sx, ay - sy, az - sz
+        if has_gyro:
+            ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
+        else:
+            ex = ey = ez = 0.0
+        sample = (t_ns, ax, ay, az, gx, gy, gz, temperature_degc, dx, dy, dz, ex, ey, ez)
+        window = self._window
+        window.append(sample)
+        s = self._sums
+        s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
+        s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
+        horizon = t_ns - self._window_ns
+        while window[0][0] <= horizon:
+            old = window.popleft()
+            dx, dy, dz, ex, ey, ez = old[8:14]
+            s[0] -= dx; s[1] -= dy; s[2] -= dz; s[3] -= dx * dx + dy * dy + dz * dz  # noqa: E702
+            s[4] -= ex; s[5] -= ey; s[6] -= ez; s[7] -= ex * ex + ey * ey + ez * ez  # noqa: E702
+        self._refresh_countdown -= 1
+        if self._refresh_countdown <= 0:
+            self._refresh_sums()
+        span = t_ns - window[0][0]
+        if span < self._full_ns or len(window) < 5:
+            self.state = "filling"
+            return emitted
+        self._full_time_ns += t_ns - last if last is not None else 0
+        n = len(window)
+        accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
+        self._accel_floor.add(accel_var)
+        gyro_var = None
+        if has_gyro:
+            gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n
+            self._gyro_floor.add(gyro_var)
+        accel_limit, gyro_limit = self.thresholds
+        if accel_limit is None:
+            self.state = "learning noise"
+            return emitted
+        still = accel_var <= accel_limit and (gyro_var is None or gyro_limit is None or gyro_var <= gyro_limit)
+        if still:
+            if self._interval is None:
+                self._start_interval()
+            else:
+                self._extend_interval(sample)
+                if t_ns - self._interval["opened_ns"] >= self.max_pose_s * 1e9:
+                    # Parked for long: cut here so slow drifts (temperature) show up as separate poses.
+                    emitted = self._end_interval() or emitted
+                    self._start_interval()
+            self.state = "still"
+        else:
+            if self._interval is not None:
+                emitted = self._end_interval() or emitted
+            self.state = "moving"
+        return emitted
+
+    def flush(self) -> Pose | None:
+        """End of stream: the ongoing still interval, if long enough."""
+        return self._end_interval(keep_pending=True)
+
+    def process(self, t_ns, accel, gyro=None, temperature_degc=None) -> list[Pose]:
+        """A whole recording (arrays); the same poses as update() sample by sample, then flush()."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        accel = np.asarray(accel, dtype=float)
+        poses = []
+        update = self.update
+        a = accel.tolist()
+        g = None if gyro is None else np.asarray(gyro, dtype=float).tolist()
+        temps = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).tolist()
+        for i, t in enumerate(t_ns.tolist()):
+            ax, ay, az = a[i]
+            if g is None:
+                pose = update(t, ax, ay, az, None, None, None, None if temps is None else temps[i])
+            else:
+                gx, gy, gz = g[i]
+                pose = update(t, ax, ay, az, gx, gy, gz, None if temps is None else temps[i])
+            if pose is not None:
+                poses.append(pose)
+        last = self.flush()
+        if last is not None:
+            poses.append(last)
+        return poses
+
+    # ---------------------------------------------------------------- internals
+    def _clear_window(self):
+        self._window.clear()
+        self._sums = [0.0] * 8
+        self._shift = None
+
+    def _refresh_sums(self):
+        """Running sums drift by rounding over millions of updates: recompute now and then."""
+        self._refresh_countdown = 10_000
+        s = [0.0] * 8
+        for sample in self._window:
+            dx, dy, dz, ex, ey, ez = sample[8:14]
+            s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
+            s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
+        self._sums = s
+
+    def _new_interval(self, reference_sample) -> dict:
+        return {
+            "n": 0, "start_ns": None, "end_ns": None,
+            "a": np.zeros(3), "aa": np.zeros((3, 3)), "g": np.zeros(3), "gn": 0,
+            "t": 0.0, "tn": 0, "tmin": math.inf, "tmax": -math.inf,
+            "ref": np.array(reference_sample[1:4]),  # shift: keeps sums of raw counts ~32768 exact
+        }
+
+    def _commit(self, interval, samples) -> None:
+        """Add samples to the interval's sums (numpy over a batch: this runs once per trim_s, not per sample)."""
+        if not samples:
+            return
+        accel = np.array([s[1:4] for s in samples]) - interval["ref"]
+        interval["a"] += accel.sum(axis=0)
+        interval["aa"] += accel.T @ accel
+        gyros = [s[4:7] for s in samples if s[4] is not None]
+        if gyros:
+            interval["g"] += np.sum(gyros, axis=0)
+            interval["gn"] += len(gyros)
+        temps = [s[7] for s in samples if s[7] is not None]
+        if temps:
+            interval["t"] += sum(temps)
+            interval["tn"] += len(temps)
+            interval["tmin"] = min(interval["tmin"], min(temps))
+            interval["tmax"] = max(interval["tmax"], max(temps))
+        if interval["start_ns"] is None:
+            interval["start_ns"] = samples[0][0]
+        interval["end_ns"] = samples[-1][0]
+        interval["n"] += len(samples)
+
+    def _start_interval(self):
+        """The whole window is still, but its oldest part may hold the tail of the last motion (the
+        variance fell below the threshold before the sensor fully settled): skip its first trim_s.
+        Its newest trim_s stays pending like every later sample, so the motion onset can be dropped."""
+        samples = list(self._window)
+        self._interval = self._new_interval(samples[0])
+        self._interval["opened_ns"] = samples[0][0]
+        first = samples[0][0] + int(self.trim_s * 1e9)
+        cut = samples[-1][0] - int(self.trim_s * 1e9)
+        self._commit(self._interval, [s for s in samples if first <= s[0] <= cut])
+        self._pending = deque(s for s in samples if s[0] > cut and s[0] >= first)
+
+    def _extend_interval(self, sample):
+        pending = self._pending
+        pending.append(sample)
+        trim_ns = int(self.trim_s * 1e9)
+        cut = sample[0] - trim_ns
+        # Commit in batches of ~trim_s (numpy over a list), once the pending span reaches 2 trim_s.
+        if pending[0][0] <= cut - trim_ns:
+            ready = []
+            while pending and pending[0][0] <= cut:
+                ready.append(pending.popleft())
+            self._commit(self._interval, ready)
+
+    def _end_interval(self, keep_pending: bool = False) -> Pose | None:
+        """Close the still interval. Pending samples (the newest trim_s) are dropped when motion ended
+        it; at the end of a stream (`keep_pending`) nothing was moving, so they count."""
+        interval = self._interval
+        self._interval = None
+        pending, self._pending = self._pending, deque()
+        if interval is None:
+            return None
+        if keep_pending:
+            self._commit(interval, list(pending))
+        elif pending:
+            cut = pending[-1][0] - int(self.trim_s * 1e9)
+            self._commit(interval, [s for s in pending if s[0] <= cut])
+        n = interval["n"]
+        if n < 2 or interval["start_ns"] is None or interval["end_ns"] - interval["start_ns"] < self.min_hold_s * 1e9:
+            return None
+        mean_shifted = interval["a"] / n
+        cov = interval["aa"] / n - np.outer(mean_shifted, mean_shifted)
+        cov *= n / (n - 1)
+        gyro = interval["g"] / interval["gn"] if interval["gn"] else None
+        temperature = interval["t"] / interval["tn"] if interval["tn"] else None
+        return Pose(
+            accel_mps2=mean_shifted + interval["ref"],
+            accel_cov=cov,
+            samples=n,
+            start_ns=int(interval["start_ns"]),
+            end_ns=int(interval["end_ns"]),
+            gyro_radps=gyro,
+            temperature_degc=temperature,
+            temperature_spread_degc=(interval["tmax"] - interval["tmin"]) if interval["tn"] else None,
+        )

@@ -1,0 +1,39 @@
+"""The core must import and fit with no ROS on the path (habit 1 of STYLE.md)."""
+import subprocess
+import sys
+
+CORE_MODULES = [
+    "accel_calibration",
+    "accel_calibration.fit",
+    "accel_calibration.models",
+    "accel_calibration.gauss_newton",
+    "accel_calibration.coverage",
+    "accel_calibration.calibration",
+    "accel_calibration.calibration_file",
+    "accel_calibration.pose_table",
+    "accel_calibration.cli",
+    "accel_calibration.static_detector",
+]
+
+PROBE = f"""
+import importlib.abc, sys
+class NoRos(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'std_srvs', 'diagnostic_msgs', 'builtin_interfaces', 'rosbags'):
+            raise ImportError('ROS import from the core: ' + name)
+sys.meta_path.insert(0, NoRos())
+import importlib
+for module in {CORE_MODULES!r}:
+    importlib.import_module(module)
+import numpy as np
+from accel_calibration import fit
+d = np.vstack([np.eye(3), -np.eye(3), [[1, 1, 0], [0, 1, 1], [1, 0, 1], [-1, 1, 0], [0, -1, 1], [1, 0, -1]]])
+d = d / np.linalg.norm(d, axis=1)[:, None]
+assert fit(9.80665 * d + 0.1).success
+print('ok')
+"""
+
+
+def test_core_imports_no_ros():
+    run = subprocess.run([sys.executable, "-c", PROBE], capture_output=True, text=True, check=False)
+    assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
