@@ -1,0 +1,132 @@
+"""Online calibration: poses in, a warm-started refit after each new pose, progress and advice out.
+
+The live node and bag replay both drive this one class with the same Pose records, so a session
+gives the same calibration whichever way it arrives. No ROS here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .calibration import MG, STANDARD_GRAVITY, Calibration
+from .coverage import missing_directions
+from .errors import CalibrationError
+from .fit import FitResult, fit
+from .models import MODELS, parameter_count
+from .pose import Pose
+from .pose_store import PoseStore, StoreEvent
+
+
+@dataclass(frozen=True)
+class QualityGates:
+    """What a fit must meet before it is applied (by /calibrate or automatically)."""
+
+    min_poses: int = 12
+    max_residual_rms_mg: float = 15.0  # a MEMS part's pose means fit the sphere to a few mg
+    require_all_faces: bool = True  # every axis seen pointing up and down (within ~45 deg)
+
+    def check(self, result: FitResult) -> str | None:
+        """None when the result passes, else the first gate it fails, said plainly."""
+        if result.poses < self.min_poses:
+            return f"have {result.poses} poses, need min_poses={self.min_poses}"
+        if not result.success:
+            return result.message
+        rms = result.calibration.quality.residual_rms_mg
+        if rms > self.max_residual_rms_mg:
+            return f"residual rms {rms:.1f} mg above the {self.max_residual_rms_mg:g} mg gate (motion in the poses?)"
+        if self.require_all_faces and result.missing_directions:
+            return "coverage: no pose with " + ", no pose with ".join(result.missing_directions)
+        return None
+
+
+@dataclass(frozen=True)
+class Progress:
+    poses: int
+    min_poses: int
+    missing: tuple[str, ...]
+    residual_rms_mg: float | None
+    max_bias_sigma_mg: float | None
+    ready: bool
+    advice: str
+
+
+def advice_for(missing) -> str:
+    """'turn x down' style advice for the first face not yet covered."""
+    axis, _, way = missing[0].partition(" pointing ")
+    return f"turn {axis} {way}"
+
+
+class OnlineCalibrator:
+    def __init__(
+        self,
+        *,
+        model: str = "sphere9",
+        gravity: float = STANDARD_GRAVITY,
+        gates: QualityGates | None = None,
+        store: PoseStore | None = None,
+    ):
+        if model not in MODELS or model.startswith("reference"):
+            raise CalibrationError(f"online model must be six or sphere9 (orientations are unknown), got {model!r}")
+        self.model = model
+        self.gravity = float(gravity)
+        self.gates = gates or QualityGates()
+        self.store = store or PoseStore()
+        self.last_fit: FitResult | None = None
+
+    def add_pose(self, pose: Pose) -> StoreEvent:
+        return self.store.add(pose)
+
+    def refit(self) -> FitResult | None:
+        """Fit the poses held, warm-started from the last good fit. None while there are too few poses."""
+        poses = self.store.poses
+        if len(poses) < parameter_count(self.model):
+            return None
+        initial = self.last_fit.calibration if self.last_fit is not None and self.last_fit.success else None
+        result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.gravity, initial=initial)
+        if initial is not None and not result.success:
+            # A warm start from a calibration that no longer fits (the poses changed) must not decide.
+            result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.gravity)
+        self.last_fit = result
+        return result
+
+    def calibrate(self) -> tuple[FitResult | None, str | None]:
+        """Fit now and judge it: (result, None) when it passes the gates, else (result, reason)."""
+        result = self.refit()
+        if result is None:
+            return None, f"have {len(self.store)} poses, need at least {max(parameter_count(self.model), self.gates.min_poses)}"
+        return result, self.gates.check(result)
+
+    def gyro_bias_radps(self) -> np.ndarray | None:
+        """Mean angular rate over the static poses (earth rate, 7e-5 rad/s, is below MEMS noise)."""
+        gyros = [(p.gyro_radps, p.samples) for p in self.store.poses if p.gyro_radps is not None]
+        if not gyros:
+            return None
+        weights = np.array([n for _, n in gyros], dtype=float)
+        return np.average(np.array([g for g, _ in gyros]), axis=0, weights=weights)
+
+    def directions(self, calibration: Calibration | None = None) -> np.ndarray:
+        accel = np.array([p.accel_mps2 for p in self.store.poses]).reshape(-1, 3)
+        if calibration is not None:
+            accel = calibration.apply(accel)
+        norms = np.linalg.norm(accel, axis=1)
+        return accel / norms[:, None] if len(accel) else accel
+
+    def progress(self, calibration: Calibration | None = None) -> Progress:
+        n = len(self.store)
+        missing = tuple(missing_directions(self.directions(calibration))) if n else (
+            "x pointing up", "x pointing down", "y pointing up", "y pointing down", "z pointing up", "z pointing down")
+        fit_ = self.last_fit if self.last_fit is not None and self.last_fit.success else None
+        rms = fit_.calibration.quality.residual_rms_mg if fit_ else None
+        sigma = float(np.max(fit_.sigma.bias) / MG) if fit_ and np.all(np.isfinite(fit_.sigma.bias)) else None
+        need = max(self.gates.min_poses, parameter_count(self.model))
+        ready = fit_ is not None and self.gates.check(fit_) is None and n >= need
+        if missing:
+            advice = advice_for(missing)
+        elif n < need:
+            advice = f"hold still in a new orientation ({n} of {need} poses)"
+        elif not ready:
+            advice = "hold still in more orientations (fit not yet within the gates)"
+        else:
+            advice = "ready: call /calibrate"
+        return Progress(n, need, missing, rms, sigma, ready, advice)

@@ -1,0 +1,91 @@
+"""Processes for bench_node_stream.py: a paced Imu publisher, a bare relay, and a counting subscriber.
+
+publish RATE SECONDS        stamps each Imu with the wall clock at publish (latency = receive - stamp)
+relay                       imu/data_raw -> imu/data_calibrated unchanged (SingleThreadedExecutor)
+subscribe SECONDS OUT.json  counts imu/data_calibrated, writes delivered count and latencies
+"""
+import json
+import sys
+import time
+
+import rclpy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu
+
+QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+
+
+def wait_for_subscribers(node, publisher, count=1, timeout=30.0):
+    deadline = time.monotonic() + timeout
+    while publisher.get_subscription_count() < count and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
+def publish(rate_hz: float, seconds: float) -> None:
+    rclpy.init()
+    node = rclpy.create_node("bench_publisher")
+    pub = node.create_publisher(Imu, "imu/data_raw", QOS)
+    wait_for_subscribers(node, pub)
+    time.sleep(0.5)  # the relay's own publisher to the subscriber matches too; both sides have discovered
+    msg = Imu()
+    msg.header.frame_id = "imu_link"
+    msg.orientation_covariance[0] = -1.0
+    msg.linear_acceleration.z = 9.81
+    period = 1.0 / rate_hz
+    total = int(rate_hz * seconds)
+    start = time.perf_counter()
+    for i in range(total):
+        target = start + i * period
+        while True:
+            now = time.perf_counter()
+            if now >= target:
+                break
+            if target - now > 0.0005:
+                time.sleep(target - now - 0.0003)
+        t = time.time_ns()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
+        msg.linear_acceleration.x = 0.001 * (i % 7)
+        pub.publish(msg)
+    print(json.dumps({"published": total}))
+    time.sleep(0.5)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def relay() -> None:
+    rclpy.init()
+    node = rclpy.create_node("bench_relay")
+    pub = node.create_publisher(Imu, "imu/data_calibrated", QOS)
+    node.create_subscription(Imu, "imu/data_raw", pub.publish, QOS)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+
+
+def subscribe(seconds: float, out: str) -> None:
+    rclpy.init()
+    node = rclpy.create_node("bench_subscriber")
+    latencies = []
+
+    def on_imu(msg):
+        latencies.append(time.time_ns() - (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec))
+
+    node.create_subscription(Imu, "imu/data_calibrated", on_imu, QOS)
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    with open(out, "w") as f:
+        json.dump({"delivered": len(latencies), "latency_ns": latencies}, f)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    command = sys.argv[1]
+    if command == "publish":
+        publish(float(sys.argv[2]), float(sys.argv[3]))
+    elif command == "relay":
+        relay()
+    elif command == "subscribe":
+        subscribe(float(sys.argv[2]), sys.argv[3])

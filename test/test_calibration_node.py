@@ -1,0 +1,146 @@
+"""calibration_node over real rclpy / Fast DDS: the node in its own process (console script), the
+synthetic IMU played from this process faster than real time (header stamps carry the session's
+own time, which is all the node's windows follow)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rclpy
+import yaml
+from scipy.spatial.transform import Rotation
+
+from accel_calibration import MG, Calibration
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from msg_tools.synthetic_publisher import play
+
+from node_harness import NodeProcess, NodeTester
+
+START_NS = 1_700_000_000 * 10**9  # header time of the played sessions
+SPEED = 10.0
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+@pytest.fixture
+def tester(ros):
+    t = NodeTester()
+    yield t
+    t.destroy()
+
+
+def sensor(seed=1, noise=0.02):
+    rng = np.random.default_rng(seed)
+    return SensorErrors.mpu6050_like(rng, noise_mps2=noise), rng
+
+
+def session(errors, rng, poses=16, dwell_s=2.5, rate_hz=200.0, seed=2):
+    return SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=dwell_s, move_s=1.0, rate_hz=rate_hz, seed=seed)
+
+
+def by_stamp(messages):
+    return {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for m in messages}
+
+
+def accel_of(msg):
+    a = msg.linear_acceleration
+    return np.array([a.x, a.y, a.z])
+
+
+def test_live_calibration_end_to_end(tmp_path, tester):
+    cal_file = tmp_path / "cal.yaml"
+    node = NodeProcess(cal_file)
+    try:
+        tester.wait_ready()
+        errors, rng = sensor()
+        imu = session(errors, rng)
+        samples = imu.samples()
+        sent = play(tester.imu_pub, tester.temperature_pub, samples, start_ns=START_NS, speed=SPEED)
+        assert tester.settle(int(0.99 * sent))
+
+        # Before any calibration the stream passes through unchanged, at the input rate, stamps kept.
+        received = by_stamp(tester.corrected)
+        assert len(received) >= 0.99 * sent
+        for i in range(0, sent, 97):
+            msg = received.get(START_NS + int(samples.t_ns[i]))
+            if msg is not None:
+                np.testing.assert_array_equal(accel_of(msg), samples.accel_raw[i])
+                assert msg.header.frame_id == "imu_link"
+
+        # Poses were found by themselves and the fit is ready.
+        assert tester.spin_until(lambda: tester.diagnostics and int(tester.diagnostics[-1]["poses"]) >= 12, 10)
+        assert tester.spin_until(lambda: tester.diagnostics[-1]["advice"] == "ready: call /calibrate", 10), tester.diagnostics[-1]
+        assert "accepted" in node.log()
+
+        answer = tester.call("calibrate")
+        assert answer.success, answer.message
+        summary = yaml.safe_load(answer.message)
+        assert summary["poses"] >= 12 and summary["residual_rms_mg"] < 1.0
+
+        # Applied and saved: the file, calibration/get and the truth agree.
+        saved = Calibration.load(cal_file)
+        got = tester.call("calibration/get")
+        assert got.success and yaml.safe_load(got.message)["accel_calibration"]["bias"] == saved.bias.tolist()
+        np.testing.assert_allclose(saved.bias, errors.bias_mps2, atol=0.003)
+        np.testing.assert_allclose(saved.matrix, errors.matrix, atol=5e-4)
+        assert saved.gyro_bias_radps is not None
+
+        # Fresh orientations: the corrected output, averaged over 1 s of each dwell, within 1 mg of truth.
+        fresh_rng = np.random.default_rng(99)
+        fresh = SyntheticImu(errors, [Rotation.random(random_state=fresh_rng) for _ in range(4)],
+                             dwell_s=1.6, move_s=0.8, rate_hz=200.0, seed=3)
+        fresh_samples = fresh.samples()
+        fresh_start = START_NS + int(200e9)
+        tester.corrected.clear()
+        sent = play(tester.imu_pub, tester.temperature_pub, fresh_samples, start_ns=fresh_start, speed=SPEED)
+        assert tester.settle(int(0.99 * sent))
+        received = by_stamp(tester.corrected)
+        for start, end, truth in fresh.static_intervals():
+            window = [received[fresh_start + int(t)] for t in fresh_samples.t_ns
+                      if end - 1.0e9 <= t < end and fresh_start + int(t) in received]
+            assert len(window) >= 190
+            mean = np.mean([accel_of(m) for m in window], axis=0)
+            error_mg = np.linalg.norm(mean - truth) / MG
+            assert error_mg < 1.0, error_mg
+            gyro = np.mean([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in window], axis=0)
+            assert np.linalg.norm(gyro) < 0.002  # gyro bias (~0.02 rad/s) removed
+        # REP-145 covariance: measured noise (0.02 m/s^2 per axis) through M, plus calibration sigma.
+        cov = np.array(window[-1].linear_acceleration_covariance).reshape(3, 3)
+        assert np.all(np.diag(cov) > 0.5 * 0.02**2) and np.all(np.diag(cov) < 2.0 * 0.02**2)
+
+        # Correction off: raw passes through; on again: corrected.
+        off = tester.call("calibration/enable", False)
+        assert off.success
+        tester.corrected.clear()
+        play(tester.imu_pub, None, fresh_samples, start_ns=fresh_start + int(100e9), speed=SPEED, indices=range(50))
+        assert tester.settle(48)
+        for msg in tester.corrected:
+            i = int(np.searchsorted(fresh_samples.t_ns, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec - fresh_start - int(100e9)))
+            np.testing.assert_array_equal(accel_of(msg), fresh_samples.accel_raw[i])
+        assert tester.call("calibration/enable", True).success
+
+        reset = tester.call("calibration/reset")
+        assert reset.success and "dropped" in reset.message
+        assert tester.call("calibration/get").success  # the calibration in force stays
+    finally:
+        assert node.stop() == 0, node.log()
+
+    # A restart loads the saved calibration and corrects from the first message.
+    node = NodeProcess(cal_file)
+    try:
+        tester.wait_ready()
+        tester.corrected.clear()
+        later = START_NS + int(500e9)
+        play(tester.imu_pub, None, samples, start_ns=later, speed=SPEED, indices=range(20))
+        assert tester.settle(20)
+        expected = saved.apply(samples.accel_raw[:20])
+        for msg in tester.corrected:
+            i = int(np.searchsorted(samples.t_ns, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec - later))
+            np.testing.assert_allclose(accel_of(msg), expected[i], rtol=0, atol=1e-9)
+        assert "loaded calibration" in node.log()
+    finally:
+        assert node.stop() == 0, node.log()
