@@ -1,34 +1,100 @@
-"""`make demo`: calibrate a badly calibrated MPU-6050-class accelerometer and show before/after errors."""
+"""`make demo`: the main job on an embedded default.
+
+calibration_node runs in its own process; this process plays a badly calibrated MPU-6050-class
+sensor turned through 16 poses (4x faster than real time; header stamps carry the session's time),
+shows the node's progress as poses are found, calls /calibrate, then turns the sensor to fresh
+orientations and prints the errors before and after, in mg.
+"""
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import MG, STANDARD_GRAVITY, fit
+from . import MG
+
+SPEED = 4.0
 
 
 def main() -> int:
+    # Our own DDS domain on this machine only, so the demo never talks to a live vehicle's graph.
+    os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    import rclpy
+
+    from msg_tools.calibration_client import CalibrationClient
+    from msg_tools.node_process import NodeProcess
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+    from msg_tools.synthetic_publisher import play
+
     rng = np.random.default_rng(2026)
-    bias = np.array([0.35, -0.42, 0.51])  # m/s^2: 36..52 mg
-    matrix = np.array([[1.021, 0.0, 0.0], [0.012, 0.984, 0.0], [-0.009, 0.015, 1.017]])
-    directions = Rotation.random(24, random_state=rng).apply([0.0, 0.0, 1.0])
-    directions[:6] = np.vstack([np.eye(3), -np.eye(3)])
-    # Pose means over ~2 s at 200 Hz of 4 mg noise: ~0.2 mg per axis.
-    raw = (STANDARD_GRAVITY * directions) @ np.linalg.inv(matrix).T + bias + rng.normal(0, 0.2 * MG, (24, 3))
-    print(f"simulated sensor: {len(raw)} static poses, bias {np.round(bias, 3)} m/s^2")
-    result = fit(raw)
-    print(result.summary())
-    if not result.success:
-        return 1
-    fresh = Rotation.random(500, random_state=rng).apply([0.0, 0.0, STANDARD_GRAVITY])
-    raw_fresh = fresh @ np.linalg.inv(matrix).T + bias
-    before = np.linalg.norm(raw_fresh - fresh, axis=1) / MG
-    after = np.linalg.norm(result.calibration.apply(raw_fresh) - fresh, axis=1) / MG
-    print(f"error at 500 fresh orientations: before {before.mean():.1f} mg mean / {before.max():.1f} mg max, "
-          f"after {after.mean():.3f} mg mean / {after.max():.3f} mg max")
-    return 0
+    errors = SensorErrors.mpu6050_like(rng)
+    imu = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=3.0, move_s=1.5, rate_hz=200.0, seed=1)
+    print(f"sensor: MPU-6050-class, bias {np.round(errors.bias_mps2, 3)} m/s^2, scale {np.round(np.diag(errors.matrix), 3)}, "
+          f"noise {errors.noise_mps2 / MG:.0f} mg")
+    with tempfile.TemporaryDirectory() as tmp:
+        cal_file = Path(tmp) / "accel_calibration.yaml"
+        node = NodeProcess(cal_file)
+        rclpy.init()
+        client = CalibrationClient("demo")
+        try:
+            client.wait_ready()
+            print(f"node up; playing {len(imu.rotations)} poses ({imu.duration_s:.0f} s of session at {SPEED:g}x)...")
+            shown = [0]
+
+            def show_progress():
+                if client.diagnostics and len(client.diagnostics) > shown[0]:
+                    shown[0] = len(client.diagnostics)
+                    d = client.diagnostics[-1]
+                    print(f"  poses {d['poses']}/{d['poses_needed']}  fit {d['fit_residual_rms_mg'] or '-'} mg rms  -> {d['advice']}")
+
+            samples = imu.samples()
+            start_ns = time.time_ns()
+            chunk = int(imu.rate_hz * 2)
+            for first in range(0, len(samples.t_ns), chunk):
+                play(client.imu_pub, client.temperature_pub, samples, start_ns=start_ns, speed=SPEED,
+                     indices=range(first, min(first + chunk, len(samples.t_ns))))
+                show_progress()
+            client.spin_until(lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /calibrate", 5)
+            show_progress()
+
+            answer = client.call("calibrate")
+            print("/calibrate ->", "success" if answer.success else "failed")
+            print("  " + answer.message.replace("\n", "\n  "))
+            if not answer.success:
+                return 1
+
+            fresh = SyntheticImu(errors, [Rotation.random(random_state=rng) for _ in range(5)],
+                                 dwell_s=1.5, move_s=0.8, rate_hz=200.0, seed=7)
+            fresh_samples = fresh.samples()
+            fresh_start = start_ns + int((imu.duration_s + 10) * 1e9)
+            client.corrected.clear()
+            sent = play(client.imu_pub, None, fresh_samples, start_ns=fresh_start, speed=SPEED)
+            client.settle(int(0.99 * sent))
+            received = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for m in client.corrected}
+            before, after = [], []
+            for start, end, truth in fresh.static_intervals():
+                index = [i for i, t in enumerate(fresh_samples.t_ns) if end - 1e9 <= t < end]
+                raw = fresh_samples.accel_raw[index].mean(axis=0)
+                corrected = np.mean([[received[k].linear_acceleration.x, received[k].linear_acceleration.y,
+                                      received[k].linear_acceleration.z]
+                                     for k in (fresh_start + int(fresh_samples.t_ns[i]) for i in index) if k in received], axis=0)
+                before.append(np.linalg.norm(raw - truth) / MG)
+                after.append(np.linalg.norm(corrected - truth) / MG)
+            print(f"error at {len(before)} fresh orientations (1 s averages): before {np.mean(before):.1f} mg mean / "
+                  f"{np.max(before):.1f} mg max; after {np.mean(after):.2f} mg mean / {np.max(after):.2f} mg max")
+            return 0
+        finally:
+            client.destroy()
+            rclpy.shutdown()
+            node.stop()
+            print("node log (last lines):")
+            print("  " + "\n  ".join(node.log().strip().splitlines()[-4:]))
 
 
 if __name__ == "__main__":

@@ -126,6 +126,7 @@ class StaticDetector:
         self._accel_floor = _VarianceFloor(noise_quantile)
         self._gyro_floor = _VarianceFloor(noise_quantile)
         self.rejected_samples = 0
+        self._full_time_ns = 0  # stream time with a full window: the noise floor's evidence
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -136,9 +137,9 @@ class StaticDetector:
         self._shift = None
         self._refresh_countdown = 10_000
         self._last_ns = None
-        self._full_time_ns = 0
         self._interval = None  # running sums of the current still interval
         self._pending: deque = deque()  # the interval's newest trim_s of samples, not yet committed
+        self._warmup_max = (0.0, 0.0) if self.thresholds[0] is None else None
         self.state = "waiting"
 
     @property
@@ -214,8 +215,22 @@ class StaticDetector:
             self._gyro_floor.add(gyro_var)
         accel_limit, gyro_limit = self.thresholds
         if accel_limit is None:
+            # Learning the noise floor. The stream usually starts still (a vehicle on the ground): keep a
+            # provisional interval and the loudest windows seen, and adopt it once the threshold is known.
             self.state = "learning noise"
+            self._warmup_max = (max(self._warmup_max[0], accel_var), max(self._warmup_max[1], gyro_var or 0.0))
+            if self._interval is None:
+                self._start_interval()
+            else:
+                self._extend_interval(sample)
             return emitted
+        if self._warmup_max is not None:
+            loudest_accel, loudest_gyro = self._warmup_max
+            self._warmup_max = None
+            if self._interval is not None and not (
+                loudest_accel <= accel_limit and (gyro_limit is None or loudest_gyro <= gyro_limit)
+            ):
+                self._interval, self._pending = None, deque()  # it moved during warm-up: no pose from it
         still = accel_var <= accel_limit and (gyro_var is None or gyro_limit is None or gyro_var <= gyro_limit)
         if still:
             if self._interval is None:

@@ -13,7 +13,8 @@ from accel_calibration import MG, Calibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 from msg_tools.synthetic_publisher import play
 
-from node_harness import NodeProcess, NodeTester
+from msg_tools.calibration_client import CalibrationClient
+from msg_tools.node_process import NodeProcess
 
 START_NS = 1_700_000_000 * 10**9  # header time of the played sessions
 SPEED = 10.0
@@ -28,7 +29,7 @@ def ros():
 
 @pytest.fixture
 def tester(ros):
-    t = NodeTester()
+    t = CalibrationClient()
     yield t
     t.destroy()
 

@@ -1,63 +1,30 @@
-"""Real-process harness for calibration_node tests: the node in its own process, a tester node in this
-one (publisher of the synthetic session, subscriber of the corrected stream and diagnostics, service
-clients), all over real rclpy / Fast DDS. Waits on what it needs, never a fixed sleep."""
+"""A client of calibration_node over real rclpy: publishes imu/data_raw + imu/temperature, collects
+imu/data_calibrated and /diagnostics, calls the services. Spins in a background thread so it can
+collect while the caller publishes. Used by the tests and `make demo`; waits on what it needs."""
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import SetBool, Trigger
 
-STREAM_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+STREAM_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+COLLECT_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 
 
-class NodeProcess:
-    """calibration_node as a user runs it (console script), with --ros-args parameters."""
-
-    def __init__(self, calibration_file: Path, *params: str, log_path: Path | None = None):
-        args = [str(Path(sys.executable).parent / "calibration_node"), "--ros-args",
-                "-p", f"calibration_file:={calibration_file}"]
-        for p in params:
-            args += ["-p", p]
-        self.log_path = log_path or calibration_file.with_suffix(".node.log")
-        self._log = open(self.log_path, "w")
-        self.process = subprocess.Popen(args, stdout=self._log, stderr=subprocess.STDOUT, env=dict(os.environ))
-
-    def log(self) -> str:
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text()
-
-    def stop(self, timeout: float = 15.0) -> int:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-        self._log.close()
-        return self.process.returncode
-
-
-class NodeTester:
-    def __init__(self, name: str = "tester"):
+class CalibrationClient:
+    def __init__(self, name: str = "calibration_client"):
         self.node = rclpy.create_node(name)
-        self.imu_pub = self.node.create_publisher(Imu, "imu/data_raw", QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST))
-        self.temperature_pub = self.node.create_publisher(Temperature, "imu/temperature", QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST))
+        self.imu_pub = self.node.create_publisher(Imu, "imu/data_raw", STREAM_QOS)
+        self.temperature_pub = self.node.create_publisher(Temperature, "imu/temperature", STREAM_QOS)
         self.corrected: list[Imu] = []
         self.diagnostics: list = []
-        self.node.create_subscription(Imu, "imu/data_calibrated", self.corrected.append, STREAM_QOS)
+        self.node.create_subscription(Imu, "imu/data_calibrated", self.corrected.append, COLLECT_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.clients = {
             name: self.node.create_client(Trigger, name)
@@ -90,13 +57,28 @@ class NodeTester:
         return predicate()
 
     def wait_ready(self, timeout: float = 20.0):
-        """Services up and both stream directions matched."""
+        """The node answers services and echoes the stream. Matching alone is not proof: DDS remembers a
+        node that just exited until its lease ends, so a restarted node is only up once a live answer
+        and a probe message have come back. Probes carry stamps near 0, before any real session."""
         for name, client in self.clients.items():
             assert client.wait_for_service(timeout_sec=timeout), f"service {name} not available"
-        assert self.spin_until(lambda: self.imu_pub.get_subscription_count() > 0
-                               and self.node.count_publishers("imu/data_calibrated") > 0, timeout)
-        # Our subscription must be matched by the node's publisher too before data flows back.
-        assert self.spin_until(lambda: self.node.get_subscriptions_info_by_topic("imu/data_calibrated") != [], timeout)
+        future = self.clients["calibration/get"].call_async(Trigger.Request())
+        assert self.spin_until(future.done, timeout), "calibration/get did not answer"
+        deadline = time.monotonic() + timeout
+        probe = 0
+        while time.monotonic() < deadline:
+            probe += 1
+            msg = Imu()
+            msg.header.stamp.nanosec = probe
+            msg.header.frame_id = "probe"
+            msg.linear_acceleration.z = 9.8
+            self.imu_pub.publish(msg)
+            if self.spin_until(lambda: any(m.header.frame_id == "probe" for m in self.corrected), 0.1):
+                break
+        else:
+            raise AssertionError("no echo on imu/data_calibrated")
+        self.spin_until(lambda: False, 0.2)  # late probe echoes
+        self.corrected.clear()
 
     def call(self, name: str, data: bool | None = None, timeout: float = 20.0):
         client = self.clients[name]
