@@ -209,3 +209,59 @@ def test_bad_startup_parameters_exit_with_one_line(tmp_path):
     log = node.log()
     assert "model must be six or sphere9" in log and "Traceback" not in log
     node.stop()
+
+
+def good_session(seed=11, poses=16):
+    errors = SensorErrors.mpu6050_like(np.random.default_rng(seed), noise_mps2=0.02)
+    rng = np.random.default_rng(seed + 1)
+    return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0, seed=seed)
+
+
+def test_auto_calibrate_applies_and_saves_by_itself(tmp_path, tester):
+    cal_file = tmp_path / "cal.yaml"
+    node = NodeProcess(cal_file, "auto_calibrate:=true")
+    try:
+        tester.wait_ready()
+        errors, imu = good_session()
+        play(tester.imu_pub, tester.temperature_pub, imu.samples(), start_ns=START_NS, speed=10)
+        assert tester.spin_until(cal_file.exists, 10), node.log()
+        cal = Calibration.load(cal_file)
+        np.testing.assert_allclose(cal.bias, errors.bias_mps2, atol=0.005)
+        assert cal.quality.poses >= 12
+        assert "auto-calibrated" in node.log()
+        # calibration/save rewrites the calibration in force whole.
+        cal_file.unlink()
+        saved = tester.call("calibration/save")
+        assert saved.success and Calibration.load(cal_file).bias.tolist() == tester_bias(tester)
+    finally:
+        assert node.stop() == 0, node.log()
+
+
+def tester_bias(tester):
+    import yaml
+
+    return yaml.safe_load(tester.call("calibration/get").message)["accel_calibration"]["bias"]
+
+
+def test_use_sim_time_with_a_clock_as_bag_play_gives(tmp_path, tester):
+    """`ros2 bag play --clock` into a running node: /clock drives the node's clock (diagnostics stamps);
+    the poses follow header stamps, so the session calibrates as it would live."""
+    from rosgraph_msgs.msg import Clock
+
+    cal_file = tmp_path / "cal.yaml"
+    node = NodeProcess(cal_file, "use_sim_time:=true")
+    clock_pub = tester.node.create_publisher(Clock, "/clock", 10)
+    try:
+        tester.wait_ready()
+        errors, imu = good_session(seed=21)
+        samples = imu.samples()
+        for first in range(0, len(samples.t_ns), 200):
+            clock_pub.publish(Clock(clock=make_imu(START_NS + int(samples.t_ns[first]), (0, 0, 0), (0, 0, 0)).header.stamp))
+            play(tester.imu_pub, tester.temperature_pub, samples, start_ns=START_NS, speed=10,
+                 indices=range(first, min(first + 200, len(samples.t_ns))))
+        answer = tester.call("calibrate")
+        assert answer.success, answer.message
+        np.testing.assert_allclose(Calibration.load(cal_file).bias, errors.bias_mps2, atol=0.005)
+        assert tester.spin_until(lambda: len(tester.diagnostics) > 0, 10)
+    finally:
+        assert node.stop() == 0, node.log()
