@@ -232,12 +232,12 @@ def test_auto_calibrate_applies_and_saves_by_itself(tmp_path, tester):
         # calibration/save rewrites the calibration in force whole.
         cal_file.unlink()
         saved = tester.call("calibration/save")
-        assert saved.success and Calibration.load(cal_file).bias.tolist() == tester_bias(tester)
+        assert saved.success and Calibration.load(cal_file).bias.tolist() == bias_in_force(tester)
     finally:
         assert node.stop() == 0, node.log()
 
 
-def tester_bias(tester):
+def bias_in_force(tester):
     import yaml
 
     return yaml.safe_load(tester.call("calibration/get").message)["accel_calibration"]["bias"]
