@@ -8,6 +8,7 @@ import numpy as np
 
 from .errors import CalibrationError
 from .models import MODELS, apply_forward_inverse
+from .temperature_models import TemperatureModel
 
 STANDARD_GRAVITY = 9.80665
 MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
@@ -56,6 +57,7 @@ class Calibration:
     sensor_id: str = ""
     reference_temperature_degc: float | None = None
     gyro_bias_radps: np.ndarray | None = None  # (3,) mean gyro output at rest, from the static poses
+    temperature: TemperatureModel | None = None  # bias/scale drift with temperature
 
     def __post_init__(self):
         set_ = object.__setattr__
@@ -70,6 +72,10 @@ class Calibration:
             raise CalibrationError("matrix is singular: it would collapse the measurement")
         if self.quadratic is not None:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
+        if self.temperature is not None and not isinstance(self.temperature, TemperatureModel):
+            raise CalibrationError("temperature must be a TemperatureModel or None")
+        if self.temperature is not None and self.quadratic is not None:
+            raise CalibrationError("a temperature model cannot be combined with the quadratic (reference15) term")
         if self.gyro_bias_radps is not None:
             set_(self, "gyro_bias_radps", _frozen(self.gyro_bias_radps, (3,), "gyro_bias_radps"))
         if self.bias_sigma is not None:
@@ -83,12 +89,40 @@ class Calibration:
         return cls(bias=np.zeros(3), matrix=np.eye(3), **kwargs)
 
     def apply(self, raw, temperature=None) -> np.ndarray:
-        """Correct raw accelerations, (3,) or (N, 3), vectorised. `temperature` (degC, scalar or (N,))
-        is accepted for calibrations with a temperature model; it is unused by this one."""
+        """Correct raw accelerations, (3,) or (N, 3), vectorised.
+
+        `temperature` (degC, scalar or (N,)) is used when the calibration has a temperature model;
+        without it such a calibration corrects as at its reference temperature. Temperatures outside
+        the calibrated range are clamped to its edge (see `temperature_clamped`)."""
         array = np.asarray(raw, dtype=float)
         if array.shape[-1:] != (3,) or array.ndim > 2:
             raise CalibrationError(f"raw accelerations must have shape (3,) or (N, 3), got {array.shape}")
-        return apply_forward_inverse(array, self.bias, self.matrix, self.quadratic)
+        if self.temperature is None or temperature is None:
+            return apply_forward_inverse(array, self.bias, self.matrix, self.quadratic)
+        rows = np.atleast_2d(array)
+        temps = np.broadcast_to(np.asarray(temperature, dtype=float), (len(rows),))
+        if not np.all(np.isfinite(temps)):
+            raise CalibrationError("temperature must be finite")
+        drift, scale = self.temperature.bias_and_scale(temps)
+        corrected = ((rows - self.bias - drift) / scale) @ self.matrix.T
+        return corrected.reshape(array.shape)
+
+    def temperature_clamped(self, temperature) -> np.ndarray:
+        """Which temperatures lie outside the calibrated range (and are clamped by `apply`)."""
+        if self.temperature is None or temperature is None:
+            return np.zeros(np.shape(temperature), dtype=bool)
+        return self.temperature.clamp(temperature)[1]
+
+    def terms_at(self, temperature_degc: float | None) -> tuple[float, ...]:
+        """M_eff row-major and b_eff as 12 plain floats with a_true = M_eff (a_raw - b_eff) at this
+        temperature: what per-message code applies, recomputed only when the temperature moves."""
+        if self.temperature is None or temperature_degc is None:
+            m, b = self.correction_terms()
+            return m + b
+        drift, scale = self.temperature.bias_and_scale(np.array([float(temperature_degc)]))
+        matrix = self.matrix / scale[0]  # M diag(1/scale)
+        bias = self.bias + drift[0]
+        return tuple(float(v) for v in matrix.ravel()) + tuple(float(v) for v in bias)
 
     def correction_terms(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """M row-major and b as plain floats, for per-message code where numpy costs more than it saves."""
@@ -127,6 +161,21 @@ class Calibration:
             and (self.model, self.gravity, self.quality, self.created, self.frame_id, self.sensor_id)
             == (other.model, other.gravity, other.quality, other.created, other.frame_id, other.sensor_id)
             and self.reference_temperature_degc == other.reference_temperature_degc
+            and _same_temperature(self.temperature, other.temperature)
         )
 
     __hash__ = None
+
+
+def _same_temperature(a, b) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return (
+        a.kind == b.kind
+        and a.reference_degc == b.reference_degc
+        and a.range_degc == b.range_degc
+        and all(
+            np.array_equal(getattr(a, name), getattr(b, name))
+            for name in ("bias_coefficients", "scale_coefficients", "segment_edges_degc", "segment_coefficients")
+        )
+    )

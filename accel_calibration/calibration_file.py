@@ -21,9 +21,11 @@ import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from .calibration import Calibration, Quality
+from .temperature_models import TemperatureModel
 from .errors import CalibrationError
 
 FORMAT_VERSION = 1
@@ -58,6 +60,16 @@ def calibration_to_dict(calibration: Calibration) -> dict:
         body["quadratic"] = c.quadratic.tolist()
     if c.gyro_bias_radps is not None:
         body["gyro_bias_radps"] = c.gyro_bias_radps.tolist()
+    if c.temperature is not None:
+        t = c.temperature
+        block = {"model": t.kind, "reference_degc": t.reference_degc, "range_degc": list(t.range_degc)}
+        if t.kind == "polynomial":
+            block["bias_coefficients"] = t.bias_coefficients.tolist()  # row k: m/s^2 per degC^(k+1)
+            block["scale_coefficients"] = t.scale_coefficients.tolist()  # row k: 1 per degC^(k+1)
+        else:
+            block["segment_edges_degc"] = t.segment_edges_degc.tolist()
+            block["segment_coefficients"] = t.segment_coefficients.tolist()  # per segment: q0, q1, q2 rows
+        body["temperature"] = block
     if c.reference_temperature_degc is not None:
         body["reference_temperature_degc"] = float(c.reference_temperature_degc)
     body["units"] = {"bias": "m/s^2", "matrix": "1", "gravity": "m/s^2", "quadratic": "s^2/m"}
@@ -122,7 +134,25 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
         model = body["model"]
         if not isinstance(model, str):
             raise CalibrationError(f"model must be a name, got {model!r:.40}")
+        temperature = None
+        if body.get("temperature") is not None:
+            t = body["temperature"]
+            if not isinstance(t, dict) or "model" not in t:
+                raise CalibrationError("temperature must be a mapping with a 'model' key")
+            try:
+                temperature = TemperatureModel(
+                    kind=t["model"],
+                    reference_degc=_number(t.get("reference_degc"), "temperature.reference_degc"),
+                    range_degc=tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", [])),
+                    bias_coefficients=t.get("bias_coefficients") or np.zeros((0, 3)),
+                    scale_coefficients=t.get("scale_coefficients") or np.zeros((0, 3)),
+                    segment_edges_degc=t.get("segment_edges_degc") or np.zeros(0),
+                    segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
+                )
+            except (TypeError, ValueError) as error:
+                raise CalibrationError(f"temperature block: {error}") from None
         return Calibration(
+            temperature=temperature,
             bias=body["bias"],
             matrix=body["matrix"],
             model=model,

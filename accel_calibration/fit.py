@@ -24,6 +24,14 @@ from .errors import CalibrationError
 from .gauss_newton import gauss_newton
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, matrix_entries, parameter_count, seed_sphere
 from .pose import Pose
+from .temperature_models import (
+    TEMPERATURE_MODELS,
+    TemperatureModel,
+    TemperatureOptions,
+    ThermalSphereModel,
+    fit_segmented_drift,
+    temperature_span_problem,
+)
 
 AXES = "xyz"
 
@@ -75,6 +83,17 @@ class FitResult:
         lines.append(
             f"residuals: rms {c.quality.residual_rms_mg:.3f} mg, max {c.quality.residual_max_mg:.3f} mg"
         )
+        if c.temperature is not None:
+            t = c.temperature
+            lines.append(f"temperature model {t.kind}: T_ref {t.reference_degc:.1f} degC, calibrated range "
+                         f"{t.range_degc[0]:.1f}..{t.range_degc[1]:.1f} degC")
+            if t.kind == "polynomial":
+                for k, row in enumerate(t.bias_coefficients, start=1):
+                    lines.append(f"  bias drift dT^{k}: " + "  ".join(f"{v / 9.80665e-3:+.4g}" for v in row) + f" mg/degC^{k}")
+                for k, row in enumerate(t.scale_coefficients, start=1):
+                    lines.append(f"  scale drift dT^{k}: " + "  ".join(f"{v:+.3g}" for v in row) + f" /degC^{k}")
+            else:
+                lines.append(f"  {len(t.segment_coefficients)} segments of {t.segment_edges_degc[1] - t.segment_edges_degc[0]:g} degC")
         if self.missing_directions:
             lines.append("not covered (fit still observable): " + ", ".join(self.missing_directions))
         return "\n".join(lines)
@@ -138,6 +157,8 @@ def fit(
     reference=None,
     initial: Calibration | None = None,
     frame_id: str = "",
+    temperature_model: str = "none",
+    temperature_options: TemperatureOptions | None = None,
 ) -> FitResult:
     """Fit a calibration to static pose means.
 
@@ -145,8 +166,21 @@ def fit(
     unit works (counts too); the corrected output is in m/s^2 scaled to `gravity`.
     reference: N x 3 directions of the gravity reaction in the sensor frame (reference models only).
     initial: warm start for the sphere models (e.g. the calibration in force).
+    temperature_model: "none", "polynomial" or "segmented" (sphere models; needs temperature_degc);
+    temperature_options: orders, segment width, minimum span, T_ref (TemperatureOptions).
     """
     accel, gravity, temps, ref = _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial)
+    if temperature_model not in TEMPERATURE_MODELS:
+        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, got {temperature_model!r}")
+    if temperature_model != "none":
+        if temps is None:
+            raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
+        if model in REFERENCE_MODELS:
+            raise CalibrationError("temperature models fit with the sphere models (six, sphere9)")
+        options = temperature_options or TemperatureOptions(model=temperature_model)
+        if options.model != temperature_model:
+            options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
+        return _fit_with_temperature(accel, temps, model, gravity, options, initial, frame_id)
     n = len(accel)
     # Reference models are separate linear fits per axis (4 or 5 unknowns each), sphere models one joint fit.
     size = {"reference12": 4, "reference15": 5}.get(model, parameter_count(model))
@@ -310,3 +344,71 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
         missing_directions=missing,
         poses=n,
     )
+
+
+def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptions, initial, frame_id) -> FitResult:
+    n = len(accel)
+    problem = temperature_span_problem(temps, options)
+    if problem is not None:
+        return FitResult(False, problem, name, poses=n)
+    reference_degc = options.reference_degc if options.reference_degc is not None else float(np.median(temps))
+    span = (float(temps.min()), float(temps.max()))
+    if options.model == "segmented":
+        # The seed's scheme: a room-temperature calibration from the poses near T_ref, then each
+        # segment's drift against it.
+        near = np.abs(temps - reference_degc) <= options.segment_width_degc / 2
+        base = fit(accel[near], model=name, gravity=gravity, initial=initial, frame_id=frame_id)
+        if not base.success:
+            return FitResult(False, f"room-temperature calibration from the {int(near.sum())} poses within "
+                             f"{options.segment_width_degc / 2:g} degC of {reference_degc:.1f} degC: {base.message}", name, poses=n)
+        try:
+            edges, coefficients = fit_segmented_drift(accel, temps, base.calibration.bias, base.calibration.matrix,
+                                                      gravity, options)
+        except CalibrationError as error:
+            return FitResult(False, str(error), name, poses=n)
+        temperature = TemperatureModel("segmented", reference_degc, span, segment_edges_degc=edges,
+                                       segment_coefficients=coefficients)
+        calibration = base.calibration.replace(temperature=temperature, reference_temperature_degc=reference_degc)
+        residuals_mg = (np.linalg.norm(calibration.apply(accel, temps), axis=1) - gravity) / MG
+        calibration = calibration.replace(quality=_quality(residuals_mg, base.condition_number))
+        return FitResult(True, "segmented temperature model", name, iterations=base.iterations,
+                         calibration=calibration, sigma=base.sigma, residuals_mg=residuals_mg,
+                         cost=0.5 * float(np.sum((residuals_mg * MG) ** 2)), condition_number=base.condition_number,
+                         missing_directions=base.missing_directions, poses=n)
+
+    # Polynomial: bias and scale drift jointly with M and b, started from the temperature-blind fit.
+    base = fit(accel, model=name, gravity=gravity, initial=initial, frame_id=frame_id)
+    if not base.success:
+        return FitResult(False, base.message, name, poses=n, missing_directions=base.missing_directions)
+    model = ThermalSphereModel(SphereModel(name), options.bias_order, options.scale_order, reference_degc)
+    if n < model.size:
+        return FitResult(False, f"model {name} with a polynomial temperature model (bias order {options.bias_order}, "
+                         f"scale order {options.scale_order}) needs at least {model.size} poses, got {n}", name, poses=n)
+    solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, temps, gravity),
+                            model.pack(base.calibration.bias, base.calibration.matrix))
+    condition = scaled_condition_number(solution.jacobian)
+    residuals_mg = solution.residuals / MG
+    common = dict(model=name, iterations=solution.iterations, residuals_mg=residuals_mg, cost=solution.cost,
+                  condition_number=condition, missing_directions=base.missing_directions, poses=n)
+    if condition > CONDITION_LIMIT * 100:  # temperature terms are smaller and more correlated by nature
+        return FitResult(False, f"poses do not separate the temperature terms (condition number {condition:.3g}): "
+                         "hold several orientations at each temperature", **common)
+    if not solution.success:
+        return FitResult(False, solution.message, **common)
+    bias, matrix, c, d = model.unpack(solution.x)
+    dof = n - model.size
+    variance = 2.0 * solution.cost / dof if dof > 0 else float("nan")
+    try:
+        covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
+    except np.linalg.LinAlgError:
+        covariance = np.full((model.size, model.size), np.nan)
+    stds = np.sqrt(np.abs(np.diag(covariance)))
+    _, matrix_sigma = model.base.unpack(stds[: model.base.size])
+    sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
+    temperature = TemperatureModel("polynomial", reference_degc, span, bias_coefficients=c, scale_coefficients=d)
+    calibration = Calibration(
+        bias=bias, matrix=matrix, model=name, gravity=gravity, bias_sigma=sigma.bias, matrix_sigma=sigma.matrix,
+        quality=_quality(residuals_mg, condition), frame_id=frame_id, reference_temperature_degc=reference_degc,
+        temperature=temperature,
+    )
+    return FitResult(True, solution.message, calibration=calibration, sigma=sigma, **common)
