@@ -33,6 +33,7 @@ from .models import parameter_count
 from .online_calibrator import OnlineCalibrator, QualityGates
 from .pose_store import PoseStore
 from .static_detector import StaticDetector
+from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 
 # Best effort, depth 50 on both sides: measured 0 % loss to 3 kHz here (PERF_NOTES); still matches
 # drivers publishing with sensor-data QoS.
@@ -62,7 +63,12 @@ class CalibrationNode(Node):
             model=p["model"],
             gravity=p["gravity"],
             gates=self._gates,
-            store=PoseStore(merge_angle_deg=p["merge_angle_deg"], capacity=p["max_poses"]),
+            store=PoseStore(merge_angle_deg=p["merge_angle_deg"], capacity=p["max_poses"],
+                            temperature_bin_degc=p["temperature.bin_degc"]),
+            temperature=TemperatureOptions(model=p["temperature.model"], bias_order=p["temperature.bias_order"],
+                                           scale_order=p["temperature.scale_order"],
+                                           segment_width_degc=p["temperature.segment_width_degc"],
+                                           min_span_degc=p["temperature.min_span_degc"]),
         )
         self._accel_limit = 0.995 * p["accel_range_mps2"]
         self._temperature_timeout_ns = int(p["temperature_timeout_s"] * 1e9)
@@ -81,6 +87,7 @@ class CalibrationNode(Node):
         self._temperature_degc: float | None = None
         self._temperature_stamp_ns = -1
         self._temperature_filtered: float | None = None
+        self._terms_temperature: float | None = None
         self._pending_poses: queue.SimpleQueue = queue.SimpleQueue()
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accel_calibration_fit")
         self._mirror_update = threading.local()
@@ -112,6 +119,12 @@ class CalibrationNode(Node):
             ("max_poses", 100, "pose store capacity; the oldest pose gives way beyond it", True),
             ("accel_range_mps2", 16 * STANDARD_GRAVITY, "sensor full scale; samples at it are counted as saturated and kept out of the fit", True),
             ("temperature_timeout_s", 5.0, "a temperature older than this (header time) is stale and not used", True),
+            ("temperature.model", "polynomial", "temperature model learned once the poses span min_span_degc: polynomial, segmented or none", True),
+            ("temperature.bias_order", 2, "polynomial model: order of the bias drift (0..3)", True),
+            ("temperature.scale_order", 1, "polynomial model: order of the scale drift (0..2)", True),
+            ("temperature.segment_width_degc", 10.0, "segmented model: segment width, degC", True),
+            ("temperature.min_span_degc", 10.0, "smallest span of pose temperatures to fit a temperature model, degC", True),
+            ("temperature.bin_degc", 5.0, "poses at one orientation but temperatures this far apart are kept apart", True),
             ("static.window_s", 0.5, "static detector: sliding window, seconds of header time", True),
             ("static.min_hold_s", 1.0, "static detector: shortest still interval kept as a pose, seconds", True),
             ("static.accel_var_threshold", 0.0, "static detector: accel variance threshold (m/s^2)^2; 0 = k_sigma x measured noise floor", True),
@@ -138,6 +151,8 @@ class CalibrationNode(Node):
             problems.append(f"model must be six or sphere9, got {p['model']!r}")
         elif p["min_poses"] < parameter_count(p["model"]):
             problems.append(f"min_poses must be at least {parameter_count(p['model'])} for model {p['model']}")
+        if p["temperature.model"] not in TEMPERATURE_MODELS:
+            problems.append(f"temperature.model must be one of {', '.join(TEMPERATURE_MODELS)}, got {p['temperature.model']!r}")
         if not 9.0 < p["gravity"] < 10.5:
             problems.append(f"gravity must be 9..10.5 m/s^2, got {p['gravity']}")
         if problems:
@@ -197,8 +212,8 @@ class CalibrationNode(Node):
 
     def _set_calibration(self, calibration: Calibration):
         self._calibration = calibration
-        m, b = calibration.correction_terms()
-        self._terms = m + b
+        self._terms = calibration.terms_at(self._current_temperature())
+        self._terms_temperature = self._temperature_filtered
         gyro_bias = calibration.gyro_bias_radps
         if gyro_bias is not None:
             self._gyro_bias = tuple(float(v) for v in gyro_bias)
@@ -230,14 +245,28 @@ class CalibrationNode(Node):
             return
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         previous = self._temperature_filtered
-        # Sensor temperature registers update slowly and are quantised: a first-order low-pass (tau 2 s).
+        # Sensor temperature registers update slowly and are quantised: a first-order low-pass (tau 0.5 s of
+        # header time; a real warm-up moves < 0.1 degC/s, so the lag stays under 0.05 degC).
         if previous is None or self._temperature_stamp_ns < 0:
             self._temperature_filtered = t
         else:
             dt = max(0.0, (stamp_ns - self._temperature_stamp_ns) * 1e-9)
-            alpha = dt / (2.0 + dt)
+            alpha = dt / (0.5 + dt)
             self._temperature_filtered = previous + alpha * (t - previous)
         self._temperature_stamp_ns = stamp_ns
+        calibration = self._calibration
+        if calibration is not None and calibration.temperature is not None:
+            # Re-derive the plain-float correction only when the temperature has moved (10 Hz at most),
+            # so the per-message path stays a 3x3 multiply.
+            last = self._terms_temperature
+            if last is None or abs(self._temperature_filtered - last) >= 0.05:
+                self._terms = calibration.terms_at(self._temperature_filtered)
+                self._terms_temperature = self._temperature_filtered
+                if calibration.temperature_clamped(self._temperature_filtered):
+                    self._counts["temperature_clamped"] += 1
+
+    def _current_temperature(self) -> float | None:
+        return self._temperature_filtered
 
     def _on_imu(self, msg: Imu):
         stamp = msg.header.stamp
@@ -423,7 +452,10 @@ class CalibrationNode(Node):
             "calibration_file": str(self._calibration_path),
             "temperature_degc": "" if self._temperature_filtered is None else f"{self._temperature_filtered:.2f}",
         }
-        for key in ("non_finite", "saturated", "stamp_backwards", "temperature_stale", "temperature_bad"):
+        span = progress.temperature_span_degc
+        values["temperature_span_degc"] = "" if span is None else f"{span[0]:.1f}..{span[1]:.1f} ({span[1] - span[0]:.1f})"
+        values["temperature_model"] = progress.temperature_status
+        for key in ("non_finite", "saturated", "stamp_backwards", "temperature_stale", "temperature_bad", "temperature_clamped"):
             values[key] = str(counts.get(key, 0))
         if self._calibration is not None and self._calibration.quality is not None:
             values["calibration_residual_rms_mg"] = f"{self._calibration.quality.residual_rms_mg:.3f}"
@@ -460,6 +492,10 @@ def _summary_yaml(result, saved_message: str) -> str:
         "matrix: [" + ", ".join("[" + ", ".join(f"{v:.7f}" for v in row) + "]" for row in c.matrix) + "]",
         f"saved: {saved_message}",
     ]
+    if c.temperature is not None:
+        t = c.temperature
+        lines.insert(-1, f"temperature_model: {{kind: {t.kind}, reference_degc: {t.reference_degc:.2f}, "
+                         f"range_degc: [{t.range_degc[0]:.2f}, {t.range_degc[1]:.2f}]}}")
     return "\n".join(lines)
 
 

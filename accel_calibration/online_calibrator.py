@@ -16,6 +16,7 @@ from .fit import FitResult, fit
 from .models import MODELS, parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
+from .temperature_models import TemperatureOptions, temperature_span_problem
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,8 @@ class Progress:
     max_bias_sigma_mg: float | None
     ready: bool
     advice: str
+    temperature_span_degc: tuple[float, float] | None = None  # lowest and highest pose temperature
+    temperature_status: str = "no temperature"
 
 
 def advice_for(missing) -> str:
@@ -65,6 +68,7 @@ class OnlineCalibrator:
         gravity: float = STANDARD_GRAVITY,
         gates: QualityGates | None = None,
         store: PoseStore | None = None,
+        temperature: TemperatureOptions | None = None,
     ):
         if model not in MODELS or model.startswith("reference"):
             raise CalibrationError(f"online model must be six or sphere9 (orientations are unknown), got {model!r}")
@@ -72,21 +76,43 @@ class OnlineCalibrator:
         self.gravity = float(gravity)
         self.gates = gates or QualityGates()
         self.store = store or PoseStore()
+        self.temperature = temperature  # None or model "none": temperature-blind
         self.last_fit: FitResult | None = None
 
     def add_pose(self, pose: Pose) -> StoreEvent:
         return self.store.add(pose)
 
+    def temperature_problem(self) -> str | None:
+        """Why the poses held cannot carry the temperature model yet (None when they can)."""
+        if self.temperature is None or self.temperature.model == "none":
+            return "temperature model off"
+        temps = [p.temperature_degc for p in self.store.poses]
+        if not temps or any(t is None for t in temps):
+            return "no temperature on the poses (imu/temperature silent or stale)"
+        return temperature_span_problem(np.array(temps), self.temperature)
+
     def refit(self) -> FitResult | None:
-        """Fit the poses held, warm-started from the last good fit. None while there are too few poses."""
+        """Fit the poses held, warm-started from the last good fit; with the temperature model once the
+        poses' temperature span allows it. None while there are too few poses."""
         poses = self.store.poses
         if len(poses) < parameter_count(self.model):
             return None
+        accel = [p.accel_mps2 for p in poses]
+        if self.temperature_problem() is None:
+            result = fit(accel, model=self.model, gravity=self.gravity,
+                         temperature_degc=[p.temperature_degc for p in poses],
+                         temperature_model=self.temperature.model, temperature_options=self.temperature)
+            if result.success:
+                self.last_fit = result
+                return result
+            # Not yet enough poses per temperature: fall back to the temperature-blind fit, said in progress.
         initial = self.last_fit.calibration if self.last_fit is not None and self.last_fit.success else None
-        result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.gravity, initial=initial)
+        if initial is not None and initial.temperature is not None:
+            initial = initial.replace(temperature=None)
+        result = fit(accel, model=self.model, gravity=self.gravity, initial=initial)
         if initial is not None and not result.success:
             # A warm start from a calibration that no longer fits (the poses changed) must not decide.
-            result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.gravity)
+            result = fit(accel, model=self.model, gravity=self.gravity)
         self.last_fit = result
         return result
 
@@ -121,6 +147,14 @@ class OnlineCalibrator:
         sigma = float(np.max(fit_.sigma.bias) / MG) if fit_ and np.all(np.isfinite(fit_.sigma.bias)) else None
         need = max(self.gates.min_poses, parameter_count(self.model))
         ready = fit_ is not None and self.gates.check(fit_) is None and n >= need
+        temps = [p.temperature_degc for p in self.store.poses if p.temperature_degc is not None]
+        span = (float(min(temps)), float(max(temps))) if temps else None
+        problem = self.temperature_problem()
+        if problem is None:
+            status = "temperature model fitted" if fit_ and fit_.calibration.temperature is not None else \
+                "temperature span sufficient; needs more poses per temperature"
+        else:
+            status = problem
         if missing:
             advice = advice_for(missing)
         elif n < need:
@@ -129,4 +163,4 @@ class OnlineCalibrator:
             advice = "hold still in more orientations (fit not yet within the gates)"
         else:
             advice = "ready: call /calibrate"
-        return Progress(n, need, missing, rms, sigma, ready, advice)
+        return Progress(n, need, missing, rms, sigma, ready, advice, span, status)
