@@ -127,21 +127,57 @@ def test_same_settings_work_from_50_hz_to_2_khz(rate_hz):
         assert 1.5 < pose.duration_s <= 3.0
 
 
-def test_batch_equals_streaming():
+def assert_same_poses(batch, streamed):
+    assert len(batch) == len(streamed)
+    for a, b in zip(batch, streamed):
+        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+        np.testing.assert_allclose(a.accel_mps2, b.accel_mps2, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(a.accel_cov, b.accel_cov, rtol=1e-8, atol=1e-15)
+        for name in ("gyro_radps", "temperature_degc", "temperature_spread_degc"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert (x is None) == (y is None)
+            if x is not None:
+                np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12)
+
+
+def streams():
+    """Streams that exercise every rule: warm-up adoption, a stream starting in motion, gaps, a
+    long still period cut by max_pose_s, gyro and temperature, NaN rows and stamps going backwards."""
     rng = np.random.default_rng(3)
     t, accel, _ = synthetic_stream(200.0, rng)
     temperature = 25.0 + 0.001 * np.arange(len(t))
-    batch = StaticDetector().process(t, accel, temperature_degc=temperature)
-    detector = StaticDetector()
-    streamed = [p for i in range(len(t)) if (p := detector.update(int(t[i]), *accel[i], None, None, None, temperature[i]))]
-    if (last := detector.flush()) is not None:
-        streamed.append(last)
-    assert len(batch) == len(streamed) == 8
-    for a, b in zip(batch, streamed):
-        np.testing.assert_array_equal(a.accel_mps2, b.accel_mps2)
-        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
-        assert a.temperature_degc == pytest.approx(np.mean(temperature[(t >= a.start_ns) & (t <= a.end_ns)]))
-        assert a.temperature_spread_degc > 0
+    gyro = rng.normal(0, 0.002, accel.shape)
+    yield "plain", dict(t_ns=t, accel=accel, temperature_degc=temperature), {}
+    yield "gyro", dict(t_ns=t, accel=accel, gyro=gyro, temperature_degc=temperature), {}
+    moving = int(3.2 * 200)
+    yield "starts moving", dict(t_ns=t[moving:], accel=accel[moving:]), {}
+    holes = t.copy()
+    holes[len(t) // 3:] += 2 * 10**9
+    holes[2 * len(t) // 3:] += 3 * 10**9
+    yield "gaps", dict(t_ns=holes, accel=accel, gyro=gyro), {}
+    yield "max pose", dict(t_ns=t, accel=accel), dict(max_pose_s=1.3, min_hold_s=0.6)
+    dirty = accel.copy()
+    dirty[::101] = np.nan
+    backwards = t.copy()
+    backwards[::89] -= 10**9
+    yield "dirty", dict(t_ns=backwards, accel=dirty, gyro=gyro), {}
+    yield "explicit threshold", dict(t_ns=t, accel=accel), dict(accel_var_threshold=0.01)
+
+
+@pytest.mark.parametrize("name, data, settings", list(streams()), ids=lambda v: v if isinstance(v, str) else "")
+def test_batch_process_equals_streaming(name, data, settings):
+    batch_detector, stream_detector = StaticDetector(**settings), StaticDetector(**settings)
+    batch = batch_detector.process(**data)
+    streamed = stream_detector.process_streaming(**data)
+    assert len(streamed) >= 2
+    assert_same_poses(batch, streamed)
+    assert batch_detector.rejected_samples == stream_detector.rejected_samples
+
+
+def test_batch_equals_streaming_on_real_recordings(shared):
+    for loader in (load_imu_tk, load_mpu6050):
+        t, accel, gyro = loader(shared)
+        assert_same_poses(StaticDetector().process(t, accel, gyro), StaticDetector().process_streaming(t, accel, gyro))
 
 
 def test_bad_samples_are_skipped_and_counted():

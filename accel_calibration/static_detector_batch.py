@@ -1,0 +1,187 @@
+"""StaticDetector.process(): the streaming detector's rules applied to a whole recording with array
+operations, for bag replay and the CLI where per-sample Python would dominate the run time.
+
+Equivalent to update() per sample then flush() (tested): the same validity rules, window
+membership from timestamps, the noise floor's histogram queried at the same add counts (every 64
+windows, halved every 200k), the same warm-up adoption, trims, gap and max_pose_s cuts. Only the
+window variances differ, by rounding (cumulative sums instead of running sums).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .pose import Pose
+from .static_detector import _BINS_PER_DECADE, _LOG_MAX, _LOG_MIN, _NBINS
+
+_QUERY_EVERY = 64
+
+
+def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
+    """The floor value in force after each add, as _VarianceFloor would give it."""
+    count = len(variances)
+    if count == 0:
+        return np.zeros(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        index = np.floor((np.log10(variances) - _LOG_MIN) * _BINS_PER_DECADE)
+    index = np.where(variances <= 0.0, 0, np.clip(np.nan_to_num(index, nan=0.0), 0, _NBINS - 1)).astype(np.int64)
+    # Queries after add 1, 65, 129, ... (1-based); decays after add 200000, 400000, ...
+    query_adds = np.arange(1, count + 1, _QUERY_EVERY)
+    values = np.empty(len(query_adds))
+    counts = np.zeros(_NBINS)
+    total = 0.0
+    done = 0  # adds already in `counts`
+    centres = 10.0 ** (_LOG_MIN + (np.arange(_NBINS) + 0.5) / _BINS_PER_DECADE)
+    for q, upto in enumerate(query_adds):
+        while done < upto:
+            next_decay = (done // half_life + 1) * half_life
+            stop = min(upto, next_decay)
+            counts += np.bincount(index[done:stop], minlength=_NBINS)
+            total += stop - done
+            done = stop
+            if done == next_decay:
+                counts *= 0.5
+                total *= 0.5
+        running = np.cumsum(counts)
+        hit = np.flatnonzero((running >= quantile * total) & (counts > 0))
+        values[q] = centres[hit[0]] if len(hit) else 10.0**_LOG_MAX
+    return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
+
+
+def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray) -> np.ndarray:
+    """Total variance (sum over axes) of values[start_i .. i], shifted by each segment's first sample."""
+    shifted = values - values[segment_first]
+    c1 = np.vstack([np.zeros((1, 3)), np.cumsum(shifted, axis=0)])
+    c2 = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", shifted, shifted))])
+    stop = np.arange(1, len(values) + 1)
+    n = stop - start
+    s1 = c1[stop] - c1[start]
+    s2 = c2[stop] - c2[start]
+    return (s2 - np.einsum("ij,ij->i", s1, s1) / n) / n
+
+
+def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tuple[list[Pose], int]:
+    d = detector
+    t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    a_all = np.asarray(accel, dtype=float).reshape(-1, 3)
+    g_all = None if gyro is None else np.asarray(gyro, dtype=float).reshape(-1, 3)
+    temp_all = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).reshape(-1)
+    finite = np.all(np.isfinite(a_all), axis=1)
+    if g_all is not None:
+        finite &= np.all(np.isfinite(g_all), axis=1)
+    t_f = t_all[finite]
+    previous_max = np.concatenate([[np.iinfo(np.int64).min], np.maximum.accumulate(t_f)[:-1]]) if len(t_f) else t_f
+    accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
+    rejected = len(t_all) - int(accepted.sum())
+    keep = np.flatnonzero(finite)[accepted]
+    t = t_all[keep]
+    a = a_all[keep]
+    g = None if g_all is None else g_all[keep]
+    temps = None if temp_all is None else temp_all[keep]
+    n = len(t)
+    if n == 0:
+        return [], rejected
+
+    window_ns, trim_ns = d._window_ns, int(d.trim_s * 1e9)
+    gaps = np.concatenate([[False], np.diff(t) > d._gap_ns])
+    segment_first = np.maximum.accumulate(np.where(gaps | (np.arange(n) == 0), np.arange(n), 0))
+    start = np.maximum(np.searchsorted(t, t - window_ns, side="right"), segment_first)
+    count = np.arange(n) - start + 1
+    full = ((t - t[start]) >= d._full_ns) & (count >= 5)
+    dt = np.concatenate([[0], np.diff(t)])
+    full_time = np.cumsum(np.where(full, dt, 0))
+    accel_var = _window_variance(a, start, segment_first)
+    gyro_var = None if g is None else _window_variance(g, start, segment_first)
+
+    full_index = np.flatnonzero(full)
+    accel_limit = np.full(n, np.nan)
+    gyro_limit = np.full(n, np.nan)
+    warm = full_time >= d.warmup_s * 1e9
+    floor_a = _floor_values(accel_var[full_index], d._accel_floor.quantile, d._accel_floor.half_life)
+    if d.accel_var_threshold is not None:
+        accel_limit[full_index] = d.accel_var_threshold
+    else:
+        accel_limit[full_index] = np.where(warm[full_index], d.k_sigma * floor_a, np.nan)
+    if g is not None:
+        floor_g = _floor_values(gyro_var[full_index], d._gyro_floor.quantile, d._gyro_floor.half_life)
+        if d.gyro_var_threshold is not None:
+            gyro_limit[full_index] = d.gyro_var_threshold
+        else:
+            gyro_limit[full_index] = np.where(warm[full_index], d.gyro_k_sigma * floor_g, np.nan)
+    learning = full & np.isnan(accel_limit)
+    with np.errstate(invalid="ignore"):
+        quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
+        still = full & ~learning & (accel_var <= accel_limit) & quiet_gyro
+
+    poses: list[Pose] = []
+
+    def emit(opened: int, last: int, trim_end: bool):
+        first_time = t[start[opened]] + trim_ns
+        k0 = int(np.searchsorted(t, first_time, side="left"))
+        k0 = max(k0, int(start[opened]))
+        k1 = int(np.searchsorted(t, t[last] - trim_ns, side="right")) - 1 if trim_end else last
+        k1 = min(k1, last)
+        if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
+            return
+        rows = a[k0:k1 + 1]
+        temperature = spread = None
+        if temps is not None:
+            known = temps[k0:k1 + 1][~np.isnan(temps[k0:k1 + 1])]
+            if len(known):
+                temperature, spread = float(known.mean()), float(known.max() - known.min())
+        poses.append(Pose(
+            accel_mps2=rows.mean(axis=0),
+            accel_cov=np.cov(rows, rowvar=False),
+            samples=k1 - k0 + 1,
+            start_ns=int(t[k0]),
+            end_ns=int(t[k1]),
+            gyro_radps=None if g is None else g[k0:k1 + 1].mean(axis=0),
+            temperature_degc=temperature,
+            temperature_spread_degc=spread,
+        ))
+
+    # The interval rules, per sample on plain lists (cheap: no arithmetic on samples here).
+    opened = last = None  # index that opened the current interval, last sample added to it
+    warmup_open = d.accel_var_threshold is None
+    loudest_accel = loudest_gyro = 0.0
+    max_pose_ns = d.max_pose_s * 1e9
+    t_list, gaps_list, full_list = t.tolist(), gaps.tolist(), full.tolist()
+    learning_list, still_list = learning.tolist(), still.tolist()
+    accel_var_list = accel_var.tolist()
+    gyro_var_list = None if gyro_var is None else gyro_var.tolist()
+    accel_limit_list, gyro_limit_list = accel_limit.tolist(), gyro_limit.tolist()
+    for i in range(n):
+        if gaps_list[i] and opened is not None:
+            emit(opened, last, True)
+            opened = None
+        if not full_list[i]:
+            continue
+        if learning_list[i]:
+            loudest_accel = max(loudest_accel, accel_var_list[i])
+            loudest_gyro = max(loudest_gyro, (gyro_var_list[i] if gyro_var_list is not None else 0.0) or 0.0)
+            if opened is None:
+                opened = last = i
+            else:
+                last = i
+            continue
+        if warmup_open:
+            warmup_open = False
+            limit_g = gyro_limit_list[i]
+            if opened is not None and not (loudest_accel <= accel_limit_list[i]
+                                           and (math.isnan(limit_g) or loudest_gyro <= limit_g)):
+                opened = None  # it moved during warm-up: no pose from it
+        if still_list[i]:
+            if opened is None:
+                opened = last = i
+            else:
+                last = i
+                if t_list[i] - t_list[start[opened]] >= max_pose_ns:
+                    emit(opened, last, True)
+                    opened = last = i
+        elif opened is not None:
+            emit(opened, last, True)
+            opened = None
+    if opened is not None:
+        emit(opened, last, False)
+    return poses, rejected
