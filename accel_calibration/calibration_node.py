@@ -33,6 +33,7 @@ from .models import parameter_count
 from .online_calibrator import OnlineCalibrator, QualityGates
 from .pose_store import PoseStore
 from .static_detector import StaticDetector
+from .temperature_filter import TemperatureFilter
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 
 # Best effort, depth 50 on both sides: measured 0 % loss to 3 kHz here (PERF_NOTES); still matches
@@ -71,7 +72,7 @@ class CalibrationNode(Node):
                                            min_span_degc=p["temperature.min_span_degc"]),
         )
         self._accel_limit = 0.995 * p["accel_range_mps2"]
-        self._temperature_timeout_ns = int(p["temperature_timeout_s"] * 1e9)
+        self._temperature = TemperatureFilter(timeout_s=p["temperature_timeout_s"])
 
         # State shared with the worker: replaced whole, never mutated.
         self._calibration: Calibration | None = None
@@ -84,8 +85,6 @@ class CalibrationNode(Node):
         self._status = (DiagnosticStatus.OK, "starting")
         self._counts = collections.Counter()
         self._last_stamp_ns = -1
-        self._temperature_degc: float | None = None
-        self._temperature_stamp_ns = -1
         self._temperature_filtered: float | None = None
         self._terms_temperature: float | None = None
         self._pending_poses: queue.SimpleQueue = queue.SimpleQueue()
@@ -239,21 +238,11 @@ class CalibrationNode(Node):
 
     # ------------------------------------------------------------------ stream (hot path)
     def _on_temperature(self, msg: Temperature):
-        t = msg.temperature
-        if not math.isfinite(t) or not -60.0 < t < 150.0:
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if not self._temperature.update(stamp_ns, msg.temperature):
             self._counts["temperature_bad"] += 1
             return
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        previous = self._temperature_filtered
-        # Sensor temperature registers update slowly and are quantised: a first-order low-pass (tau 0.5 s of
-        # header time; a real warm-up moves < 0.1 degC/s, so the lag stays under 0.05 degC).
-        if previous is None or self._temperature_stamp_ns < 0:
-            self._temperature_filtered = t
-        else:
-            dt = max(0.0, (stamp_ns - self._temperature_stamp_ns) * 1e-9)
-            alpha = dt / (0.5 + dt)
-            self._temperature_filtered = previous + alpha * (t - previous)
-        self._temperature_stamp_ns = stamp_ns
+        self._temperature_filtered = self._temperature.value
         calibration = self._calibration
         if calibration is not None and calibration.temperature is not None:
             # Re-derive the plain-float correction only when the temperature has moved (10 Hz at most),
@@ -286,9 +275,8 @@ class CalibrationNode(Node):
             self._last_stamp_ns = t_ns
         else:
             self._last_stamp_ns = t_ns
-            temperature = self._temperature_filtered
-            if temperature is not None and t_ns - self._temperature_stamp_ns > self._temperature_timeout_ns:
-                temperature = None
+            temperature = self._temperature.at(t_ns)
+            if temperature is None and self._temperature.value is not None:
                 self._counts["temperature_stale"] += 1
             pose = self._detector.update(t_ns, ax, ay, az, w.x, w.y, w.z, temperature)
             if pose is not None:
@@ -369,10 +357,10 @@ class CalibrationNode(Node):
         self._status = (DiagnosticStatus.OK, "calibrated")
         return True, f"saved to {self._calibration_path}"
 
-    def _calibrate_job(self) -> tuple[bool, str]:
+    def _calibrate_job(self, holding) -> tuple[bool, str]:
         for pose in self._drain():
             self._online.add_pose(pose)
-        result, reason = self._online.calibrate()
+        result, reason = self._online.calibrate(() if holding is None else (holding,))
         self._progress = self._online.progress(self._calibration)
         if reason is not None:
             return False, f"not calibrated ({reason}); previous calibration kept in force"
@@ -391,7 +379,9 @@ class CalibrationNode(Node):
 
     # ------------------------------------------------------------------ services
     def _srv_calibrate(self, request, response):
-        response.success, response.message = self._worker.submit(self._calibrate_job).result()
+        # The pose being held right now counts too (taken here, on the thread that owns the detector).
+        holding = self._detector.peek()
+        response.success, response.message = self._worker.submit(self._calibrate_job, holding).result()
         (self.get_logger().info if response.success else self.get_logger().warning)(
             "/calibrate: " + response.message.splitlines()[0]
         )

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from .calibration import STANDARD_GRAVITY
+from .calibration import MG, STANDARD_GRAVITY
 from .calibration_file import load_calibration, write_text_atomically
 from .errors import CalibrationError
 from .fit import fit
@@ -47,6 +47,34 @@ def _parser() -> argparse.ArgumentParser:
                          help="T_ref, degC (default: the poses' median temperature)")
     fit_cmd.add_argument("--min-span", type=float, default=10.0, help="smallest temperature span to fit a model, degC")
     fit_cmd.add_argument("--output", "-o", required=True, help="calibration YAML to write")
+
+    replay_cmd = commands.add_parser("replay", help="recalibrate from rosbag2 recordings (sqlite3 or mcap)")
+    replay_cmd.add_argument("bags", nargs="+", help="rosbag2 directories")
+    replay_cmd.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
+    replay_cmd.add_argument("--temperature-topic", default=None, help="sensor_msgs/Temperature topic (default: the only one)")
+    replay_cmd.add_argument("--output", "-o", default=None,
+                            help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
+    replay_cmd.add_argument("--corrected-bag", default=None,
+                            help="write a copy of the bag with the IMU accelerations corrected (several bags: a directory)")
+    replay_cmd.add_argument("--report", default=None, help="also write a report figure (PNG; several bags: a directory)")
+    replay_cmd.add_argument("--model", choices=("six", "sphere9"), default="sphere9")
+    replay_cmd.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="polynomial",
+                            help="used once the poses span --min-span degC (default polynomial)")
+    replay_cmd.add_argument("--min-span", type=float, default=10.0)
+    replay_cmd.add_argument("--gravity", type=float, default=STANDARD_GRAVITY)
+    replay_cmd.add_argument("--min-poses", type=int, default=12)
+    replay_cmd.add_argument("--window", type=float, default=0.5, help="detector window, s")
+    replay_cmd.add_argument("--min-hold", type=float, default=1.0, help="shortest still interval, s")
+    replay_cmd.add_argument("--k-sigma", type=float, default=6.0, help="detector threshold over the noise floor")
+    replay_cmd.add_argument("--jobs", "-j", type=int, default=1, help="bags processed in parallel")
+
+    report_cmd = commands.add_parser("report", help="a figure of a calibration against its poses")
+    report_cmd.add_argument("calibration", help="calibration YAML")
+    source = report_cmd.add_mutually_exclusive_group(required=True)
+    source.add_argument("--bag", help="rosbag2 whose static poses to show")
+    source.add_argument("--poses", help="CSV of pose means (ax,ay,az[,temperature])")
+    report_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of the poses CSV")
+    report_cmd.add_argument("--output", "-o", required=True, help="PNG to write")
 
     apply_cmd = commands.add_parser("apply", help="correct the ax,ay,az columns of a CSV file")
     apply_cmd.add_argument("--calibration", "-c", required=True, help="calibration YAML")
@@ -105,10 +133,143 @@ def _apply(args) -> int:
     return 0
 
 
+def _replay_settings(args):
+    from .replay import ReplaySettings
+
+    if args.jobs < 1:
+        raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
+    return ReplaySettings(
+        model=args.model, gravity=args.gravity, min_poses=args.min_poses, window_s=args.window,
+        min_hold_s=args.min_hold, k_sigma=args.k_sigma, imu_topic=args.imu_topic,
+        temperature_topic=args.temperature_topic,
+        temperature=TemperatureOptions(model=args.temperature_model, min_span_degc=args.min_span),
+    )
+
+
+def _replay_one(bag, settings, output, corrected_bag, report, progress):
+    """Replay one bag and write what was asked; returns (summary text, calibration or None, error or None)."""
+    from pathlib import Path
+
+    from .replay import ReplayError, replay_bag, write_corrected_bag
+
+    try:
+        replay = replay_bag(bag, settings, progress=progress)
+    except (ReplayError, CalibrationError) as error:
+        return None, None, str(error)
+    if replay.calibration is None:
+        return None, None, f"{bag}: {replay.problem}"
+    calibration = replay.calibration
+    lines = [f"{bag}: {replay.messages} messages on {replay.imu_topic} over {replay.duration_s:.1f} s, "
+             f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
+             replay.result.summary()]
+    bad = {k: v for k, v in replay.counts.items() if v}
+    if bad:
+        lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+    try:
+        if output:
+            calibration.save(output)
+            lines.append(f"written {output}")
+        if corrected_bag:
+            written = write_corrected_bag(replay, calibration, corrected_bag)
+            lines.append(f"corrected bag {corrected_bag} ({written} messages; {replay.imu_topic} corrected)")
+        if report:
+            from .report import write_report
+
+            write_report(calibration, [p.accel_mps2 for p in replay.poses],
+                         [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
+            lines.append(f"report {report}")
+    except CalibrationError as error:
+        return None, None, str(error)
+    return "\n".join(lines), calibration, None
+
+
+def _replay(args) -> int:
+    from concurrent.futures import ProcessPoolExecutor
+    from pathlib import Path
+
+    settings = _replay_settings(args)
+    several = len(args.bags) > 1
+
+    def target(option, bag, suffix):
+        if option is None:
+            return None
+        if not several:
+            return option
+        Path(option).mkdir(parents=True, exist_ok=True)
+        return str(Path(option) / (Path(bag).name + suffix))
+
+    jobs = [(bag, settings, target(args.output, bag, ".yaml"), target(args.corrected_bag, bag, ""),
+             target(args.report, bag, ".png"), not several) for bag in args.bags]
+    if args.jobs > 1 and several:
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            outcomes = list(pool.map(_replay_one, *zip(*jobs)))
+    else:
+        outcomes = [_replay_one(*job) for job in jobs]
+    errors = [error for _, _, error in outcomes if error]
+    for summary, _, _ in outcomes:
+        if summary:
+            print(summary)
+    if several:
+        print(_comparison_table(args.bags, outcomes))
+    for error in errors:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+    return 1 if errors else 0
+
+
+def _comparison_table(bags, outcomes) -> str:
+    """How the calibration wanders from bag to bag: bias (mg) and scale (diag M) per bag, then the spread."""
+    from pathlib import Path
+
+    rows = ["", f"{'bag':32s} {'poses':>5s} {'rms mg':>7s} {'b_x mg':>8s} {'b_y mg':>8s} {'b_z mg':>8s} "
+                f"{'M_xx':>9s} {'M_yy':>9s} {'M_zz':>9s}"]
+    biases, scales = [], []
+    for bag, (_, calibration, error) in zip(bags, outcomes):
+        name = Path(bag).name[:32]
+        if calibration is None:
+            rows.append(f"{name:32s} {'-':>5s}  no calibration: {error.rsplit(': ', 1)[-1][:60] if error else ''}")
+            continue
+        b = calibration.bias / MG
+        m = np.diag(calibration.matrix)
+        biases.append(b)
+        scales.append(m)
+        rows.append(f"{name:32s} {calibration.quality.poses:5d} {calibration.quality.residual_rms_mg:7.2f} "
+                    f"{b[0]:8.2f} {b[1]:8.2f} {b[2]:8.2f} {m[0]:9.6f} {m[1]:9.6f} {m[2]:9.6f}")
+    if len(biases) > 1:
+        b, m = np.std(biases, axis=0, ddof=1), np.std(scales, axis=0, ddof=1)
+        rows.append(f"{'spread (1 sigma across bags)':32s} {'':5s} {'':7s} {b[0]:8.2f} {b[1]:8.2f} {b[2]:8.2f} "
+                    f"{m[0]:9.6f} {m[1]:9.6f} {m[2]:9.6f}")
+    return "\n".join(rows)
+
+
+def _report(args) -> int:
+    from .calibration_file import load_calibration
+    from .report import write_report
+
+    calibration = load_calibration(args.calibration)
+    if args.bag:
+        from .replay import ReplayError, replay_bag
+
+        try:
+            replay = replay_bag(args.bag)
+        except ReplayError as error:
+            raise CalibrationError(str(error)) from None
+        accel = [p.accel_mps2 for p in replay.poses]
+        temps = [p.temperature_degc for p in replay.poses]
+    else:
+        table = read_table(args.poses)
+        accel = table.accel * UNIT_SCALE[args.units]
+        temps = None if table.temperature_degc is None else list(table.temperature_degc)
+    if len(accel) == 0:
+        raise CalibrationError("no poses to show")
+    write_report(calibration, accel, temps, args.output, title=str(args.calibration))
+    print(f"report {args.output}")
+    return 0
+
+
 def main(argv=None) -> int:
     try:
         args = _parser().parse_args(argv)
-        return {"fit": _fit, "apply": _apply}[args.command](args)
+        return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report}[args.command](args)
     except CalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1

@@ -82,23 +82,29 @@ class OnlineCalibrator:
     def add_pose(self, pose: Pose) -> StoreEvent:
         return self.store.add(pose)
 
-    def temperature_problem(self) -> str | None:
+    def temperature_problem(self, poses=None) -> str | None:
         """Why the poses held cannot carry the temperature model yet (None when they can)."""
         if self.temperature is None or self.temperature.model == "none":
             return "temperature model off"
-        temps = [p.temperature_degc for p in self.store.poses]
+        temps = [p.temperature_degc for p in (self.store.poses if poses is None else poses)]
         if not temps or any(t is None for t in temps):
             return "no temperature on the poses (imu/temperature silent or stale)"
         return temperature_span_problem(np.array(temps), self.temperature)
 
-    def refit(self) -> FitResult | None:
-        """Fit the poses held, warm-started from the last good fit; with the temperature model once the
-        poses' temperature span allows it. None while there are too few poses."""
-        poses = self.store.poses
+    def refit(self, extra_poses=()) -> FitResult | None:
+        """Fit the poses held (plus `extra_poses`, merged into a copy of the store, not kept), warm-started
+        from the last good fit; with the temperature model once the poses' temperature span allows it.
+        None while there are too few poses."""
+        store = self.store
+        if extra_poses:
+            store = store.copy()
+            for pose in extra_poses:
+                store.add(pose)
+        poses = store.poses
         if len(poses) < parameter_count(self.model):
             return None
         accel = [p.accel_mps2 for p in poses]
-        if self.temperature_problem() is None:
+        if self.temperature_problem(poses) is None:
             result = fit(accel, model=self.model, gravity=self.gravity,
                          temperature_degc=[p.temperature_degc for p in poses],
                          temperature_model=self.temperature.model, temperature_options=self.temperature)
@@ -116,11 +122,11 @@ class OnlineCalibrator:
         self.last_fit = result
         return result
 
-    def calibrate(self) -> tuple[FitResult | None, str | None]:
+    def calibrate(self, extra_poses=()) -> tuple[FitResult | None, str | None]:
         """Fit now and judge it: (result, None) when it passes the gates, else (result, reason)."""
-        result = self.refit()
+        result = self.refit(extra_poses)
         if result is None:
-            return None, f"have {len(self.store)} poses, need at least {max(parameter_count(self.model), self.gates.min_poses)}"
+            return None, f"have {len(self.store) + len(extra_poses)} poses, need at least {max(parameter_count(self.model), self.gates.min_poses)}"
         return result, self.gates.check(result)
 
     def gyro_bias_radps(self) -> np.ndarray | None:

@@ -67,6 +67,12 @@ class PoseStore:
     def poses(self) -> list[Pose]:
         return list(self._poses)
 
+    def copy(self) -> "PoseStore":
+        other = PoseStore.__new__(PoseStore)
+        other.__dict__.update(self.__dict__)
+        other._poses = list(self._poses)
+        return other
+
     def clear(self) -> None:
         self._poses.clear()
 

@@ -248,6 +248,19 @@ class StaticDetector:
             self.state = "moving"
         return emitted
 
+    def peek(self) -> Pose | None:
+        """The ongoing still interval as a pose, as flush() would give it, without ending it: what a
+        person holding the last pose expects /calibrate to count."""
+        interval = self._interval
+        if interval is None:
+            return None
+        saved = {key: (value.copy() if isinstance(value, np.ndarray) else value) for key, value in interval.items()}
+        pending = self._pending
+        try:
+            return self._end_interval(keep_pending=True)
+        finally:
+            self._interval, self._pending = saved, pending
+
     def flush(self) -> Pose | None:
         """End of stream: the ongoing still interval, if long enough."""
         return self._end_interval(keep_pending=True)

@@ -229,3 +229,17 @@ def test_a_stream_that_starts_moving_gives_no_pose_from_the_warmup():
     poses = StaticDetector().process(t[moving.argmax():] - t[moving.argmax()], accel[moving.argmax():])
     assert len(poses) == len(directions) - 1
     assert all(np.abs(p.accel_mps2 - G * d).max() < 0.01 for p, d in zip(poses, directions[1:]))
+
+
+def test_peek_gives_the_held_pose_without_ending_it():
+    rng = np.random.default_rng(12)
+    t, accel, _ = synthetic_stream(100.0, rng)
+    last_dwell_end = len(t)  # the stream ends inside the last still dwell
+    detector = StaticDetector()
+    for i in range(last_dwell_end):
+        detector.update(int(t[i]), *accel[i])
+    held = detector.peek()
+    assert held is not None and detector.peek().samples == held.samples  # no state changed
+    flushed = detector.flush()
+    np.testing.assert_array_equal(held.accel_mps2, flushed.accel_mps2)
+    assert (held.start_ns, held.end_ns, held.samples) == (flushed.start_ns, flushed.end_ns, flushed.samples)

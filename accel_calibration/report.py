@@ -1,0 +1,92 @@
+"""A calibration report a person would rather look at than read: the pose directions on the sphere,
+|a| - g per pose before and after (mg), the residuals, and the bias against temperature when the
+calibration has a temperature model. matplotlib with the Agg backend: no display needed."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .calibration import MG, Calibration
+from .errors import CalibrationError
+
+
+def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    accel = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+    temps = None
+    if temperature_degc is not None and all(t is not None for t in temperature_degc):
+        temps = np.asarray(temperature_degc, dtype=float)
+    g = calibration.gravity
+    corrected = calibration.apply(accel, temps) if temps is not None else calibration.apply(accel)
+    before = (np.linalg.norm(accel, axis=1) - g) / MG
+    after = (np.linalg.norm(corrected, axis=1) - g) / MG
+    directions = corrected / np.linalg.norm(corrected, axis=1)[:, None]
+
+    figure = plt.figure(figsize=(13, 9))
+    figure.suptitle(f"accel_calibration report {title}\nmodel {calibration.model}, {len(accel)} poses, "
+                    f"residual {np.sqrt(np.mean(after ** 2)):.2f} mg rms (raw {np.sqrt(np.mean(before ** 2)):.1f} mg)")
+
+    sphere = figure.add_subplot(2, 2, 1, projection="3d")
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
+    sphere.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", linewidth=0.5)
+    colour = temps if temps is not None else np.abs(after)
+    points = sphere.scatter(*directions.T, c=colour, cmap="coolwarm", s=30, depthshade=False)
+    figure.colorbar(points, ax=sphere, shrink=0.6, label="pose temperature, degC" if temps is not None else "|residual|, mg")
+    sphere.set_title("pose directions (gravity in the sensor frame)")
+    sphere.set_xlabel("x")
+    sphere.set_ylabel("y")
+    sphere.set_zlabel("z")
+
+    bars = figure.add_subplot(2, 2, 2)
+    index = np.arange(len(accel))
+    bars.bar(index - 0.2, before, width=0.4, label="raw", color="tab:red")
+    bars.bar(index + 0.2, after, width=0.4, label="calibrated", color="tab:blue")
+    bars.axhline(0, color="k", linewidth=0.5)
+    bars.set_xlabel("pose")
+    bars.set_ylabel("|a| - g, mg")
+    bars.set_title("magnitude error per pose")
+    bars.legend()
+
+    residuals = figure.add_subplot(2, 2, 3)
+    residuals.plot(index, after, "o-", color="tab:blue")
+    residuals.axhline(0, color="k", linewidth=0.5)
+    residuals.set_xlabel("pose")
+    residuals.set_ylabel("residual, mg")
+    residuals.set_title(f"residuals after calibration (max {np.max(np.abs(after)):.2f} mg)")
+
+    drift = figure.add_subplot(2, 2, 4)
+    if calibration.temperature is not None:
+        lo, hi = calibration.temperature.range_degc
+        grid = np.linspace(lo, hi, 200)
+        bias_t, _ = calibration.temperature.bias_and_scale(grid)
+        for axis in range(3):
+            drift.plot(grid, (calibration.bias[axis] + bias_t[:, axis]) / MG, label=f"b_{'xyz'[axis]}(T)")
+        drift.set_xlabel("temperature, degC")
+        drift.set_ylabel("bias, mg")
+        drift.set_title(f"bias against temperature ({calibration.temperature.kind} model)")
+        drift.legend()
+    else:
+        drift.axis("off")
+        text = ["b (mg): " + "  ".join(f"{v / MG:+.2f}" for v in calibration.bias), "M:"]
+        text += ["  " + "  ".join(f"{v:+.6f}" for v in row) for row in calibration.matrix]
+        if calibration.bias_sigma is not None:
+            text.append("sigma b (mg): " + "  ".join(f"{v / MG:.3f}" for v in calibration.bias_sigma))
+        drift.text(0.0, 0.9, "\n".join(text), family="monospace", va="top")
+        drift.set_title("parameters (no temperature model)")
+
+    figure.tight_layout()
+    path = Path(path)
+    temporary = path.with_name(f".{path.name}.tmp.png")
+    try:
+        figure.savefig(temporary, dpi=90)
+        temporary.replace(path)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
+    finally:
+        plt.close(figure)
