@@ -153,7 +153,7 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress):
     from .replay import ReplayError, replay_bag, write_corrected_bag
 
     try:
-        replay = replay_bag(bag, settings, progress=progress)
+        replay = replay_bag(bag, settings, progress=progress, for_copy=corrected_bag is not None)
     except (ReplayError, CalibrationError) as error:
         return None, None, str(error)
     if replay.calibration is None:

@@ -67,34 +67,19 @@ class ReplayError(Exception):
     """One line: the bag and what was (not) found in it."""
 
 
-def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False) -> ReplayResult:
-    from msg_tools.bag_io import IMU, TEMPERATURE, BagError, choose_topic, open_reader, read_imu, read_temperature
+def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False, for_copy: bool = False) -> ReplayResult:
+    """`for_copy`: read in rosbags' message order, which write_corrected_bag needs."""
+    from msg_tools.bag_io import BagError
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
     try:
-        reader = open_reader(path)
-        try:
-            imu_connection = choose_topic(reader, IMU, s.imu_topic, "imu", path)
-            if imu_connection is None:
-                have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "no topics"
-                raise ReplayError(f"{path}: no sensor_msgs/msg/Imu topic; the bag has {have}")
-            temperature_connection = choose_topic(reader, TEMPERATURE, s.temperature_topic, "temperature", path)
-            bar = None
-            if progress:
-                from tqdm import tqdm
-
-                bar = tqdm(total=imu_connection.msgcount, unit="msg", desc=Path(path).name, leave=False, disable=None)
-            try:
-                imu = read_imu(reader, imu_connection, path, bar)
-            finally:
-                if bar is not None:
-                    bar.close()
-            temperatures = read_temperature(reader, temperature_connection) if temperature_connection else None
-        finally:
-            reader.close()
+        loaded = None if for_copy else _read_fast(path, s, progress)
+        if loaded is None:
+            loaded = _read_with_rosbags(path, s, progress)
     except BagError as error:
         raise ReplayError(str(error)) from None
+    imu, temperatures, temperature_topic = loaded
 
     # Recorders write in arrival order; the session's time is the header stamps.
     order = np.argsort(imu.t_ns, kind="stable")
@@ -142,7 +127,7 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
     return ReplayResult(
         bag=str(path),
         imu_topic=imu.topic,
-        temperature_topic=temperature_connection.topic if temperature_connection else None,
+        temperature_topic=temperature_topic,
         messages=len(t),
         duration_s=duration,
         poses=poses,
@@ -154,6 +139,64 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
         imu=imu,
         temperature_at_samples=temperature_at_samples,
     )
+
+
+def _progress_bar(path, total, progress):
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="msg", desc=Path(path).name, leave=False, disable=None)
+
+
+def _no_imu(path, connections):
+    have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in connections})) or "no topics"
+    return ReplayError(f"{path}: no sensor_msgs/msg/Imu topic; the bag has {have}")
+
+
+def _read_fast(path, s: ReplaySettings, progress):
+    """Storage files read directly, topics from metadata.yaml; None when that cannot be trusted."""
+    from msg_tools.bag_io import IMU, TEMPERATURE, choose_topic, metadata_topics, read_fast
+
+    if not Path(path).is_dir():
+        return None
+    topics = metadata_topics(path)
+    if topics is None:
+        return None
+    imu_topic = choose_topic(topics, IMU, s.imu_topic, "imu", path)
+    if imu_topic is None:
+        raise _no_imu(path, topics)
+    temperature_topic = choose_topic(topics, TEMPERATURE, s.temperature_topic, "temperature", path)
+    bar = _progress_bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), progress)
+    try:
+        read = read_fast(path, imu_topic, temperature_topic, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if read is None:
+        return None
+    return read[0], read[1], temperature_topic.topic if temperature_topic else None
+
+
+def _read_with_rosbags(path, s: ReplaySettings, progress):
+    from msg_tools.bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
+
+    reader = open_reader(path)
+    try:
+        imu_connection = choose_topic(reader.connections, IMU, s.imu_topic, "imu", path)
+        if imu_connection is None:
+            raise _no_imu(path, reader.connections)
+        temperature_connection = choose_topic(reader.connections, TEMPERATURE, s.temperature_topic, "temperature", path)
+        total = imu_connection.msgcount + (temperature_connection.msgcount if temperature_connection else 0)
+        bar = _progress_bar(path, total, progress)
+        try:
+            imu, temperatures = read_imu_and_temperature(reader, imu_connection, temperature_connection, path, bar)
+        finally:
+            if bar is not None:
+                bar.close()
+    finally:
+        reader.close()
+    return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination) -> int:

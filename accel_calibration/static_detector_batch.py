@@ -28,11 +28,22 @@ def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.
     index = np.where(variances <= 0.0, 0, np.clip(np.nan_to_num(index, nan=0.0), 0, _NBINS - 1)).astype(np.int64)
     # Queries after add 1, 65, 129, ... (1-based); decays after add 200000, 400000, ...
     query_adds = np.arange(1, count + 1, _QUERY_EVERY)
+    centres = 10.0 ** (_LOG_MIN + (np.arange(_NBINS) + 0.5) / _BINS_PER_DECADE)
+    if count < half_life:
+        # No decay yet: the histogram at each query is a cumulative sum over query blocks.
+        block = np.searchsorted(query_adds, np.arange(1, count + 1), side="left")
+        counted = block < len(query_adds)  # adds after the last query never reach one
+        per_block = np.zeros((len(query_adds), _NBINS))
+        np.add.at(per_block, (block[counted], index[counted]), 1.0)
+        counts = np.cumsum(per_block, axis=0)
+        running = np.cumsum(counts, axis=1)
+        hit = (running >= quantile * query_adds[:, None]) & (counts > 0)
+        values = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
+        return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
     values = np.empty(len(query_adds))
     counts = np.zeros(_NBINS)
     total = 0.0
     done = 0  # adds already in `counts`
-    centres = 10.0 ** (_LOG_MIN + (np.arange(_NBINS) + 0.5) / _BINS_PER_DECADE)
     for q, upto in enumerate(query_adds):
         while done < upto:
             next_decay = (done // half_life + 1) * half_life
@@ -141,47 +152,55 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
             temperature_spread_degc=spread,
         ))
 
-    # The interval rules, per sample on plain lists (cheap: no arithmetic on samples here).
+    # The interval rules, applied per run of samples in the same state (runs break at gaps and at
+    # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
+    state = np.where(~full, 0, np.where(learning, 1, np.where(still, 2, 3)))
+    boundary = np.flatnonzero(np.concatenate([[True], (state[1:] != state[:-1]) | gaps[1:]]))
+    ends = np.concatenate([boundary[1:], [n]]) - 1
     opened = last = None  # index that opened the current interval, last sample added to it
     warmup_open = d.accel_var_threshold is None
     loudest_accel = loudest_gyro = 0.0
-    max_pose_ns = d.max_pose_s * 1e9
-    t_list, gaps_list, full_list = t.tolist(), gaps.tolist(), full.tolist()
-    learning_list, still_list = learning.tolist(), still.tolist()
-    accel_var_list = accel_var.tolist()
-    gyro_var_list = None if gyro_var is None else gyro_var.tolist()
-    accel_limit_list, gyro_limit_list = accel_limit.tolist(), gyro_limit.tolist()
-    for i in range(n):
-        if gaps_list[i] and opened is not None:
+    max_pose_ns = int(d.max_pose_s * 1e9) if math.isfinite(d.max_pose_s) else None
+    for first, final in zip(boundary.tolist(), ends.tolist()):
+        if gaps[first] and opened is not None:
             emit(opened, last, True)
             opened = None
-        if not full_list[i]:
+        kind = state[first]
+        if kind == 0:
             continue
-        if learning_list[i]:
-            loudest_accel = max(loudest_accel, accel_var_list[i])
-            loudest_gyro = max(loudest_gyro, (gyro_var_list[i] if gyro_var_list is not None else 0.0) or 0.0)
+        if kind == 1:
+            loudest_accel = max(loudest_accel, float(accel_var[first:final + 1].max()))
+            if gyro_var is not None:
+                loudest_gyro = max(loudest_gyro, float(gyro_var[first:final + 1].max()))
             if opened is None:
-                opened = last = i
-            else:
-                last = i
+                opened = first
+            last = final
             continue
         if warmup_open:
             warmup_open = False
-            limit_g = gyro_limit_list[i]
-            if opened is not None and not (loudest_accel <= accel_limit_list[i]
+            limit_g = gyro_limit[first]
+            if opened is not None and not (loudest_accel <= accel_limit[first]
                                            and (math.isnan(limit_g) or loudest_gyro <= limit_g)):
                 opened = None  # it moved during warm-up: no pose from it
-        if still_list[i]:
-            if opened is None:
-                opened = last = i
-            else:
-                last = i
-                if t_list[i] - t_list[start[opened]] >= max_pose_ns:
-                    emit(opened, last, True)
-                    opened = last = i
-        elif opened is not None:
-            emit(opened, last, True)
-            opened = None
+        if kind == 3:
+            if opened is not None:
+                emit(opened, last, True)
+                opened = None
+            continue
+        # A run of still samples: open at its first sample if nothing is open, cut at max_pose_s.
+        i = first
+        if opened is None:
+            opened = last = first
+            i = first + 1
+        while i <= final:
+            limit = None if max_pose_ns is None else t[start[opened]] + max_pose_ns
+            split = final + 1 if limit is None else max(i, int(np.searchsorted(t, limit, side="left")))
+            if split > final:
+                last = final
+                break
+            emit(opened, split, True)
+            opened = last = split
+            i = split + 1
     if opened is not None:
         emit(opened, last, False)
     return poses, rejected

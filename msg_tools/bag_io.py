@@ -53,13 +53,60 @@ def storage_of(path) -> str:
     return "mcap" if any(Path(path).glob("*.mcap")) else "sqlite3"
 
 
-def choose_topic(reader, msgtype: str, wanted: str | None, label: str, path) -> object | None:
-    """The connection of `msgtype` to use; None when there is none and none was asked for."""
-    found = [c for c in reader.connections if c.msgtype == msgtype]
+@dataclass(frozen=True)
+class TopicInfo:
+    """What metadata.yaml says of a topic (enough to choose and read it without opening the bag)."""
+
+    topic: str
+    msgtype: str
+    msgcount: int
+
+
+def metadata_topics(path) -> list[TopicInfo] | None:
+    """Topics from the bag's metadata.yaml, or None when it is missing or unexpected."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((Path(path) / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        if info.get("compression_format"):  # whole-file compression: leave it to rosbags
+            return None
+        return [TopicInfo(t["topic_metadata"]["name"], t["topic_metadata"]["type"], int(t["message_count"]))
+                for t in info["topics_with_message_count"]]
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return None
+
+
+def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
+    """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
+    from rosbags.typesys import Stores, get_typestore
+
+    topics = [imu_topic.topic] + ([temperature_topic.topic] if temperature_topic else [])
+    if storage_of(path) == "mcap":
+        from .mcap_scan import scan_topics
+
+        found = scan_topics(path, topics, progress)
+    else:
+        found = _scan_sqlite(path, topics, progress)
+    if found is None or len(found[imu_topic.topic]) != imu_topic.msgcount:
+        return None
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(found[imu_topic.topic], path, typestore.deserialize_cdr)
+    imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
+    temperatures = None
+    if temperature_topic is not None:
+        messages = [typestore.deserialize_cdr(raw, TEMPERATURE) for raw in found[temperature_topic.topic]]
+        temperatures = (np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages], dtype=np.int64),
+                        np.array([m.temperature for m in messages], dtype=float))
+    return imu, temperatures
+
+
+def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path) -> object | None:
+    """The connection (or TopicInfo) of `msgtype` to use; None when there is none and none was asked for."""
+    found = [c for c in connections if c.msgtype == msgtype]
     if wanted is not None:
         chosen = [c for c in found if c.topic == wanted]
         if not chosen:
-            have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "no topics"
+            have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in connections})) or "no topics"
             raise BagError(f"{path}: no {msgtype} topic {wanted}; the bag has {have}")
         return chosen[0]
     if len(found) > 1:
@@ -88,7 +135,7 @@ def decode_imus(raws: list, path, deserialize) -> tuple[np.ndarray, np.ndarray, 
     frame_id = ""
     for length in np.unique(lengths):
         index = np.flatnonzero(lengths == length)
-        block = np.frombuffer(b"".join(bytes(raws[i]) for i in index), dtype=np.uint8).reshape(len(index), int(length))
+        block = np.frombuffer(b"".join([raws[i] for i in index]), dtype=np.uint8).reshape(len(index), int(length))
         little = block[:, 1] == 1
         string_length = block[:, 12:16].copy().view("<u4").ravel()
         layout = None
@@ -118,23 +165,63 @@ def decode_imus(raws: list, path, deserialize) -> tuple[np.ndarray, np.ndarray, 
     return t, accel, gyro, frame_id, groups, group_of, row_of
 
 
-def read_imu(reader, connection, path, progress=None) -> ImuData:
+def read_imu_and_temperature(reader, imu_connection, temperature_connection, path, progress=None):
+    """Through rosbags, one pass for both topics (a second pass would decompress every mcap chunk
+    again), in rosbags' message order, which writing a corrected copy relies on.
+    Returns (ImuData, (temperature stamps, values) or None)."""
     raws = []
-    for _, _, raw in reader.messages(connections=[connection]):
-        raws.append(raw)
+    temperature_raws = []
+    connections = [imu_connection] + ([temperature_connection] if temperature_connection is not None else [])
+    imu_id = imu_connection.id
+    step = 0
+    for connection, _, raw in reader.messages(connections=connections):
+        if connection.id == imu_id:
+            raws.append(raw)
+        else:
+            temperature_raws.append(raw)
         if progress is not None:
-            progress.update(1)
+            step += 1
+            if step == 4096:
+                progress.update(step)
+                step = 0
+    if progress is not None:
+        progress.update(step)
     t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize)
-    return ImuData(connection.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
+    imu = ImuData(imu_connection.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
+    temperatures = None
+    if temperature_connection is not None:
+        stamps, values = [], []
+        for raw in temperature_raws:
+            msg = reader.deserialize(raw, TEMPERATURE)
+            stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            values.append(msg.temperature)
+        temperatures = (np.array(stamps, dtype=np.int64), np.array(values, dtype=float))
+    return imu, temperatures
 
 
-def read_temperature(reader, connection) -> tuple[np.ndarray, np.ndarray]:
-    stamps, values = [], []
-    for _, _, raw in reader.messages(connections=[connection]):
-        msg = reader.deserialize(raw, TEMPERATURE)
-        stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-        values.append(msg.temperature)
-    return np.array(stamps, dtype=np.int64), np.array(values, dtype=float)
+def _scan_sqlite(path, topics, progress=None) -> dict[str, list] | None:
+    """{topic: [data, ...]} straight from rosbag2's sqlite3 tables (one query per file), or None when
+    the layout is not the expected one (the caller falls back to rosbags)."""
+    import sqlite3
+
+    out = {topic: [] for topic in topics}
+    try:
+        for file in sorted(Path(path).glob("*.db3")):
+            connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
+            try:
+                ids = dict(connection.execute("SELECT id, name FROM topics").fetchall())
+                for topic_id, name in ids.items():
+                    if name in out:
+                        rows = connection.execute("SELECT data FROM messages WHERE topic_id = ?",
+                                                  (topic_id,)).fetchall()
+                        out[name].extend(row[0] for row in rows)
+                        if progress is not None:
+                            progress.update(len(rows))
+            finally:
+                connection.close()
+    except sqlite3.Error:
+        return None
+    return out
 
 
 def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarray) -> int:

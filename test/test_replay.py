@@ -164,3 +164,16 @@ def test_bag_errors_are_one_line(tmp_path, capsys):
     (tmp_path / "junk" / "metadata.yaml").write_text("not: a bag\n")
     assert main(["replay", str(tmp_path / "junk")]) == 1
     assert "not a readable rosbag2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_direct_read_and_rosbags_read_give_the_same_poses(tmp_path, storage):
+    _, samples = session(seed=9)
+    bag = tmp_path / "b"
+    write_session_bag(bag, samples, start_ns=START_NS, storage=storage, shuffle_seed=2)
+    fast, through_rosbags = replay_bag(bag), replay_bag(bag, for_copy=True)
+    assert len(fast.poses) == len(through_rosbags.poses) >= 12
+    for a, b in zip(fast.poses, through_rosbags.poses):
+        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+        np.testing.assert_array_equal(a.accel_mps2, b.accel_mps2)
+    np.testing.assert_array_equal(fast.calibration.bias, through_rosbags.calibration.bias)
