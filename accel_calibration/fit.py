@@ -201,6 +201,19 @@ def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
     )
 
 
+def _standard_deviations(solution, n: int) -> np.ndarray:
+    """1-sigma of each parameter: residual variance (cost over the degrees of freedom) times the
+    inverse Gauss-Newton normal matrix. NaN when there are no degrees of freedom left."""
+    size = len(solution.x)
+    dof = n - size
+    variance = 2.0 * solution.cost / dof if dof > 0 else float("nan")
+    try:
+        covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
+    except np.linalg.LinAlgError:
+        covariance = np.full((size, size), np.nan)
+    return np.sqrt(np.abs(np.diag(covariance)))
+
+
 def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> FitResult:
     model = SphereModel(name)
     n = len(accel)
@@ -248,13 +261,7 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
     bias, matrix = model.unpack(solution.x)
     if np.linalg.det(matrix) <= 0:
         return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
-    dof = n - model.size
-    variance = 2.0 * solution.cost / dof if dof > 0 else float("nan")
-    try:
-        covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
-    except np.linalg.LinAlgError:
-        covariance = np.full((model.size, model.size), np.nan)
-    stds = np.sqrt(np.abs(np.diag(covariance)))
+    stds = _standard_deviations(solution, n)
     _, matrix_sigma = model.unpack(stds)
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
     calibration = Calibration(
@@ -396,13 +403,7 @@ def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptio
     if not solution.success:
         return FitResult(False, solution.message, **common)
     bias, matrix, c, d = model.unpack(solution.x)
-    dof = n - model.size
-    variance = 2.0 * solution.cost / dof if dof > 0 else float("nan")
-    try:
-        covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
-    except np.linalg.LinAlgError:
-        covariance = np.full((model.size, model.size), np.nan)
-    stds = np.sqrt(np.abs(np.diag(covariance)))
+    stds = _standard_deviations(solution, n)
     _, matrix_sigma = model.base.unpack(stds[: model.base.size])
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
     temperature = TemperatureModel("polynomial", reference_degc, span, bias_coefficients=c, scale_coefficients=d)

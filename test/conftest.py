@@ -31,3 +31,22 @@ def shared_path(relative: str) -> Path:
 @pytest.fixture
 def shared():
     return shared_path
+
+
+@pytest.fixture(scope="module")
+def ros():
+    """rclpy for a module of tests that talk to calibration_node over DDS."""
+    import rclpy
+
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+@pytest.fixture
+def tester(ros):
+    from msg_tools.calibration_client import CalibrationClient
+
+    client = CalibrationClient()
+    yield client
+    client.destroy()

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import rclpy
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -13,25 +12,11 @@ from accel_calibration import MG, Calibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 from msg_tools.synthetic_publisher import play
 
-from msg_tools.calibration_client import CalibrationClient
 from msg_tools.node_process import NodeProcess
 
 START_NS = 1_700_000_000 * 10**9  # header time of the played sessions
 SPEED = 10.0
 
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
-@pytest.fixture
-def tester(ros):
-    t = CalibrationClient()
-    yield t
-    t.destroy()
 
 
 def sensor(seed=1, noise=0.02):
@@ -50,6 +35,22 @@ def by_stamp(messages):
 def accel_of(msg):
     a = msg.linear_acceleration
     return np.array([a.x, a.y, a.z])
+
+
+def play_and_average(tester, imu, start_ns, last_s=1.0):
+    """Play `imu` into the node and average the corrected output over the last `last_s` of each dwell:
+    [(window messages, mean acceleration, true specific force), ...]."""
+    samples = imu.samples()
+    tester.corrected.clear()
+    sent = play(tester.imu_pub, tester.temperature_pub, samples, start_ns=start_ns, speed=SPEED)
+    assert tester.settle(int(0.99 * sent))
+    received = by_stamp(tester.corrected)
+    out = []
+    for _, end, truth in imu.static_intervals():
+        window = [received[start_ns + int(t)] for t in samples.t_ns
+                  if end - last_s * 1e9 <= t < end and start_ns + int(t) in received]
+        out.append((window, np.mean([accel_of(m) for m in window], axis=0), truth))
+    return out
 
 
 def test_live_calibration_end_to_end(tmp_path, tester):
@@ -96,15 +97,8 @@ def test_live_calibration_end_to_end(tmp_path, tester):
                              dwell_s=1.6, move_s=0.8, rate_hz=200.0, seed=3)
         fresh_samples = fresh.samples()
         fresh_start = START_NS + int(200e9)
-        tester.corrected.clear()
-        sent = play(tester.imu_pub, tester.temperature_pub, fresh_samples, start_ns=fresh_start, speed=SPEED)
-        assert tester.settle(int(0.99 * sent))
-        received = by_stamp(tester.corrected)
-        for start, end, truth in fresh.static_intervals():
-            window = [received[fresh_start + int(t)] for t in fresh_samples.t_ns
-                      if end - 1.0e9 <= t < end and fresh_start + int(t) in received]
+        for window, mean, truth in play_and_average(tester, fresh, fresh_start):
             assert len(window) >= 190
-            mean = np.mean([accel_of(m) for m in window], axis=0)
             error_mg = np.linalg.norm(mean - truth) / MG
             assert error_mg < 1.0, error_mg
             gyro = np.mean([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in window], axis=0)
@@ -176,16 +170,8 @@ def test_node_learns_temperature_drift_while_the_sensor_warms(tmp_path, tester):
         for temperature in (15.0, 45.0):
             fresh = SyntheticImu(errors, [Rotation.random(random_state=rng) for _ in range(3)], dwell_s=1.6, move_s=0.8,
                                  rate_hz=100.0, seed=int(temperature), temperature_degc=temperature)
-            fresh_samples = fresh.samples()
             fresh_start = START_NS + int(1000e9 + temperature * 1e9 * 100)
-            tester.corrected.clear()
-            sent = play(tester.imu_pub, tester.temperature_pub, fresh_samples, start_ns=fresh_start, speed=SPEED)
-            assert tester.settle(int(0.99 * sent))
-            received = by_stamp(tester.corrected)
-            for start, end, truth in fresh.static_intervals():
-                window = [received[fresh_start + int(t)] for t in fresh_samples.t_ns
-                          if end - 1.0e9 <= t < end and fresh_start + int(t) in received]
-                mean = np.mean([accel_of(m) for m in window], axis=0)
+            for _, mean, truth in play_and_average(tester, fresh, fresh_start):
                 # Truth drifts by ~25 mg between these temperatures; the node tracks it to ~1 mg
                 # (noise 1 mg per sample, 100 samples; pose temperatures lag the fast ramp a little).
                 assert np.linalg.norm(mean - truth) / MG < 1.5, (temperature, np.linalg.norm(mean - truth) / MG)

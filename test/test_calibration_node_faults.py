@@ -7,7 +7,6 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterValue
@@ -18,25 +17,11 @@ from msg_tools.conversions import make_imu, make_temperature
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 from msg_tools.synthetic_publisher import play
 
-from msg_tools.calibration_client import CalibrationClient
 from msg_tools.node_process import NodeProcess
 
 START_NS = 1_700_000_000 * 10**9
 ERROR, WARN = b"\x02", b"\x01"
 
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
-@pytest.fixture
-def tester(ros):
-    t = CalibrationClient()
-    yield t
-    t.destroy()
 
 
 def preloaded(path):
