@@ -40,6 +40,7 @@ from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 # drivers publishing with sensor-data QoS.
 STREAM_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 MIRROR_PREFIX = "calibration."
+GATE_PARAMETERS = ("min_poses", "max_residual_rms_mg", "max_bias_sigma_mg", "max_bias_mps2", "scale_min", "scale_max")
 
 
 def _describe(text: str, read_only: bool = False) -> ParameterDescriptor:
@@ -59,7 +60,7 @@ class CalibrationNode(Node):
             gyro_var_threshold=p["static.gyro_var_threshold"] or None,
             k_sigma=p["static.k_sigma"],
         )
-        self._gates = QualityGates(min_poses=p["min_poses"], max_residual_rms_mg=p["max_residual_rms_mg"])
+        self._gates = self._gates_from(p)
         self._online = OnlineCalibrator(
             model=p["model"],
             gravity=p["gravity"],
@@ -114,6 +115,10 @@ class CalibrationNode(Node):
             ("auto_calibrate", False, "apply (and save) a new fit by itself once it passes the quality gates", False),
             ("min_poses", 12, "poses needed before a fit may be applied", False),
             ("max_residual_rms_mg", 15.0, "quality gate: largest residual rms (mg) of a fit that may be applied", False),
+            ("max_bias_sigma_mg", 5.0, "quality gate: largest bias uncertainty (1 sigma, mg) of a fit that may be applied", False),
+            ("max_bias_mps2", 2.0, "plausibility gate: largest |bias| per axis, m/s^2", False),
+            ("scale_min", 0.9, "plausibility gate: smallest correction gain per axis (row norm of M)", False),
+            ("scale_max", 1.1, "plausibility gate: largest correction gain per axis (row norm of M)", False),
             ("merge_angle_deg", 5.0, "a new pose within this angle of a held one is merged into it", True),
             ("max_poses", 100, "pose store capacity; the oldest pose gives way beyond it", True),
             ("accel_range_mps2", 16 * STANDARD_GRAVITY, "sensor full scale; samples at it are counted as saturated and kept out of the fit", True),
@@ -166,12 +171,26 @@ class CalibrationNode(Node):
                     return SetParametersResult(successful=False, reason=f"min_poses must be an integer >= {parameter_count(self._online.model)}")
             if parameter.name == "max_residual_rms_mg" and not (parameter.type_ == Parameter.Type.DOUBLE and parameter.value > 0):
                 return SetParametersResult(successful=False, reason="max_residual_rms_mg must be a positive number")
+        changed = dict(self._params)
         for parameter in parameters:
-            if parameter.name in ("min_poses", "max_residual_rms_mg", "auto_calibrate"):
-                self._params[parameter.name] = parameter.value
-        self._gates = QualityGates(min_poses=self._params["min_poses"], max_residual_rms_mg=self._params["max_residual_rms_mg"])
-        self._online.gates = self._gates
+            if parameter.name in GATE_PARAMETERS + ("auto_calibrate",):
+                changed[parameter.name] = parameter.value
+        try:
+            gates = self._gates_from(changed)
+        except (CalibrationError, TypeError) as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        self._params = changed
+        self._gates = gates
+        self._online.gates = gates
         return SetParametersResult(successful=True)
+
+    @staticmethod
+    def _gates_from(p) -> QualityGates:
+        return QualityGates(
+            min_poses=p["min_poses"], max_residual_rms_mg=float(p["max_residual_rms_mg"]),
+            max_bias_sigma_mg=float(p["max_bias_sigma_mg"]), max_bias_mps2=float(p["max_bias_mps2"]),
+            scale_band=(float(p["scale_min"]), float(p["scale_max"])),
+        )
 
     def _mirror(self, calibration: Calibration):
         self._mirror_update.active = True

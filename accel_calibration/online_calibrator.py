@@ -17,27 +17,55 @@ from .models import MODELS, parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .temperature_models import TemperatureOptions, temperature_span_problem
+from .units import units_problem
 
 
 @dataclass(frozen=True)
 class QualityGates:
-    """What a fit must meet before it is applied (by /calibrate or automatically)."""
+    """What a fit must meet before it is applied (by /calibrate, automatically, or by replay). Each
+    refusal names the gate: `poses`, `fit`, `residual`, `sigma`, `coverage`, `bias`, `scale`."""
 
     min_poses: int = 12
     max_residual_rms_mg: float = 15.0  # a MEMS part's pose means fit the sphere to a few mg
+    max_bias_sigma_mg: float = 5.0  # the bias must be known this well
     require_all_faces: bool = True  # every axis seen pointing up and down (within ~45 deg)
+    max_bias_mps2: float = 2.0  # plausibility: MEMS zero-g offsets are below ~150 mg
+    scale_band: tuple[float, float] = (0.9, 1.1)  # plausibility: gain of each axis (row norm of M)
+
+    def __post_init__(self):
+        if not (isinstance(self.min_poses, int) and self.min_poses >= 6):
+            raise CalibrationError(f"min_poses must be an integer >= 6, got {self.min_poses!r}")
+        for name in ("max_residual_rms_mg", "max_bias_sigma_mg", "max_bias_mps2"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise CalibrationError(f"{name} must be a positive number, got {value!r}")
+        lo, hi = self.scale_band
+        if not (0 < lo < 1 < hi):
+            raise CalibrationError(f"scale_band must be (low < 1 < high), got {self.scale_band!r}")
 
     def check(self, result: FitResult) -> str | None:
         """None when the result passes, else the first gate it fails, said plainly."""
         if result.poses < self.min_poses:
-            return f"have {result.poses} poses, need min_poses={self.min_poses}"
+            return f"gate poses: have {result.poses} poses, need min_poses={self.min_poses}"
         if not result.success:
-            return result.message
-        rms = result.calibration.quality.residual_rms_mg
+            return f"gate fit: {result.message}"
+        calibration = result.calibration
+        rms = calibration.quality.residual_rms_mg
         if rms > self.max_residual_rms_mg:
-            return f"residual rms {rms:.1f} mg above the {self.max_residual_rms_mg:g} mg gate (motion in the poses?)"
+            return f"gate residual: rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)"
+        sigma_mg = float(np.max(result.sigma.bias)) / MG if result.sigma is not None else float("nan")
+        if not sigma_mg <= self.max_bias_sigma_mg:
+            return f"gate sigma: bias uncertainty {sigma_mg:.2f} mg above {self.max_bias_sigma_mg:g} mg (add poses)"
         if self.require_all_faces and result.missing_directions:
-            return "coverage: no pose with " + ", no pose with ".join(result.missing_directions)
+            return "gate coverage: no pose with " + ", no pose with ".join(result.missing_directions)
+        bias = float(np.max(np.abs(calibration.bias)))
+        if bias > self.max_bias_mps2:
+            return f"gate bias: |b| {bias:.3f} m/s^2 above the plausible {self.max_bias_mps2:g} m/s^2"
+        lo, hi = self.scale_band
+        gains = np.linalg.norm(calibration.matrix, axis=1)  # correction gain of each axis (row of M)
+        outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+        if outside:
+            return f"gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g}"
         return None
 
 
@@ -124,6 +152,10 @@ class OnlineCalibrator:
 
     def calibrate(self, extra_poses=()) -> tuple[FitResult | None, str | None]:
         """Fit now and judge it: (result, None) when it passes the gates, else (result, reason)."""
+        poses = self.store.poses + list(extra_poses)
+        problem = units_problem([p.accel_mps2 for p in poses], self.gravity)
+        if problem is not None:
+            return None, problem
         result = self.refit(extra_poses)
         if result is None:
             return None, f"have {len(self.store) + len(extra_poses)} poses, need at least {max(parameter_count(self.model), self.gates.min_poses)}"

@@ -30,6 +30,9 @@ class ReplaySettings:
     temperature: TemperatureOptions = field(default_factory=TemperatureOptions)
     min_poses: int = 12
     max_residual_rms_mg: float = 15.0
+    max_bias_sigma_mg: float = 5.0
+    max_bias_mps2: float = 2.0
+    scale_band: tuple[float, float] = (0.9, 1.1)
     merge_angle_deg: float = 5.0
     max_poses: int = 100
     temperature_bin_degc: float = 5.0
@@ -103,7 +106,8 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
     online = OnlineCalibrator(
         model=s.model,
         gravity=s.gravity,
-        gates=QualityGates(min_poses=s.min_poses, max_residual_rms_mg=s.max_residual_rms_mg),
+        gates=QualityGates(min_poses=s.min_poses, max_residual_rms_mg=s.max_residual_rms_mg,
+                           max_bias_sigma_mg=s.max_bias_sigma_mg, max_bias_mps2=s.max_bias_mps2, scale_band=s.scale_band),
         store=PoseStore(merge_angle_deg=s.merge_angle_deg, capacity=s.max_poses, temperature_bin_degc=s.temperature_bin_degc),
         temperature=s.temperature,
     )

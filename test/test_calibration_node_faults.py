@@ -250,3 +250,21 @@ def test_use_sim_time_with_a_clock_as_bag_play_gives(tmp_path, tester):
         assert tester.spin_until(lambda: len(tester.diagnostics) > 0, 10)
     finally:
         assert node.stop() == 0, node.log()
+
+
+def test_a_stream_in_g_is_reported_not_calibrated(tmp_path, tester):
+    from msg_tools.synthetic_imu import SyntheticSamples
+
+    cal_file = tmp_path / "cal.yaml"
+    node = NodeProcess(cal_file)
+    try:
+        tester.wait_ready()
+        _, imu = good_session(seed=31)
+        s = imu.samples()
+        in_g = SyntheticSamples(s.t_ns, s.accel_raw / 9.80665, s.gyro_raw, s.temperature_degc, s.accel_true, s.static)
+        play(tester.imu_pub, tester.temperature_pub, in_g, start_ns=START_NS, speed=10)
+        answer = tester.call("calibrate")
+        assert not answer.success and "looks like g, not m/s^2" in answer.message
+        assert not cal_file.exists()
+    finally:
+        assert node.stop() == 0, node.log()

@@ -1,0 +1,22 @@
+"""Is this stream in m/s^2? A driver publishing g (|a| ~ 1) or raw counts (|a| ~ 16384) would be
+fitted into nonsense (a 'scale' of 9.8 or 6e-4); say so instead. Used on the poses' magnitudes,
+which at rest are |M^-1 g + b|: within a few percent of g for any plausible MEMS part."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def units_problem(accel_mps2, gravity: float) -> str | None:
+    magnitudes = np.linalg.norm(np.asarray(accel_mps2, dtype=float).reshape(-1, 3), axis=1)
+    if len(magnitudes) == 0:
+        return None
+    typical = float(np.median(magnitudes))
+    if 0.7 * gravity <= typical <= 1.3 * gravity:
+        return None
+    if 0.7 <= typical <= 1.3:
+        return (f"units: still poses read |a| = {typical:.3f}, which looks like g, not m/s^2 (expected ~{gravity:.2f}): "
+                "convert the stream (x 9.80665) before calibrating")
+    if typical > 30 * gravity:
+        return (f"units: still poses read |a| = {typical:.0f}, which looks like raw sensor counts, not m/s^2: "
+                "scale the driver's output to m/s^2 before calibrating")
+    return f"units: still poses read |a| = {typical:.3f}, expected ~{gravity:.2f} m/s^2: check the driver's units and scaling"

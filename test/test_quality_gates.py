@@ -1,0 +1,76 @@
+"""Quality gates and units detection: nothing implausible is applied, and each refusal names its gate."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from accel_calibration import MG, CalibrationError, Pose
+from accel_calibration.online_calibrator import OnlineCalibrator, QualityGates
+
+G = 9.80665
+
+
+def poses_from(raw):
+    return [Pose(accel_mps2=a, accel_cov=np.eye(3) * 1e-6, samples=200, start_ns=i * 10**9, end_ns=i * 10**9 + 5 * 10**8)
+            for i, a in enumerate(raw)]
+
+
+def session(bias=(0.2, -0.3, 0.1), scale=(1.01, 0.99, 1.02), n=24, noise_mg=0.2, seed=0, directions=None):
+    rng = np.random.default_rng(seed)
+    if directions is None:
+        directions = Rotation.random(n, random_state=rng).apply([0.0, 0.0, 1.0])
+        directions[:6] = np.vstack([np.eye(3), -np.eye(3)])
+    raw = G * directions / np.array(scale) + np.array(bias) + rng.normal(0, noise_mg * MG, directions.shape)
+    return raw
+
+
+def calibrate(raw, **gates):
+    online = OnlineCalibrator(gates=QualityGates(**gates))
+    for pose in poses_from(raw):
+        online.add_pose(pose)
+    return online.calibrate()
+
+
+def test_a_good_session_passes_every_gate():
+    result, problem = calibrate(session())
+    assert problem is None and result.success
+
+
+@pytest.mark.parametrize(
+    "raw, gates, gate",
+    [
+        (session(n=10), {}, "gate poses: have 10 poses, need min_poses=12"),
+        (session(noise_mg=30.0), {}, "gate residual"),
+        (session(), dict(max_bias_sigma_mg=0.01), "gate sigma"),
+        (session(bias=(2.5, 0.0, 0.0)), {}, "gate bias: |b| 2.4"),
+        (session(scale=(1.25, 1.0, 1.0)), {}, "gate scale: correction gain x 1.2"),
+        (session(scale=(1.05, 1.0, 1.0)), dict(scale_band=(0.98, 1.02)), "gate scale"),
+    ],
+)
+def test_each_gate_refuses_with_its_name(raw, gates, gate):
+    _, problem = calibrate(raw, **gates)
+    assert problem is not None and gate in problem, problem
+
+
+def test_coverage_gate_names_the_missing_face():
+    rng = np.random.default_rng(3)
+    directions = Rotation.random(400, random_state=rng).apply([0.0, 0.0, 1.0])
+    directions = directions[directions[:, 0] > -0.5][:30]  # x never points down
+    _, problem = calibrate(session(directions=directions))
+    assert problem is not None and "gate" in problem and "x pointing down" in problem
+
+
+def test_stream_in_g_is_detected_not_fitted():
+    _, problem = calibrate(session() / G)
+    assert problem is not None and "looks like g, not m/s^2" in problem
+
+
+def test_stream_in_raw_counts_is_detected_not_fitted():
+    _, problem = calibrate(session() / G * 16384)
+    assert problem is not None and "raw sensor counts" in problem
+
+
+@pytest.mark.parametrize("gates, name", [(dict(min_poses=2), "min_poses"), (dict(max_bias_mps2=-1.0), "max_bias_mps2"),
+                                         (dict(scale_band=(1.1, 1.2)), "scale_band")])
+def test_bad_gate_settings_are_refused(gates, name):
+    with pytest.raises(CalibrationError, match=name):
+        QualityGates(**gates)
