@@ -214,6 +214,9 @@ class CalibrationNode(Node):
             return
         try:
             calibration = load_calibration(path)
+            implausible = self._gates.plausibility(calibration)
+            if implausible is not None:
+                raise CalibrationError(f"{path}: implausible for an accelerometer in m/s^2 ({implausible})")
         except CalibrationError as error:
             self._file_unreadable = True
             self.get_logger().error(f"calibration file unusable, left untouched, raw passes through: {error}")

@@ -58,6 +58,11 @@ class QualityGates:
             return f"gate sigma: bias uncertainty {sigma_mg:.2f} mg above {self.max_bias_sigma_mg:g} mg (add poses)"
         if self.require_all_faces and result.missing_directions:
             return "gate coverage: no pose with " + ", no pose with ".join(result.missing_directions)
+        return self.plausibility(calibration)
+
+    def plausibility(self, calibration) -> str | None:
+        """The bias-range and scale-band gates alone: also what a calibration file must meet before the
+        node puts it in force (a well-formed file can still hold absurd numbers)."""
         bias = float(np.max(np.abs(calibration.bias)))
         if bias > self.max_bias_mps2:
             return f"gate bias: |b| {bias:.3f} m/s^2 above the plausible {self.max_bias_mps2:g} m/s^2"

@@ -57,7 +57,11 @@ def test_calibrate_with_too_few_poses_keeps_the_calibration_in_force(tmp_path, t
         assert node.stop() == 0, node.log()
 
 
-@pytest.mark.parametrize("content", [b"\x00\x01binary junk\xff", b"imu_calibration: {bias: [1, 2, 3]}\n"])
+@pytest.mark.parametrize("content", [
+    b"\x00\x01binary junk\xff",
+    b"imu_calibration: {bias: [1, 2, 3]}\n",
+    b"accel_calibration: {model: sphere9, bias: [0, 0, 0], matrix: [[1e12, 0, 0], [0, 1, 0], [0, 0, 1]]}\n",
+])
 def test_corrupt_or_foreign_file_is_reported_left_untouched_and_never_overwritten(tmp_path, tester, content):
     cal_file = tmp_path / "cal.yaml"
     cal_file.write_bytes(content)
