@@ -39,6 +39,7 @@ from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 # Best effort, depth 50 on both sides: measured 0 % loss to 3 kHz here (PERF_NOTES); still matches
 # drivers publishing with sensor-data QoS.
 STREAM_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+SERVICE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 MIRROR_PREFIX = "calibration."
 GATE_PARAMETERS = ("min_poses", "max_residual_rms_mg", "max_bias_sigma_mg", "max_bias_mps2", "scale_min", "scale_max")
 
@@ -99,11 +100,12 @@ class CalibrationNode(Node):
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Imu, "imu/data_raw", self._on_imu, STREAM_QOS)
         self.create_subscription(Temperature, "imu/temperature", self._on_temperature, STREAM_QOS)
-        self.create_service(Trigger, "calibrate", self._srv_calibrate)
-        self.create_service(Trigger, "calibration/get", self._srv_get)
-        self.create_service(Trigger, "calibration/reset", self._srv_reset)
-        self.create_service(Trigger, "calibration/save", self._srv_save)
-        self.create_service(SetBool, "calibration/enable", self._srv_enable)
+        # Services keep up to 100 requests (default 10): several tools may call /calibrate at once.
+        self.create_service(Trigger, "calibrate", self._srv_calibrate, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, "calibration/get", self._srv_get, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, "calibration/reset", self._srv_reset, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, "calibration/save", self._srv_save, qos_profile=SERVICE_QOS)
+        self.create_service(SetBool, "calibration/enable", self._srv_enable, qos_profile=SERVICE_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
 
     # ------------------------------------------------------------------ parameters

@@ -138,7 +138,7 @@ def test_bad_messages_are_counted_and_never_reach_the_fit(tmp_path, tester):
         assert node.stop() == 0, node.log()
 
 
-def test_temperature_that_stops_is_reported_stale(tmp_path, tester):
+def test_temperature_that_stops_is_reported_stale_and_used_again_when_it_resumes(tmp_path, tester):
     node = NodeProcess(tmp_path / "cal.yaml", "temperature_timeout_s:=1.0")
     try:
         tester.wait_ready()
@@ -150,6 +150,21 @@ def test_temperature_that_stops_is_reported_stale(tmp_path, tester):
             tester.imu_pub.publish(make_imu(START_NS + 2 * 10**9 + i * 10**7, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0)))
             time.sleep(0.002)
         assert tester.spin_until(lambda: int(tester.diagnostics[-1]["temperature_stale"]) > 100, 5)
+        # It resumes: the new readings are used again and nothing more is counted stale.
+        for i in range(10):
+            tester.temperature_pub.publish(make_temperature(START_NS + 5 * 10**9 + i * 10**8, 35.0))
+            time.sleep(0.002)
+        for i in range(100):
+            tester.imu_pub.publish(make_imu(START_NS + 6 * 10**9 + i * 10**7, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0)))
+            time.sleep(0.002)
+        assert tester.spin_until(lambda: abs(float(tester.diagnostics[-1]["temperature_degc"] or 0) - 35.0) < 0.3, 5)
+        stale = int(tester.diagnostics[-1]["temperature_stale"])
+        for i in range(50):
+            tester.temperature_pub.publish(make_temperature(START_NS + 7 * 10**9 + i * 10**7, 35.0))
+            tester.imu_pub.publish(make_imu(START_NS + 7 * 10**9 + i * 10**7 + 1, (0.0, 0.0, 9.8), (0.0, 0.0, 0.0)))
+            time.sleep(0.002)
+        time.sleep(1.2)  # one more diagnostics period
+        assert int(tester.diagnostics[-1]["temperature_stale"]) == stale
         assert node.process.poll() is None
     finally:
         assert node.stop() == 0
