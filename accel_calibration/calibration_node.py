@@ -87,7 +87,6 @@ class CalibrationNode(Node):
         self._status = (DiagnosticStatus.OK, "starting")
         self._counts = collections.Counter()
         self._last_stamp_ns = -1
-        self._temperature_filtered: float | None = None
         self._terms_temperature: float | None = None
         self._pending_poses: queue.SimpleQueue = queue.SimpleQueue()
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accel_calibration_fit")
@@ -235,8 +234,8 @@ class CalibrationNode(Node):
 
     def _set_calibration(self, calibration: Calibration):
         self._calibration = calibration
-        self._terms = calibration.terms_at(self._current_temperature())
-        self._terms_temperature = self._temperature_filtered
+        self._terms = calibration.terms_at(self._temperature.value)
+        self._terms_temperature = self._temperature.value
         gyro_bias = calibration.gyro_bias_radps
         if gyro_bias is not None:
             self._gyro_bias = tuple(float(v) for v in gyro_bias)
@@ -266,20 +265,17 @@ class CalibrationNode(Node):
         if not self._temperature.update(stamp_ns, msg.temperature):
             self._counts["temperature_bad"] += 1
             return
-        self._temperature_filtered = self._temperature.value
+        filtered = self._temperature.value
         calibration = self._calibration
         if calibration is not None and calibration.temperature is not None:
             # Re-derive the plain-float correction only when the temperature has moved (10 Hz at most),
             # so the per-message path stays a 3x3 multiply.
             last = self._terms_temperature
-            if last is None or abs(self._temperature_filtered - last) >= 0.05:
-                self._terms = calibration.terms_at(self._temperature_filtered)
-                self._terms_temperature = self._temperature_filtered
-                if calibration.temperature_clamped(self._temperature_filtered):
+            if last is None or abs(filtered - last) >= 0.05:
+                self._terms = calibration.terms_at(filtered)
+                self._terms_temperature = filtered
+                if calibration.temperature_clamped(filtered):
                     self._counts["temperature_clamped"] += 1
-
-    def _current_temperature(self) -> float | None:
-        return self._temperature_filtered
 
     def _on_imu(self, msg: Imu):
         stamp = msg.header.stamp
@@ -464,7 +460,7 @@ class CalibrationNode(Node):
             "detector_state": str(self._detector.state),
             "correction": "on" if self._enabled and self._terms is not None else "off",
             "calibration_file": str(self._calibration_path),
-            "temperature_degc": "" if self._temperature_filtered is None else f"{self._temperature_filtered:.2f}",
+            "temperature_degc": "" if self._temperature.value is None else f"{self._temperature.value:.2f}",
         }
         span = progress.temperature_span_degc
         values["temperature_span_degc"] = "" if span is None else f"{span[0]:.1f}..{span[1]:.1f} ({span[1] - span[0]:.1f})"
