@@ -18,7 +18,7 @@ test: $(STAMP)
 	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q test
 
 demo: $(STAMP)
-	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m accel_calibration.demo
+	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m accel_calibration.ros.demo
 
 bench: $(STAMP)
 	for b in bench/bench_*.py; do $(PY) $$b || exit 1; done

@@ -1,13 +1,13 @@
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 package_name = "accel_calibration"
 
 setup(
     name=package_name,
     version="0.1.0",
-    packages=[package_name, "msg_tools"],
+    packages=find_packages(include=[package_name, package_name + ".*", "msg_tools"]),
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
@@ -22,8 +22,8 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "accel-calib = accel_calibration.cli:main",
-            "calibration_node = accel_calibration.calibration_node:main",
+            "accel-calib = accel_calibration.cli.main:main",
+            "calibration_node = accel_calibration.ros.node:main",
         ],
     },
 )

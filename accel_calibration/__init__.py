@@ -4,11 +4,12 @@ The core -- models, Gauss-Newton fit, static detector, calibration files -- impo
 node (`calibration_node`), bag replay and the CLI are adapters over it.
 Convention everywhere: SI units and a_true = M (a_raw - b).
 """
-from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
-from .errors import CalibrationError
-from .fit import FitResult, Sigma, fit
-from .models import MODELS
-from .pose import Pose
+from .core.calibration import MG, STANDARD_GRAVITY, Calibration, Quality
+from .core.errors import CalibrationError
+from .core.fit import FitResult, Sigma, fit
+from .core.models import MODELS
+from .core.pose import Pose
+from .io.calibration_file import load_calibration, save_calibration
 
 __all__ = [
     "MG",
@@ -21,4 +22,6 @@ __all__ = [
     "Quality",
     "Sigma",
     "fit",
+    "load_calibration",
+    "save_calibration",
 ]

@@ -11,8 +11,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from accel_calibration import fit
-from accel_calibration.gauss_newton import gauss_newton
-from accel_calibration.models import SphereModel, seed_sphere
+from accel_calibration.core.gauss_newton import gauss_newton
+from accel_calibration.core.models import SphereModel, seed_sphere
 
 G = 9.80665
 

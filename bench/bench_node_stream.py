@@ -36,7 +36,7 @@ def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
             "  matrix: [[1.01, 0, 0], [0.01, 0.99, 0], [0.002, -0.003, 1.02]]\n"
         )
         target = subprocess.Popen(
-            [PY, "-m", "accel_calibration.calibration_node", "--ros-args", "-p", f"calibration_file:={cal}",
+            [PY, "-m", "accel_calibration.ros.node", "--ros-args", "-p", f"calibration_file:={cal}",
              "--log-level", "warn"], env=env)
     out = workdir / f"{kind}_{rate}.json"
     subscriber = subprocess.Popen([PY, HERE / "stream_peers.py", "subscribe", str(SECONDS + 25), out], env=env)

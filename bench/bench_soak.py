@@ -31,7 +31,7 @@ def main() -> int:
     env = dict(os.environ, ROS_DOMAIN_ID=str(30 + os.getpid() % 60), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "soak.json"
-        node = subprocess.Popen([sys.executable, "-m", "accel_calibration.calibration_node", "--ros-args",
+        node = subprocess.Popen([sys.executable, "-m", "accel_calibration.ros.node", "--ros-args",
                                  "-p", f"calibration_file:={tmp}/cal.yaml", "-p", "auto_calibrate:=true",
                                  "--log-level", "warn"], env=env)
         subscriber = subprocess.Popen([sys.executable, HERE / "soak_peers.py", "subscribe", out], env=env)

@@ -6,7 +6,7 @@ from collections import deque
 
 import numpy as np
 
-from accel_calibration.static_detector import StaticDetector
+from accel_calibration.core.static_detector import StaticDetector
 
 
 def main() -> int:

@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from test_temperature import poses, rms_error_mg  # noqa: E402
 
 from accel_calibration import MG, fit  # noqa: E402
-from accel_calibration.temperature_models import TemperatureOptions  # noqa: E402
+from accel_calibration.core.temperature_models import TemperatureOptions  # noqa: E402
 
 
 def main() -> int:

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import yaml
 
-from accel_calibration import Calibration, CalibrationError, fit
-from accel_calibration.calibration_file import FORMAT_VERSION, calibration_to_dict, load_calibration
+from accel_calibration import Calibration, CalibrationError, fit, save_calibration
+from accel_calibration.io.calibration_file import FORMAT_VERSION, calibration_to_dict, load_calibration
 
 
 def fitted_calibration():
@@ -21,15 +21,15 @@ def fitted_calibration():
 def test_round_trip_is_exact(tmp_path):
     cal = fitted_calibration()
     path = tmp_path / "cal.yaml"
-    cal.save(path)
-    again = Calibration.load(path)
+    save_calibration(cal, path)
+    again = load_calibration(path)
     assert again == cal
     np.testing.assert_array_equal(again.apply([[1.0, 2.0, 9.0]]), cal.apply([[1.0, 2.0, 9.0]]))
 
 
 def test_keys_other_tools_read(tmp_path):
     cal = fitted_calibration()
-    cal.save(tmp_path / "cal.yaml")
+    save_calibration(cal, tmp_path / "cal.yaml")
     body = yaml.safe_load((tmp_path / "cal.yaml").read_text())["accel_calibration"]
     assert body["model"] == "sphere9" and body["gravity"] == 9.80665
     assert len(body["bias"]) == 3 and np.array(body["matrix"]).shape == (3, 3)
@@ -92,10 +92,10 @@ def test_failed_write_leaves_the_old_file_whole(tmp_path, monkeypatch):
     stays byte-for-byte and no temp file is left behind. (Directory permissions can't be used: CI is root.)"""
     import errno
 
-    import accel_calibration.calibration_file as calibration_file
+    import accel_calibration.io.calibration_file as calibration_file
 
     path = tmp_path / "cal.yaml"
-    fitted_calibration().save(path)
+    save_calibration(fitted_calibration(), path)
     before = path.read_bytes()
 
     def disk_full(fd):
@@ -103,14 +103,14 @@ def test_failed_write_leaves_the_old_file_whole(tmp_path, monkeypatch):
 
     monkeypatch.setattr(calibration_file.os, "fsync", disk_full)
     with pytest.raises(CalibrationError, match="cannot write .*No space left"):
-        Calibration.identity().save(path)
+        save_calibration(Calibration.identity(), path)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["cal.yaml"]
 
 
 def test_failed_write_into_missing_directory(tmp_path):
     with pytest.raises(CalibrationError, match="cannot write"):
-        Calibration.identity().save(tmp_path / "no" / "such" / "cal.yaml")
+        save_calibration(Calibration.identity(), tmp_path / "no" / "such" / "cal.yaml")
 
 
 def test_calibration_is_immutable():

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from accel_calibration import MG, Calibration
+from accel_calibration import MG, Calibration, load_calibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 from msg_tools.synthetic_publisher import play
 
@@ -84,7 +84,7 @@ def test_live_calibration_end_to_end(tmp_path, tester):
         assert summary["poses"] >= 12 and summary["residual_rms_mg"] < 1.0
 
         # Applied and saved: the file, calibration/get and the truth agree.
-        saved = Calibration.load(cal_file)
+        saved = load_calibration(cal_file)
         got = tester.call("calibration/get")
         assert got.success and yaml.safe_load(got.message)["accel_calibration"]["bias"] == saved.bias.tolist()
         np.testing.assert_allclose(saved.bias, errors.bias_mps2, atol=0.003)
@@ -164,7 +164,7 @@ def test_node_learns_temperature_drift_while_the_sensor_warms(tmp_path, tester):
         answer = tester.call("calibrate")
         assert answer.success, answer.message
         assert "temperature_model: {kind: polynomial" in answer.message
-        cal = Calibration.load(cal_file)
+        cal = load_calibration(cal_file)
         assert cal.temperature is not None and cal.temperature.range_degc[1] - cal.temperature.range_degc[0] > 40, span
 
         for temperature in (15.0, 45.0):

@@ -4,15 +4,15 @@ import sys
 
 CORE_MODULES = [
     "accel_calibration",
-    "accel_calibration.fit",
-    "accel_calibration.models",
-    "accel_calibration.gauss_newton",
-    "accel_calibration.coverage",
-    "accel_calibration.calibration",
-    "accel_calibration.calibration_file",
-    "accel_calibration.pose_table",
-    "accel_calibration.cli",
-    "accel_calibration.static_detector",
+    "accel_calibration.core.fit",
+    "accel_calibration.core.models",
+    "accel_calibration.core.gauss_newton",
+    "accel_calibration.core.coverage",
+    "accel_calibration.core.calibration",
+    "accel_calibration.io.calibration_file",
+    "accel_calibration.io.pose_table",
+    "accel_calibration.cli.main",
+    "accel_calibration.core.static_detector",
 ]
 
 PROBE = f"""

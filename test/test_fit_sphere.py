@@ -6,7 +6,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from accel_calibration import Calibration, CalibrationError, fit
-from accel_calibration.models import SphereModel, seed_sphere
+from accel_calibration.core.models import SphereModel, seed_sphere
 
 G = 9.80665
 FACES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)

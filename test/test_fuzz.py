@@ -8,9 +8,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from accel_calibration import Calibration, CalibrationError, fit
-from accel_calibration.calibration_file import calibration_from_yaml
-from accel_calibration.cli import main
+from accel_calibration import Calibration, CalibrationError, fit, load_calibration, save_calibration
+from accel_calibration.io.calibration_file import calibration_from_yaml
+from accel_calibration.cli.main import main
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -97,10 +97,10 @@ def test_cli_on_arbitrary_csv_never_tracebacks_and_keeps_the_output(tmp_path_fac
     folder = tmp_path_factory.mktemp("fuzz")
     (folder / "poses.csv").write_text("\n".join([",".join(header)] + [",".join(r) for r in rows]) + "\n")
     output = folder / "cal.yaml"
-    Calibration.identity().save(output)
+    save_calibration(Calibration.identity(), output)
     before = output.read_bytes()
     code = main(["fit", str(folder / "poses.csv"), "--model", model, "-o", str(output)])
     if code != 0:
         assert output.read_bytes() == before
     else:
-        assert_usable(Calibration.load(output))
+        assert_usable(load_calibration(output))

@@ -4,7 +4,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from accel_calibration import MG, CalibrationError, Pose
-from accel_calibration.online_calibrator import OnlineCalibrator, QualityGates
+from accel_calibration.core.online_calibrator import OnlineCalibrator, QualityGates
 
 G = 9.80665
 

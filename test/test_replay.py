@@ -12,10 +12,10 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration import Calibration
-from accel_calibration.cli import main
-from accel_calibration.replay import replay_bag
-from msg_tools.bag_io import decode_imus, write_session_bag
+from accel_calibration import Calibration, load_calibration, save_calibration
+from accel_calibration.cli.main import main
+from accel_calibration.bag.replay import replay_bag
+from accel_calibration.bag.bag_io import decode_imus, write_session_bag
 from msg_tools.calibration_client import CalibrationClient
 from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
@@ -70,7 +70,7 @@ def test_replay_calibrates_and_writes_a_corrected_bag(tmp_path, storage):
     out = tmp_path / "corrected"
     assert main(["replay", str(bag), "-o", str(tmp_path / "cal.yaml"), "--corrected-bag", str(out),
                  "--report", str(tmp_path / "report.png")]) == 0
-    cal = Calibration.load(tmp_path / "cal.yaml")
+    cal = load_calibration(tmp_path / "cal.yaml")
     # Within 4 sigma of the fit's own uncertainty (which the Monte Carlo test shows to be honest).
     assert np.all(np.abs(cal.bias - errors.bias_mps2) <= 4 * cal.bias_sigma)
     assert np.all(np.abs(cal.matrix - errors.matrix) <= 4 * cal.matrix_sigma + 1e-12)
@@ -115,7 +115,7 @@ def test_replay_gives_the_calibration_the_live_node_gives(tmp_path):
         client.destroy()
         rclpy.shutdown()
         assert node.stop() == 0, node.log()
-    live = Calibration.load(cal_file)
+    live = load_calibration(cal_file)
     assert len(replayed.poses) >= 12
     # Same poses, same store, same fit: equal to solver tolerance (the node warm-starts, replay does not).
     np.testing.assert_allclose(live.bias, replayed.calibration.bias, rtol=0, atol=1e-9)
@@ -132,7 +132,7 @@ def test_several_bags_in_parallel_with_a_comparison_table(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "flight11" in out and "flight12" in out and "spread (1 sigma across bags)" in out
     for bag in bags:
-        assert Calibration.load(tmp_path / "cals" / f"{bag.name}.yaml").quality.poses >= 12
+        assert load_calibration(tmp_path / "cals" / f"{bag.name}.yaml").quality.poses >= 12
 
 
 def test_report_from_a_poses_table(tmp_path):
@@ -140,7 +140,7 @@ def test_report_from_a_poses_table(tmp_path):
     bag = tmp_path / "b"
     write_session_bag(bag, samples, start_ns=START_NS)
     replay = replay_bag(bag)
-    replay.calibration.save(tmp_path / "cal.yaml")
+    save_calibration(replay.calibration, tmp_path / "cal.yaml")
     rows = ["ax,ay,az"] + [",".join(f"{v:.9f}" for v in p.accel_mps2) for p in replay.poses]
     (tmp_path / "poses.csv").write_text("\n".join(rows) + "\n")
     assert main(["report", str(tmp_path / "cal.yaml"), "--poses", str(tmp_path / "poses.csv"), "-o", str(tmp_path / "r.png")]) == 0

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from accel_calibration import MG, Calibration, CalibrationError, fit
-from accel_calibration.cli import main
-from accel_calibration.temperature_models import TemperatureOptions
+from accel_calibration import MG, Calibration, CalibrationError, fit, load_calibration, save_calibration
+from accel_calibration.cli.main import main
+from accel_calibration.core.temperature_models import TemperatureOptions
 from msg_tools.synthetic_imu import SensorErrors
 
 G = 9.80665
@@ -112,8 +112,8 @@ def test_temperature_block_round_trips_through_the_file(session, tmp_path, kind)
     raw, temps, fresh_raw, _, fresh_temps = session
     cal = fit(raw, temperature_degc=temps, temperature_model=kind,
               temperature_options=TemperatureOptions(model=kind, reference_degc=25.0)).calibration
-    cal.save(tmp_path / "cal.yaml")
-    again = Calibration.load(tmp_path / "cal.yaml")
+    save_calibration(cal, tmp_path / "cal.yaml")
+    again = load_calibration(tmp_path / "cal.yaml")
     assert again == cal
     np.testing.assert_array_equal(again.apply(fresh_raw, fresh_temps), cal.apply(fresh_raw, fresh_temps))
 
@@ -140,7 +140,7 @@ def test_real_mpu6050_bag_span_is_too_small(shared):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from accel_calibration.static_detector import StaticDetector
+    from accel_calibration.core.static_detector import StaticDetector
 
     for name in ("sunsided_full_sphere_imu_temp_sqlite3", "sunsided_full_sphere_imu_temp_mcap_zstd"):
         path = shared(f"real/bags/{name}")

@@ -131,17 +131,6 @@ class Calibration:
     def replace(self, **changes) -> "Calibration":
         return replace(self, **changes)
 
-    def save(self, path) -> None:
-        from .calibration_file import save_calibration
-
-        save_calibration(self, path)
-
-    @staticmethod
-    def load(path) -> "Calibration":
-        from .calibration_file import load_calibration
-
-        return load_calibration(path)
-
     def __eq__(self, other):
         if not isinstance(other, Calibration):
             return NotImplemented

@@ -11,13 +11,13 @@ import sys
 
 import numpy as np
 
-from .calibration import MG, STANDARD_GRAVITY
-from .calibration_file import load_calibration, write_text_atomically
-from .errors import CalibrationError
-from .fit import fit
-from .models import MODELS, REFERENCE_MODELS
-from .pose_table import read_table, table_with_accel
-from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+from ..core.calibration import MG, STANDARD_GRAVITY
+from ..io.calibration_file import load_calibration, save_calibration, write_text_atomically
+from ..core.errors import CalibrationError
+from ..core.fit import fit
+from ..core.models import MODELS, REFERENCE_MODELS
+from ..io.pose_table import read_table, table_with_accel
+from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -110,7 +110,7 @@ def _fit(args) -> int:
     )
     if not result.success:
         raise CalibrationError(f"fit failed: {result.message}")
-    result.calibration.save(args.output)
+    save_calibration(result.calibration, args.output)
     print(result.summary())
     print(f"written {args.output}")
     return 0
@@ -134,7 +134,7 @@ def _apply(args) -> int:
 
 
 def _replay_settings(args):
-    from .replay import ReplaySettings
+    from ..bag.replay import ReplaySettings
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
@@ -150,7 +150,7 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress):
     """Replay one bag and write what was asked; returns (summary text, calibration or None, error or None)."""
     from pathlib import Path
 
-    from .replay import ReplayError, replay_bag, write_corrected_bag
+    from ..bag.replay import ReplayError, replay_bag, write_corrected_bag
 
     try:
         replay = replay_bag(bag, settings, progress=progress, for_copy=corrected_bag is not None)
@@ -167,13 +167,13 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress):
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     try:
         if output:
-            calibration.save(output)
+            save_calibration(calibration, output)
             lines.append(f"written {output}")
         if corrected_bag:
             written = write_corrected_bag(replay, calibration, corrected_bag)
             lines.append(f"corrected bag {corrected_bag} ({written} messages; {replay.imu_topic} corrected)")
         if report:
-            from .report import write_report
+            from ..io.report import write_report
 
             write_report(calibration, [p.accel_mps2 for p in replay.poses],
                          [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
@@ -242,12 +242,12 @@ def _comparison_table(bags, outcomes) -> str:
 
 
 def _report(args) -> int:
-    from .calibration_file import load_calibration
-    from .report import write_report
+    from ..io.calibration_file import load_calibration
+    from ..io.report import write_report
 
     calibration = load_calibration(args.calibration)
     if args.bag:
-        from .replay import ReplayError, replay_bag
+        from ..bag.replay import ReplayError, replay_bag
 
         try:
             replay = replay_bag(args.bag)

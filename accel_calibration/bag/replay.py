@@ -10,15 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import STANDARD_GRAVITY, Calibration
-from .errors import CalibrationError
-from .fit import FitResult
-from .online_calibrator import OnlineCalibrator, QualityGates
-from .pose import Pose
-from .pose_store import PoseStore
-from .static_detector import StaticDetector
-from .temperature_filter import TemperatureFilter
-from .temperature_models import TemperatureOptions
+from ..core.calibration import STANDARD_GRAVITY, Calibration
+from ..core.errors import CalibrationError
+from ..core.fit import FitResult
+from ..core.online_calibrator import OnlineCalibrator, QualityGates
+from ..core.pose import Pose
+from ..core.pose_store import PoseStore
+from ..core.static_detector import StaticDetector
+from ..core.temperature_filter import TemperatureFilter
+from ..core.temperature_models import TemperatureOptions
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class ReplayError(Exception):
 
 def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False, for_copy: bool = False) -> ReplayResult:
     """`for_copy`: read in rosbags' message order, which write_corrected_bag needs."""
-    from msg_tools.bag_io import BagError
+    from .bag_io import BagError
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
@@ -160,7 +160,7 @@ def _no_imu(path, connections):
 
 def _read_fast(path, s: ReplaySettings, progress):
     """Storage files read directly, topics from metadata.yaml; None when that cannot be trusted."""
-    from msg_tools.bag_io import IMU, TEMPERATURE, choose_topic, metadata_topics, read_fast
+    from .bag_io import IMU, TEMPERATURE, choose_topic, metadata_topics, read_fast
 
     if not Path(path).is_dir():
         return None
@@ -183,7 +183,7 @@ def _read_fast(path, s: ReplaySettings, progress):
 
 
 def _read_with_rosbags(path, s: ReplaySettings, progress):
-    from msg_tools.bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
+    from .bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
 
     reader = open_reader(path)
     try:
@@ -205,7 +205,7 @@ def _read_with_rosbags(path, s: ReplaySettings, progress):
 
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination) -> int:
     """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature)."""
-    from msg_tools.bag_io import BagError, write_corrected
+    from .bag_io import BagError, write_corrected
 
     imu = replay.imu
     temps = replay.temperature_at_samples

@@ -26,15 +26,15 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import SetBool, Trigger
 
-from .calibration import MG, STANDARD_GRAVITY, Calibration
-from .calibration_file import calibration_to_yaml, load_calibration
-from .errors import CalibrationError
-from .models import parameter_count
-from .online_calibrator import OnlineCalibrator, QualityGates
-from .pose_store import PoseStore
-from .static_detector import StaticDetector
-from .temperature_filter import TemperatureFilter
-from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+from ..core.calibration import MG, STANDARD_GRAVITY, Calibration
+from ..io.calibration_file import calibration_to_yaml, load_calibration, save_calibration
+from ..core.errors import CalibrationError
+from ..core.models import parameter_count
+from ..core.online_calibrator import OnlineCalibrator, QualityGates
+from ..core.pose_store import PoseStore
+from ..core.static_detector import StaticDetector
+from ..core.temperature_filter import TemperatureFilter
+from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 
 # Best effort, depth 50 on both sides: measured 0 % loss to 3 kHz here (PERF_NOTES); still matches
 # drivers publishing with sensor-data QoS.
@@ -369,7 +369,7 @@ class CalibrationNode(Node):
                 "it is left untouched: move it away or set calibration_file"
             )
         try:
-            calibration.save(self._calibration_path)
+            save_calibration(calibration, self._calibration_path)
         except CalibrationError as error:
             self._status = (DiagnosticStatus.ERROR, f"save failed: {error}")
             return False, f"not applied, previous calibration kept in force: {error}"
@@ -429,7 +429,7 @@ class CalibrationNode(Node):
             response.success, response.message = False, f"{self._calibration_path} holds a file this node could not read; left untouched"
         else:
             try:
-                calibration.save(self._calibration_path)
+                save_calibration(calibration, self._calibration_path)
                 response.success, response.message = True, f"saved to {self._calibration_path}"
             except CalibrationError as error:
                 response.success, response.message = False, str(error)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import MG
+from ..core.calibration import MG
 
 SPEED = 4.0
 

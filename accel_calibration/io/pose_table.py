@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CalibrationError
+from ..core.errors import CalibrationError
 
 ACCEL_COLUMNS = ("ax", "ay", "az")
 REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .calibration import Calibration, Quality
-from .temperature_models import TemperatureModel
-from .errors import CalibrationError
+from ..core.calibration import Calibration, Quality
+from ..core.temperature_models import TemperatureModel
+from ..core.errors import CalibrationError
 
 FORMAT_VERSION = 1
 ROOT_KEY = "accel_calibration"

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import MG, Calibration
-from .errors import CalibrationError
+from ..core.calibration import MG, Calibration
+from ..core.errors import CalibrationError
 
 
 def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "") -> None:
