@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo bench clean
+.PHONY: venv test lint demo bench clean
 
 venv: $(STAMP)
 
@@ -16,6 +16,14 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 
 test: $(STAMP)
 	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q test
+
+# ruff over all Python; mypy over the ROS-free core, strict per pyproject.toml. Both always run (one
+# report for each); fails if either finds something. Not yet a prerequisite of test.
+lint: $(STAMP)
+	status=0; \
+	$(VENV)/bin/ruff check accel_calibration msg_tools test bench || status=1; \
+	$(VENV)/bin/mypy accel_calibration/core || status=1; \
+	exit $$status
 
 demo: $(STAMP)
 	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m accel_calibration.ros.demo

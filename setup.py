@@ -12,8 +12,22 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "PyYAML"],
+    # Every third-party import of accel_calibration/ and msg_tools/ (ROS message packages and rclpy come
+    # from package.xml / rosdep). rosbags has no rosdep key, so it is only declared here; lz4 and
+    # backports.zstd are imported directly by bag/mcap_scan.py for compressed MCAP chunks.
+    install_requires=[
+        "setuptools",
+        "numpy",
+        "scipy",
+        "PyYAML",
+        "rosbags",
+        "lz4",
+        'backports.zstd; python_version < "3.14"',
+        "matplotlib",
+        "tqdm",
+    ],
     zip_safe=True,
     maintainer="accel_calibration developers",
     maintainer_email="dev@accel-calibration.invalid",

@@ -4,7 +4,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from accel_calibration import MG, CalibrationError, Pose
-from accel_calibration.core.online_calibrator import OnlineCalibrator, QualityGates
+from accel_calibration.core.gates import QualityGates
+from accel_calibration.core.session import CalibrationSession
+from accel_calibration.core.settings import Settings
 
 G = 9.80665
 
@@ -23,11 +25,12 @@ def session(bias=(0.2, -0.3, 0.1), scale=(1.01, 0.99, 1.02), n=24, noise_mg=0.2,
     return raw
 
 
-def calibrate(raw, **gates):
-    online = OnlineCalibrator(gates=QualityGates(**gates))
+def calibrate(raw, **settings):
+    session = CalibrationSession(Settings(**settings))
     for pose in poses_from(raw):
-        online.add_pose(pose)
-    return online.calibrate()
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    return verdict.result, None if verdict.success else verdict.message
 
 
 def test_a_good_session_passes_every_gate():
@@ -43,7 +46,7 @@ def test_a_good_session_passes_every_gate():
         (session(), dict(max_bias_sigma_mg=0.01), "gate sigma"),
         (session(bias=(2.5, 0.0, 0.0)), {}, "gate bias: |b| 2.4"),
         (session(scale=(1.25, 1.0, 1.0)), {}, "gate scale: correction gain x 1.2"),
-        (session(scale=(1.05, 1.0, 1.0)), dict(scale_band=(0.98, 1.02)), "gate scale"),
+        (session(scale=(1.05, 1.0, 1.0)), dict(scale_min=0.98, scale_max=1.02), "gate scale"),
     ],
 )
 def test_each_gate_refuses_with_its_name(raw, gates, gate):
@@ -70,7 +73,10 @@ def test_stream_in_raw_counts_is_detected_not_fitted():
 
 
 @pytest.mark.parametrize("gates, name", [(dict(min_poses=2), "min_poses"), (dict(max_bias_mps2=-1.0), "max_bias_mps2"),
-                                         (dict(scale_band=(1.1, 1.2)), "scale_band")])
+                                         (dict(scale_min=1.1, scale_max=1.2), "scale_min")])
 def test_bad_gate_settings_are_refused(gates, name):
     with pytest.raises(CalibrationError, match=name):
-        QualityGates(**gates)
+        Settings(**gates)
+    with pytest.raises(CalibrationError, match=name.split("_")[0]):
+        QualityGates(**{("scale_band" if k.startswith("scale") else k): v for k, v in gates.items()} if "scale_min" not in gates
+                     else {"scale_band": (gates["scale_min"], gates["scale_max"])})

@@ -13,11 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import AccelCalibrationError
+
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 
 
-class BagError(Exception):
+class BagError(AccelCalibrationError):
     """A bag that cannot be used: the message names the bag and what was found."""
 
 
@@ -212,7 +214,7 @@ def _scan_sqlite(path, topics, progress=None) -> dict[str, list] | None:
                 ids = dict(connection.execute("SELECT id, name FROM topics").fetchall())
                 for topic_id, name in ids.items():
                     if name in out:
-                        rows = connection.execute("SELECT data FROM messages WHERE topic_id = ?",
+                        rows = connection.execute("SELECT data FROM messages WHERE topic_id = ? ORDER BY timestamp, id",
                                                   (topic_id,)).fetchall()
                         out[name].extend(row[0] for row in rows)
                         if progress is not None:

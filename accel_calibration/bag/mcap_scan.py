@@ -43,6 +43,7 @@ def scan_topics(path, topics, progress=None) -> dict[str, list] | None:
     files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
     wanted = set(topics)
     out = {topic: [] for topic in wanted}
+    times = {topic: [] for topic in wanted}  # log_time of each message: the order rosbag2 readers give
     try:
         for file in files:
             data = memoryview(file.read_bytes())
@@ -67,20 +68,24 @@ def scan_topics(path, topics, progress=None) -> dict[str, list] | None:
                     records_length = _U64.unpack_from(data, records_at)[0]
                     chunk = decompress(data[records_at + 8:records_at + 8 + records_length], size)
                     chunk = memoryview(chunk)
-                    count = _scan_records(chunk, channels, wanted, out)
+                    count = _scan_records(chunk, channels, wanted, out, times)
                     if progress is not None:
                         progress.update(count)
                 elif op == 0x05:
-                    _scan_records(data[pos:pos + 9 + length], channels, wanted, out)
+                    _scan_records(data[pos:pos + 9 + length], channels, wanted, out, times)
                 elif op == 0x02:  # Footer: the summary that follows repeats what we have
                     break
                 pos = body + length
     except (struct.error, IndexError, ValueError, OSError):
         return None
+    for topic, stamps in times.items():
+        if any(later < earlier for earlier, later in zip(stamps, stamps[1:])):
+            order = sorted(range(len(stamps)), key=stamps.__getitem__)  # stable, as rosbags merges by log_time
+            out[topic] = [out[topic][i] for i in order]
     return out
 
 
-def _scan_records(buf, channels, wanted, out) -> int:
+def _scan_records(buf, channels, wanted, out, times) -> int:
     """Collect message data of wanted topics from a run of records; returns messages seen."""
     pos, end, seen = 0, len(buf), 0
     u64, u16 = _U64.unpack_from, _U16.unpack_from
@@ -95,9 +100,10 @@ def _scan_records(buf, channels, wanted, out) -> int:
             target = targets.get(channel_id)
             if target is None and channel_id in channels:
                 topic = channels[channel_id]
-                target = targets[channel_id] = out[topic] if topic in wanted else False
+                target = targets[channel_id] = (out[topic], times[topic]) if topic in wanted else False
             if target is not None and target is not False:
-                target.append(buf[body + 22:body + length])
+                target[0].append(buf[body + 22:body + length])
+                target[1].append(u64(buf, body + 6)[0])
         elif op == 0x04:
             _channel(buf, body, channels)
             targets.clear()

@@ -13,34 +13,18 @@ import numpy as np
 from ..core.calibration import STANDARD_GRAVITY, Calibration
 from ..core.errors import CalibrationError
 from ..core.fit import FitResult
-from ..core.online_calibrator import OnlineCalibrator, QualityGates
 from ..core.pose import Pose
-from ..core.pose_store import PoseStore
-from ..core.static_detector import StaticDetector
+from .bag_io import BagError
+from ..core.session import CalibrationSession
+from ..core.settings import Settings
 from ..core.temperature_filter import TemperatureFilter
-from ..core.temperature_models import TemperatureOptions
 
 
 @dataclass(frozen=True)
 class ReplaySettings:
-    """Defaults are the node's parameter defaults (config/accel_calibration.yaml)."""
+    """The session's settings (the node's parameters, same defaults and checks) and which topics to read."""
 
-    model: str = "sphere9"
-    gravity: float = STANDARD_GRAVITY
-    temperature: TemperatureOptions = field(default_factory=TemperatureOptions)
-    min_poses: int = 12
-    max_residual_rms_mg: float = 15.0
-    max_bias_sigma_mg: float = 5.0
-    max_bias_mps2: float = 2.0
-    scale_band: tuple[float, float] = (0.9, 1.1)
-    merge_angle_deg: float = 5.0
-    max_poses: int = 100
-    temperature_bin_degc: float = 5.0
-    accel_range_mps2: float = 16 * STANDARD_GRAVITY
-    temperature_timeout_s: float = 5.0
-    window_s: float = 0.5
-    min_hold_s: float = 1.0
-    k_sigma: float = 6.0
+    session: Settings = field(default_factory=Settings)
     imu_topic: str | None = None
     temperature_topic: str | None = None
 
@@ -66,13 +50,13 @@ class ReplayResult:
         return self.result.calibration if self.problem is None and self.result is not None else None
 
 
-class ReplayError(Exception):
+class ReplayError(BagError):
     """One line: the bag and what was (not) found in it."""
 
 
 def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False, for_copy: bool = False) -> ReplayResult:
     """`for_copy`: read in rosbags' message order, which write_corrected_bag needs."""
-    from .bag_io import BagError
+
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
@@ -84,50 +68,33 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
         raise ReplayError(str(error)) from None
     imu, temperatures, temperature_topic = loaded
 
-    # Recorders write in arrival order; the session's time is the header stamps.
-    order = np.argsort(imu.t_ns, kind="stable")
-    t, accel, gyro = imu.t_ns[order], imu.accel[order], imu.gyro[order]
-    counts = {}
-    finite = np.all(np.isfinite(accel), axis=1)
-    counts["non_finite"] = int(np.count_nonzero(~finite))
-    with np.errstate(invalid="ignore"):
-        saturated = finite & np.any(np.abs(accel) >= 0.995 * s.accel_range_mps2, axis=1)
-    counts["saturated"] = int(np.count_nonzero(saturated))
-    temperature_filter = TemperatureFilter(timeout_s=s.temperature_timeout_s)
-    temps = None
-    if temperatures is not None and len(temperatures[0]):
-        temps, counts["temperature_stale"] = temperature_filter.series(*temperatures, t)
-        counts["temperature_bad"] = temperature_filter.rejected
-    use = ~saturated
-    detector = StaticDetector(window_s=s.window_s, min_hold_s=s.min_hold_s, k_sigma=s.k_sigma)
-    poses = detector.process(t[use], accel[use], gyro[use], None if temps is None else temps[use])
-    counts["stamp_not_increasing"] = detector.rejected_samples - counts["non_finite"]
-
-    online = OnlineCalibrator(
-        model=s.model,
-        gravity=s.gravity,
-        gates=QualityGates(min_poses=s.min_poses, max_residual_rms_mg=s.max_residual_rms_mg,
-                           max_bias_sigma_mg=s.max_bias_sigma_mg, max_bias_mps2=s.max_bias_mps2, scale_band=s.scale_band),
-        store=PoseStore(merge_angle_deg=s.merge_angle_deg, capacity=s.max_poses, temperature_bin_degc=s.temperature_bin_degc),
-        temperature=s.temperature,
-    )
+    # The recording's own order is the order the node received the messages: the session takes them
+    # in that order, so a stamp going backwards is dropped here as it is live.
+    t = imu.t_ns
+    session = CalibrationSession(s.session)
+    session.frame_id = imu.frame_id
+    temperature_stamps, temperature_values = temperatures if temperatures is not None else (None, None)
+    poses = session.add_recording(t, imu.accel, imu.gyro, temperature_stamps, temperature_values)
     for pose in poses:
-        online.add_pose(pose)
-    result, problem = online.calibrate()
-    duration = (t[-1] - t[0]) / 1e9 if len(t) > 1 else 0.0
-    if problem is not None:
-        if len(online.store) < max(s.min_poses, 9):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    counts = session.counters.as_dict()
+    duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
+    problem = None
+    if not verdict.success:
+        problem = verdict.message
+        if len(session.store) < session.settings.min_poses:
             problem = "too few static poses for a calibration (no multi-pose session in this recording): " + problem
-        problem = (f"found {len(poses)} static poses ({len(online.store)} distinct) in {imu.topic} "
+        problem = (f"found {len(poses)} static poses ({len(session.store)} distinct) in {imu.topic} "
                    f"({len(t)} messages, {duration:.1f} s): {problem}")
-    if result is not None and result.success and problem is None:
-        gyro_bias = online.gyro_bias_radps()
-        calibration = result.calibration.replace(frame_id=imu.frame_id, gyro_bias_radps=gyro_bias)
-        result = dataclasses.replace(result, calibration=calibration)
-    temperature_at_samples = None
-    if temps is not None:
-        temperature_at_samples = np.empty(len(t))
-        temperature_at_samples[order] = temps  # back to the bag's message order
+    result = verdict.result
+    if verdict.success:
+        result = dataclasses.replace(verdict.result, calibration=verdict.calibration)
+    temps = None
+    if temperature_stamps is not None and len(temperature_stamps):
+        temps, _ = TemperatureFilter(timeout_s=s.session.temperature_timeout_s).series(
+            temperature_stamps, temperature_values, t)
+    temperature_at_samples = temps  # per message, for the corrected copy
     return ReplayResult(
         bag=str(path),
         imu_topic=imu.topic,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.calibration import MG, STANDARD_GRAVITY
 from ..io.calibration_file import load_calibration, save_calibration, write_text_atomically
-from ..core.errors import CalibrationError
+from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.fit import fit
 from ..core.models import MODELS, REFERENCE_MODELS
 from ..io.pose_table import read_table, table_with_accel
@@ -57,15 +57,19 @@ def _parser() -> argparse.ArgumentParser:
     replay_cmd.add_argument("--corrected-bag", default=None,
                             help="write a copy of the bag with the IMU accelerations corrected (several bags: a directory)")
     replay_cmd.add_argument("--report", default=None, help="also write a report figure (PNG; several bags: a directory)")
-    replay_cmd.add_argument("--model", choices=("six", "sphere9"), default="sphere9")
-    replay_cmd.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="polynomial",
-                            help="used once the poses span --min-span degC (default polynomial)")
-    replay_cmd.add_argument("--min-span", type=float, default=10.0)
-    replay_cmd.add_argument("--gravity", type=float, default=STANDARD_GRAVITY)
-    replay_cmd.add_argument("--min-poses", type=int, default=12)
-    replay_cmd.add_argument("--window", type=float, default=0.5, help="detector window, s")
-    replay_cmd.add_argument("--min-hold", type=float, default=1.0, help="shortest still interval, s")
-    replay_cmd.add_argument("--k-sigma", type=float, default=6.0, help="detector threshold over the noise floor")
+    replay_cmd.add_argument("--params-file", default=None,
+                            help="ROS 2 parameters YAML (config/accel_calibration.yaml): the node's settings")
+    replay_cmd.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
+                            help="one setting as the node takes it, e.g. -p static.window_s:=0.3 (repeatable)")
+    replay_cmd.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
+    replay_cmd.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default=None,
+                            help="same as -p temperature.model:=...")
+    replay_cmd.add_argument("--min-span", type=float, default=None, help="same as -p temperature.min_span_degc:=...")
+    replay_cmd.add_argument("--gravity", type=float, default=None, help="same as -p gravity:=...")
+    replay_cmd.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    replay_cmd.add_argument("--window", type=float, default=None, help="detector window, s (-p static.window_s:=...)")
+    replay_cmd.add_argument("--min-hold", type=float, default=None, help="shortest still interval, s (-p static.min_hold_s:=...)")
+    replay_cmd.add_argument("--k-sigma", type=float, default=None, help="detector threshold over the noise floor (-p static.k_sigma:=...)")
     replay_cmd.add_argument("--jobs", "-j", type=int, default=1, help="bags processed in parallel")
 
     report_cmd = commands.add_parser("report", help="a figure of a calibration against its poses")
@@ -133,28 +137,57 @@ def _apply(args) -> int:
     return 0
 
 
+FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "min_span": "temperature.min_span_degc",
+                   "gravity": "gravity", "min_poses": "min_poses", "window": "static.window_s",
+                   "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
+
+
 def _replay_settings(args):
+    """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
+    import yaml
+
     from ..bag.replay import ReplaySettings
+    from ..core.settings import Settings, params_file_values
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
-    return ReplaySettings(
-        model=args.model, gravity=args.gravity, min_poses=args.min_poses, window_s=args.window,
-        min_hold_s=args.min_hold, k_sigma=args.k_sigma, imu_topic=args.imu_topic,
-        temperature_topic=args.temperature_topic,
-        temperature=TemperatureOptions(model=args.temperature_model, min_span_degc=args.min_span),
-    )
+    values = {}
+    if args.params_file:
+        try:
+            with open(args.params_file, encoding="utf-8") as stream:
+                document = yaml.safe_load(stream)
+        except OSError as error:
+            raise CalibrationError(f"cannot read --params-file {args.params_file}: {error.strerror}") from None
+        except yaml.YAMLError as error:
+            raise CalibrationError(f"--params-file {args.params_file}: not valid YAML ({str(error).splitlines()[0]})") from None
+        values.update(params_file_values(document, source=args.params_file))
+        values.pop("calibration_file", None)  # the node's file; replay writes --output
+        values.pop("output_reliability", None)
+    for item in args.param:
+        name, sep, text = item.partition(":=")
+        if not sep:
+            raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
+        try:
+            values[name.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise CalibrationError(f"-p {item}: value is not valid YAML") from None
+    for flag, name in FLAG_PARAMETERS.items():
+        value = getattr(args, flag)
+        if value is not None:
+            values[name] = value
+    return ReplaySettings(session=Settings.from_parameters(values), imu_topic=args.imu_topic,
+                          temperature_topic=args.temperature_topic)
 
 
 def _replay_one(bag, settings, output, corrected_bag, report, progress):
     """Replay one bag and write what was asked; returns (summary text, calibration or None, error or None)."""
     from pathlib import Path
 
-    from ..bag.replay import ReplayError, replay_bag, write_corrected_bag
+    from ..bag.replay import replay_bag, write_corrected_bag
 
     try:
         replay = replay_bag(bag, settings, progress=progress, for_copy=corrected_bag is not None)
-    except (ReplayError, CalibrationError) as error:
+    except AccelCalibrationError as error:
         return None, None, str(error)
     if replay.calibration is None:
         return None, None, f"{bag}: {replay.problem}"
@@ -270,7 +303,7 @@ def main(argv=None) -> int:
     try:
         args = _parser().parse_args(argv)
         return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report}[args.command](args)
-    except CalibrationError as error:
+    except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

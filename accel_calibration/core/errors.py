@@ -1,8 +1,15 @@
-"""The core's one error type. Front ends (CLI, node, replay) catch it and show its message on one line."""
+"""Errors: one base for the package, one type per layer. Front ends (CLI, node, replay) catch
+`AccelCalibrationError` and show its message on one line; the message says what to do."""
 
 
-class CalibrationError(ValueError):
-    """Bad input to the calibration core, or a calibration file that cannot be used.
+class AccelCalibrationError(Exception):
+    """Base of every error this package raises on purpose (bad input, bad files, bad settings)."""
 
-    The message says what is wrong and, where it can, what to do about it.
-    """
+
+class CalibrationError(AccelCalibrationError, ValueError):
+    """core: bad input to the calibration core, or a calibration that cannot be used."""
+
+
+class SettingsError(CalibrationError):
+    """core: a setting (node parameter, params file entry, CLI flag) out of type or range; the message
+    names the parameter as the user typed it."""

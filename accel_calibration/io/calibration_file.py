@@ -28,6 +28,10 @@ from ..core.calibration import Calibration, Quality
 from ..core.temperature_models import TemperatureModel
 from ..core.errors import CalibrationError
 
+
+class CalibrationFileError(CalibrationError):
+    """io: a calibration file that cannot be read, parsed, trusted or written (the message names the path)."""
+
 FORMAT_VERSION = 1
 ROOT_KEY = "accel_calibration"
 
@@ -85,37 +89,37 @@ def calibration_to_yaml(calibration: Calibration) -> str:
 
 def _number(value, name) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CalibrationError(f"{name} must be a finite number, got {value!r:.60}")
+        raise CalibrationFileError(f"{name} must be a finite number, got {value!r:.60}")
     return float(value)
 
 
 def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
     if not isinstance(document, dict) or ROOT_KEY not in document:
-        raise CalibrationError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
+        raise CalibrationFileError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
     body = document[ROOT_KEY]
     if not isinstance(body, dict):
-        raise CalibrationError(f"{source}: '{ROOT_KEY}' must be a mapping")
+        raise CalibrationFileError(f"{source}: '{ROOT_KEY}' must be a mapping")
     version = body.get("format_version", 1)
     if isinstance(version, bool) or not isinstance(version, int):
-        raise CalibrationError(f"{source}: format_version must be an integer, got {version!r:.40}")
+        raise CalibrationFileError(f"{source}: format_version must be an integer, got {version!r:.40}")
     if version > FORMAT_VERSION:
-        raise CalibrationError(
+        raise CalibrationFileError(
             f"{source}: written by a newer accel_calibration (format {version}; this version reads up to "
             f"{FORMAT_VERSION}): upgrade to use it"
         )
     for key in ("model", "bias", "matrix"):
         if key not in body:
-            raise CalibrationError(f"{source}: missing key '{key}'")
+            raise CalibrationFileError(f"{source}: missing key '{key}'")
     try:
         quality = None
         if body.get("quality") is not None:
             q = body["quality"]
             if not isinstance(q, dict):
-                raise CalibrationError("quality must be a mapping")
+                raise CalibrationFileError("quality must be a mapping")
             poses = q.get("poses", 0)
             if isinstance(poses, bool) or not isinstance(poses, int) or poses < 0:
-                raise CalibrationError(f"quality.poses must be a non-negative integer, got {poses!r:.40}")
+                raise CalibrationFileError(f"quality.poses must be a non-negative integer, got {poses!r:.40}")
             cond = q.get("condition_number")
             quality = Quality(
                 residual_rms_mg=_number(q.get("residual_rms_mg", float("nan")), "quality.residual_rms_mg")
@@ -129,16 +133,16 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             )
         uncertainty = body.get("uncertainty") or {}
         if not isinstance(uncertainty, dict):
-            raise CalibrationError("uncertainty must be a mapping")
+            raise CalibrationFileError("uncertainty must be a mapping")
         ref_t = body.get("reference_temperature_degc")
         model = body["model"]
         if not isinstance(model, str):
-            raise CalibrationError(f"model must be a name, got {model!r:.40}")
+            raise CalibrationFileError(f"model must be a name, got {model!r:.40}")
         temperature = None
         if body.get("temperature") is not None:
             t = body["temperature"]
             if not isinstance(t, dict) or "model" not in t:
-                raise CalibrationError("temperature must be a mapping with a 'model' key")
+                raise CalibrationFileError("temperature must be a mapping with a 'model' key")
             try:
                 temperature = TemperatureModel(
                     kind=t["model"],
@@ -150,7 +154,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
                     segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
                 )
             except (TypeError, ValueError) as error:
-                raise CalibrationError(f"temperature block: {error}") from None
+                raise CalibrationFileError(f"temperature block: {error}") from None
         return Calibration(
             temperature=temperature,
             bias=body["bias"],
@@ -168,7 +172,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             gyro_bias_radps=body.get("gyro_bias_radps"),
         )
     except CalibrationError as error:
-        raise CalibrationError(f"{source}: {error}") from None
+        raise CalibrationFileError(f"{source}: {error}") from None
 
 
 def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration:
@@ -176,7 +180,7 @@ def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration
         document = yaml.safe_load(text)
     except yaml.YAMLError as error:
         first = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise CalibrationError(f"{source}: not valid YAML ({first})") from None
+        raise CalibrationFileError(f"{source}: not valid YAML ({first})") from None
     return calibration_from_dict(document, source)
 
 
@@ -185,45 +189,62 @@ def load_calibration(path) -> Calibration:
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise CalibrationError(f"calibration file {path} not found") from None
+        raise CalibrationFileError(f"calibration file {path} not found") from None
     except IsADirectoryError:
-        raise CalibrationError(f"calibration file {path} is a directory") from None
+        raise CalibrationFileError(f"calibration file {path} is a directory") from None
     except OSError as error:
-        raise CalibrationError(f"cannot read calibration file {path}: {error.strerror}") from None
+        raise CalibrationFileError(f"cannot read calibration file {path}: {error.strerror}") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
-        raise CalibrationError(f"{path}: not a text file (binary content)") from None
+        raise CalibrationFileError(f"{path}: not a text file (binary content)") from None
     return calibration_from_yaml(text, str(path))
+
+
+def _temp_prefix(path: Path) -> str:
+    return f".{path.name}."
 
 
 def write_text_atomically(path, text: str) -> None:
     """Write next to the target and rename over it, so a reader (or a crash) never sees half a file
-    and the old file stays whole when the write fails."""
+    and the old file stays whole when the write fails. The temp file is removed on any failure,
+    an interrupt included; one left by a killed process is removed by `remove_stale_temp_files`."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
+    tmp_name = None
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as error:
-        raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
-    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=".tmp", dir=directory)
         with os.fdopen(fd, "w", encoding="utf-8") as tmp:
             tmp.write(text)
             tmp.flush()
             os.fsync(tmp.fileno())
         os.replace(tmp_name, path)
+        tmp_name = None
     except OSError as error:
+        raise CalibrationFileError(f"cannot write {path}: {error.strerror or error}") from None
+    finally:
+        if tmp_name is not None:
+            try:
+                os.unlink(tmp_name)
+            except OSError:
+                pass
+
+
+def remove_stale_temp_files(path) -> int:
+    """Remove temp files a killed writer left beside `path` (ours only: `.<name>.*.tmp`); returns how many."""
+    path = Path(path)
+    removed = 0
+    try:
+        candidates = list(path.parent.glob(_temp_prefix(path) + "*.tmp"))
+    except OSError:
+        return 0
+    for candidate in candidates:
         try:
-            os.unlink(tmp_name)
+            candidate.unlink()
+            removed += 1
         except OSError:
             pass
-        raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
-    except BaseException:
-        try:
-            os.unlink(tmp_name)
-        except OSError:
-            pass
-        raise
+    return removed
 
 
 def save_calibration(calibration: Calibration, path) -> None:

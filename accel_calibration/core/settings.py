@@ -1,0 +1,241 @@
+"""Every setting of a calibration session, its default, range and meaning, written once.
+
+The node declares its ROS parameters from `PARAMETERS` (types and ranges go into the descriptors,
+so `ros2 param describe` shows them); `accel-calib replay --params-file` reads the same YAML; the
+CLI's flags override by the same names. `Settings.from_parameters` validates once, and every
+message names the parameter as the user typed it (`static.window_s`, not an internal field).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping
+
+from .errors import SettingsError
+from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+
+STANDARD_GRAVITY = 9.80665
+ONLINE_MODELS = ("six", "sphere9")
+RELIABILITIES = ("reliable", "best_effort")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One user-facing setting: its name as typed (`-p name:=value`, params file, CLI flag)."""
+
+    name: str
+    default: Any  # its Python type is the parameter's type (bool, int, float, str)
+    description: str
+    low: float | None = None  # inclusive bounds (shown in the ROS descriptor)
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+    dynamic: bool = False  # changeable while the node runs (the gates and auto_calibrate)
+    zero_means_auto: bool = False  # 0 is allowed and means "learned" (detector thresholds)
+
+    @property
+    def field(self) -> str:
+        return self.name.replace(".", "_")
+
+
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("model", "sphere9", "online error model: sphere9 (bias + lower-triangular M) or six (bias + diagonal)",
+              choices=ONLINE_MODELS),
+    Parameter("gravity", STANDARD_GRAVITY, "local gravity magnitude, m/s^2", 9.7, 9.9),
+    Parameter("sensor_id", "", "identity of the sensor, written into the calibration file"),
+    Parameter("auto_calibrate", False, "apply (and save) a new fit by itself once it passes the quality gates",
+              dynamic=True),
+    Parameter("min_poses", 12, "quality gate: poses needed before a fit may be applied", 6, 1000, dynamic=True),
+    Parameter("max_residual_rms_mg", 15.0, "quality gate: largest residual rms of a fit that may be applied, mg",
+              0.01, 1000.0, dynamic=True),
+    Parameter("max_bias_sigma_mg", 5.0, "quality gate: largest bias uncertainty (1 sigma) that may be applied, mg",
+              0.001, 1000.0, dynamic=True),
+    Parameter("max_bias_mps2", 2.0, "plausibility gate: largest |bias| per axis, m/s^2", 0.001, 100.0, dynamic=True),
+    Parameter("scale_min", 0.9, "plausibility gate: smallest correction gain per axis (row norm of M)", 0.01, 0.999,
+              dynamic=True),
+    Parameter("scale_max", 1.1, "plausibility gate: largest correction gain per axis (row norm of M)", 1.001, 100.0,
+              dynamic=True),
+    Parameter("merge_angle_deg", 5.0, "a new pose within this angle of a held one (same temperature bin) refines it",
+              0.1, 45.0),
+    Parameter("max_poses", 100, "pose store capacity; the oldest pose gives way beyond it", 6, 100_000),
+    Parameter("accel_range_mps2", 16 * STANDARD_GRAVITY,
+              "accelerometer full scale; samples at or beyond it are counted as saturated and kept out of the fit",
+              1.0, 10_000.0),
+    Parameter("gyro_range_radps", 34.9,
+              "gyro full scale (2000 deg/s); samples beyond it are counted out of range and kept out of the fit",
+              0.1, 1000.0),
+    Parameter("frozen_samples", 50,
+              "this many bit-identical samples in a row mean a frozen sensor: counted and kept out of the fit",
+              3, 1_000_000),
+    Parameter("temperature_timeout_s", 5.0, "a temperature older than this (header time) is stale and not used, s",
+              0.01, 3600.0),
+    Parameter("temperature.model", "polynomial",
+              "temperature model learned once the poses span min_span_degc: polynomial, segmented or none",
+              choices=TEMPERATURE_MODELS),
+    Parameter("temperature.bias_order", 2, "polynomial model: order of the bias drift", 0, 3),
+    Parameter("temperature.scale_order", 1, "polynomial model: order of the scale drift", 0, 2),
+    Parameter("temperature.segment_width_degc", 10.0, "segmented model: segment width, degC", 1.0, 100.0),
+    Parameter("temperature.min_span_degc", 10.0, "smallest span of pose temperatures to fit a temperature model, degC",
+              0.0, 200.0),
+    Parameter("temperature.bin_degc", 5.0, "poses at one orientation but temperatures this far apart are kept apart, "
+              "degC", 0.1, 100.0),
+    Parameter("static.window_s", 0.5, "static detector: sliding window, s of header time", 0.02, 10.0),
+    Parameter("static.min_hold_s", 1.0, "static detector: shortest still interval kept as a pose, s", 0.05, 600.0),
+    Parameter("static.accel_var_threshold", 0.0,
+              "static detector: accel window variance threshold, (m/s^2)^2; 0 = k_sigma x learned noise floor",
+              0.0, 1e6, zero_means_auto=True),
+    Parameter("static.gyro_var_threshold", 0.0,
+              "static detector: gyro window variance threshold, (rad/s)^2; 0 = learned noise floor",
+              0.0, 1e6, zero_means_auto=True),
+    Parameter("static.k_sigma", 6.0, "static detector: threshold as a multiple of the noise-floor variance", 1.0, 1000.0),
+)
+BY_NAME = {p.name: p for p in PARAMETERS}
+
+
+def _default(name: str) -> Any:
+    return BY_NAME[name].default
+DYNAMIC = tuple(p.name for p in PARAMETERS if p.dynamic)
+
+
+def check_value(parameter: Parameter, value: Any) -> Any:
+    """The value as its parameter's type, or SettingsError naming the parameter as the user typed it."""
+    name, kind = parameter.name, type(parameter.default)
+    if kind is float:
+        # ROS parameters are typed: 10 is an integer, and a double parameter does not take it.
+        if isinstance(value, bool) or not isinstance(value, float):
+            raise SettingsError(f"{name} must be a floating-point number (write {_as_float_text(value)}), got {value!r}")
+        if not math.isfinite(value):
+            raise SettingsError(f"{name} must be a finite number, got {value!r}")
+    elif kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SettingsError(f"{name} must be an integer, got {value!r}")
+    elif kind is bool:
+        if not isinstance(value, bool):
+            raise SettingsError(f"{name} must be true or false, got {value!r}")
+    elif not isinstance(value, str):
+        raise SettingsError(f"{name} must be a string, got {value!r}")
+    if parameter.choices and value not in parameter.choices:
+        raise SettingsError(f"{name} must be one of {', '.join(parameter.choices)}, got {value!r}")
+    if parameter.low is not None and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if parameter.zero_means_auto and value == 0:
+            return value
+        if not parameter.low <= value <= parameter.high:  # type: ignore[operator]
+            raise SettingsError(f"{name} must be within {parameter.low:g}..{parameter.high:g}, got {value!r}")
+    return value
+
+
+def _as_float_text(value: Any) -> str:
+    try:
+        return repr(float(value))
+    except (TypeError, ValueError):
+        return "a number like 1.0"
+
+
+@dataclass(frozen=True)
+class Settings:
+    """A validated set of all settings; fields are the parameter names with '.' -> '_'."""
+
+    model: str = _default("model")
+    gravity: float = _default("gravity")
+    sensor_id: str = _default("sensor_id")
+    auto_calibrate: bool = _default("auto_calibrate")
+    min_poses: int = _default("min_poses")
+    max_residual_rms_mg: float = _default("max_residual_rms_mg")
+    max_bias_sigma_mg: float = _default("max_bias_sigma_mg")
+    max_bias_mps2: float = _default("max_bias_mps2")
+    scale_min: float = _default("scale_min")
+    scale_max: float = _default("scale_max")
+    merge_angle_deg: float = _default("merge_angle_deg")
+    max_poses: int = _default("max_poses")
+    accel_range_mps2: float = _default("accel_range_mps2")
+    gyro_range_radps: float = _default("gyro_range_radps")
+    frozen_samples: int = _default("frozen_samples")
+    temperature_timeout_s: float = _default("temperature_timeout_s")
+    temperature_model: str = _default("temperature.model")
+    temperature_bias_order: int = _default("temperature.bias_order")
+    temperature_scale_order: int = _default("temperature.scale_order")
+    temperature_segment_width_degc: float = _default("temperature.segment_width_degc")
+    temperature_min_span_degc: float = _default("temperature.min_span_degc")
+    temperature_bin_degc: float = _default("temperature.bin_degc")
+    static_window_s: float = _default("static.window_s")
+    static_min_hold_s: float = _default("static.min_hold_s")
+    static_accel_var_threshold: float = _default("static.accel_var_threshold")
+    static_gyro_var_threshold: float = _default("static.gyro_var_threshold")
+    static_k_sigma: float = _default("static.k_sigma")
+
+    def __post_init__(self) -> None:
+        for parameter in PARAMETERS:
+            value = getattr(self, parameter.field)
+            if type(parameter.default) is float and isinstance(value, int) and not isinstance(value, bool):
+                # Python callers (and CLI flags parsed as float) may pass 10 for 10.0; ROS parameters may not.
+                object.__setattr__(self, parameter.field, float(value))
+                value = float(value)
+            check_value(parameter, value)
+        from .models import parameter_count
+
+        needed = parameter_count(self.model)
+        if self.min_poses < needed + 1:
+            raise SettingsError(f"min_poses must be at least {needed + 1} for model {self.model} "
+                                f"({needed} parameters and one degree of freedom to judge the fit), got {self.min_poses}")
+        if self.max_poses < self.min_poses:
+            raise SettingsError(f"max_poses ({self.max_poses}) must be at least min_poses ({self.min_poses})")
+        if self.static_min_hold_s <= self.static_window_s / 2:
+            raise SettingsError(f"static.min_hold_s ({self.static_min_hold_s:g}) must exceed half of static.window_s "
+                                f"({self.static_window_s:g})")
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, Any], base: "Settings | None" = None) -> "Settings":
+        """Settings from user-named values (`static.window_s`), over `base` (default: the defaults).
+        Unknown names are refused with the list of known ones."""
+        unknown = sorted(set(values) - set(BY_NAME))
+        if unknown:
+            raise SettingsError(f"unknown parameter {unknown[0]!r}; known: {', '.join(BY_NAME)}")
+        changes = {}
+        for name, value in values.items():
+            parameter = BY_NAME[name]
+            changes[parameter.field] = check_value(parameter, value)
+        return replace(base or cls(), **changes)
+
+    def as_parameters(self) -> dict[str, Any]:
+        return {p.name: getattr(self, p.field) for p in PARAMETERS}
+
+    @property
+    def temperature(self) -> TemperatureOptions:
+        return TemperatureOptions(
+            model=self.temperature_model,
+            bias_order=self.temperature_bias_order,
+            scale_order=self.temperature_scale_order,
+            segment_width_degc=self.temperature_segment_width_degc,
+            min_span_degc=self.temperature_min_span_degc,
+        )
+
+
+def params_file_values(document: Any, node_name: str = "accel_calibration", source: str = "params file") -> dict[str, Any]:
+    """The parameters a ROS 2 params file gives this node: the `/**` block, then a block for the node's
+    name (plain or with a namespace, e.g. `/uav1/accel_calibration`), later blocks winning, as rcl does.
+    Nested mappings are flattened to dotted names (`static: {window_s: ..}` -> `static.window_s`)."""
+    if not isinstance(document, dict):
+        raise SettingsError(f"{source}: not a ROS 2 parameters file (expected a mapping of node names)")
+    values: dict[str, Any] = {}
+    matched = False
+    for key, block in document.items():
+        key_text = str(key)
+        if key_text in ("/**", "**") or key_text.rsplit("/", 1)[-1] == node_name:
+            if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
+                raise SettingsError(f"{source}: block {key_text!r} has no 'ros__parameters:' mapping")
+            values.update(_flatten(block["ros__parameters"]))
+            matched = True
+    if not matched:
+        raise SettingsError(f"{source}: no '/**:' or '{node_name}:' block")
+    return values
+
+
+def _flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+

@@ -1,0 +1,259 @@
+"""Packaging checks that need no ROS CLI, colcon or `launch`: the launch file, setup.py's installed
+files and dependencies, package.xml and the example parameters file agree with each other and with
+the code's imports. Files are read with ast / ElementTree / yaml, never executed."""
+from __future__ import annotations
+
+import ast
+import importlib.util
+import re
+import sys
+import xml.etree.ElementTree as ET
+from glob import glob
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = "accel_calibration"
+LAUNCH_FILE = REPO / "launch" / "calibration.launch.py"
+CONFIG_FILE = REPO / "config" / "accel_calibration.yaml"
+CODE_DIRS = [REPO / "accel_calibration", REPO / "msg_tools"]
+FIRST_PARTY = {"accel_calibration", "msg_tools"}
+
+# ROS interface packages: their Python modules are the package names themselves.
+ROS_INTERFACE = re.compile(r"^[a-z0-9_]+_(msgs|srvs|interfaces)$")
+LAUNCH_ARGUMENTS = {
+    "namespace": "",
+    "params_file": None,  # computed from get_package_share_directory; checked separately
+    "imu_topic": "imu/data_raw",
+    "temperature_topic": "imu/temperature",
+    "output_topic": "imu/data_calibrated",
+}
+# Import name -> distribution name in install_requires, where they differ.
+DISTRIBUTION = {"yaml": "PyYAML", "backports": "backports.zstd"}
+# Modules that are standard library on newer Pythons (optional imports with a fallback).
+STDLIB_ELSEWHERE = {"compression"}  # Python 3.14; falls back to backports.zstd
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+def _call_name(call: ast.Call) -> str:
+    func = call.func
+    if isinstance(func, ast.Attribute):
+        return func.attr
+    if isinstance(func, ast.Name):
+        return func.id
+    return ""
+
+
+def _calls(tree: ast.AST, name: str) -> list[ast.Call]:
+    return [n for n in ast.walk(tree) if isinstance(n, ast.Call) and _call_name(n) == name]
+
+
+def _keywords(call: ast.Call) -> dict[str, ast.expr]:
+    return {k.arg: k.value for k in call.keywords if k.arg is not None}
+
+
+def _module_constants(tree: ast.Module) -> dict[str, object]:
+    """Module-level `NAME = <literal>` assignments."""
+    out: dict[str, object] = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            try:
+                out[node.targets[0].id] = ast.literal_eval(node.value)
+            except ValueError:
+                pass
+    return out
+
+
+def _evaluate(node: ast.expr, names: dict[str, object]) -> object:
+    """A literal, with module constants, `+` and `glob(...)` (kept as ("glob", pattern))."""
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, ast.Name):
+        return names[node.id]
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
+        return _evaluate(node.left, names) + _evaluate(node.right, names)
+    if isinstance(node, (ast.List, ast.Tuple)):
+        items = [_evaluate(e, names) for e in node.elts]
+        return items if isinstance(node, ast.List) else tuple(items)
+    if isinstance(node, ast.Call) and _call_name(node) == "glob" and len(node.args) == 1:
+        return ("glob", _evaluate(node.args[0], names))
+    raise AssertionError(f"setup.py: cannot evaluate {ast.dump(node)}")
+
+
+def _setup_call() -> tuple[dict[str, ast.expr], dict[str, object]]:
+    tree = ast.parse((REPO / "setup.py").read_text(encoding="utf-8"))
+    calls = _calls(tree, "setup")
+    assert len(calls) == 1, "setup.py: expected one setup(...) call"
+    return _keywords(calls[0]), _module_constants(tree)
+
+
+def _imports(directories: list[Path]) -> dict[str, set[str]]:
+    """Top-level absolute imports (including ones inside functions) -> files importing them."""
+    found: dict[str, set[str]] = {}
+    for directory in directories:
+        for path in sorted(directory.rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Import):
+                    modules = [alias.name for alias in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    modules = [node.module]
+                else:
+                    continue
+                for module in modules:
+                    found.setdefault(module.split(".")[0], set()).add(str(path.relative_to(REPO)))
+    return found
+
+
+def _package_xml() -> ET.Element:
+    return ET.parse(REPO / "package.xml").getroot()
+
+
+def _depends(tag: str) -> list[str]:
+    return [(e.text or "").strip() for e in _package_xml().findall(tag)]
+
+
+def _requirement_name(requirement: str) -> str:
+    return re.split(r"[\s;<>=!~\[]", requirement.strip(), maxsplit=1)[0]
+
+
+def _normalise(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+# --- launch file -----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def launch_tree() -> ast.Module:
+    return ast.parse(LAUNCH_FILE.read_text(encoding="utf-8"), filename=str(LAUNCH_FILE))
+
+
+def test_launch_file_defines_generate_launch_description(launch_tree):
+    functions = {n.name for n in launch_tree.body if isinstance(n, ast.FunctionDef)}
+    assert "generate_launch_description" in functions
+
+
+def test_launch_file_starts_calibration_node(launch_tree):
+    constants = _module_constants(launch_tree)
+    nodes = _calls(launch_tree, "Node")
+    assert len(nodes) == 1, "expected exactly one launch_ros Node(...)"
+    keywords = _keywords(nodes[0])
+
+    def value(key: str) -> object:
+        assert key in keywords, f"Node(...) has no {key}="
+        return _evaluate(keywords[key], constants)
+
+    assert value("package") == PACKAGE
+    assert value("executable") == "calibration_node"
+    assert value("name") == "accel_calibration"
+    assert value("output") == "screen"
+    assert value("emulate_tty") is True
+    for key in ("namespace", "parameters", "remappings"):
+        assert key in keywords, f"Node(...) has no {key}="
+    remapped = [ast.literal_eval(t.elts[0]) for t in keywords["remappings"].elts]
+    assert sorted(remapped) == sorted(["imu/data_raw", "imu/temperature", "imu/data_calibrated"])
+
+
+def test_launch_file_declares_its_arguments(launch_tree):
+    declared: dict[str, ast.Call] = {}
+    for call in _calls(launch_tree, "DeclareLaunchArgument"):
+        declared[ast.literal_eval(call.args[0])] = call
+    assert set(declared) == set(LAUNCH_ARGUMENTS)
+    for name, default in LAUNCH_ARGUMENTS.items():
+        keywords = _keywords(declared[name])
+        assert "default_value" in keywords, f"argument {name} has no default_value"
+        if default is not None:
+            assert ast.literal_eval(keywords["default_value"]) == default, name
+    used = {ast.literal_eval(c.args[0]) for c in _calls(launch_tree, "LaunchConfiguration")}
+    assert used == set(LAUNCH_ARGUMENTS), "every declared argument is used, and only those"
+
+
+def test_launch_default_params_file_is_the_installed_config(launch_tree):
+    source = ast.unparse(launch_tree)
+    assert _calls(launch_tree, "get_package_share_directory"), "default params_file must come from the share dir"
+    assert f'"{CONFIG_FILE.name}"' in source or f"'{CONFIG_FILE.name}'" in source
+    assert CONFIG_FILE.exists()
+
+
+def test_setup_installs_calibration_node_entry_point():
+    keywords, _ = _setup_call()
+    entry_points = ast.literal_eval(keywords["entry_points"])
+    names = {spec.split("=", 1)[0].strip() for spec in entry_points["console_scripts"]}
+    assert "calibration_node" in names
+
+
+# --- setup.py --------------------------------------------------------------------------------
+
+def test_setup_installs_launch_and_config_files():
+    keywords, constants = _setup_call()
+    data_files = _evaluate(keywords["data_files"], constants)
+    installed: dict[str, list[str]] = {}
+    for destination, sources in data_files:
+        if isinstance(sources, tuple) and sources[0] == "glob":
+            files = sorted(glob(str(REPO / sources[1])))
+            installed.setdefault(destination, []).append(sources[1])
+            assert files, f"setup.py: {sources[1]} matches nothing"
+        else:
+            installed.setdefault(destination, []).extend(sources)
+    share = f"share/{PACKAGE}"
+    assert "launch/*.py" in installed.get(f"{share}/launch", [])
+    assert "config/*.yaml" in installed.get(f"{share}/config", [])
+    assert "package.xml" in installed.get(share, [])
+    assert f"resource/{PACKAGE}" in installed.get("share/ament_index/resource_index/packages", [])
+    assert (REPO / "resource" / PACKAGE).exists()
+
+
+def test_install_requires_covers_third_party_imports():
+    keywords, _ = _setup_call()
+    required = {_normalise(_requirement_name(r)) for r in ast.literal_eval(keywords["install_requires"])}
+    ros = set(_depends("exec_depend")) | {"rclpy"}
+    missing = {}
+    for module, files in _imports(CODE_DIRS).items():
+        if module in sys.stdlib_module_names or module in STDLIB_ELSEWHERE or module in FIRST_PARTY:
+            continue
+        if module in ros or ROS_INTERFACE.match(module):
+            continue  # from package.xml (checked below)
+        if _normalise(DISTRIBUTION.get(module, module)) not in required:
+            missing[module] = sorted(files)
+    assert not missing, f"third-party imports missing from setup.py install_requires: {missing}"
+
+
+# --- package.xml -----------------------------------------------------------------------------
+
+def test_package_xml_names_the_package():
+    root = _package_xml()
+    assert root.findtext("name") == PACKAGE
+    assert root.findtext("export/build_type") == "ament_python"
+
+
+def test_package_xml_interface_packages_are_importable():
+    interfaces = [d for d in _depends("exec_depend") if ROS_INTERFACE.match(d)]
+    assert interfaces
+    missing = [name for name in interfaces if importlib.util.find_spec(name) is None]
+    assert not missing, f"exec_depend interface packages not importable here: {missing}"
+
+
+def test_package_xml_lists_every_ros_package_the_code_imports():
+    exec_depends = set(_depends("exec_depend"))
+    imported = {m: f for m, f in _imports(CODE_DIRS).items() if ROS_INTERFACE.match(m) or m == "rclpy"}
+    assert {"rclpy", "sensor_msgs"} <= set(imported)
+    missing = {m: sorted(f) for m, f in imported.items() if m not in exec_depends}
+    assert not missing, f"ROS packages imported but not <exec_depend> in package.xml: {missing}"
+
+
+def test_package_xml_has_launch_dependencies():
+    exec_depends = set(_depends("exec_depend"))
+    assert {"launch", "launch_ros", "ament_index_python"} <= exec_depends
+
+
+# --- parameters file -------------------------------------------------------------------------
+
+def test_config_applies_to_any_namespace_and_node_name():
+    document = yaml.safe_load(CONFIG_FILE.read_text(encoding="utf-8"))
+    assert isinstance(document, dict)
+    assert list(document) == ["/**"]
+    parameters = document["/**"]["ros__parameters"]
+    assert isinstance(parameters, dict) and parameters
