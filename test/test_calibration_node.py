@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+pytestmark = pytest.mark.ros
 import yaml
 from scipy.spatial.transform import Rotation
 
@@ -42,7 +44,7 @@ def play_and_average(tester, imu, start_ns, last_s=1.0):
     [(window messages, mean acceleration, true specific force), ...]."""
     samples = imu.samples()
     tester.corrected.clear()
-    sent = play(tester.imu_pub, tester.temperature_pub, samples, start_ns=start_ns, speed=SPEED)
+    sent = tester.play(samples, start_ns=start_ns)
     assert tester.settle(int(0.99 * sent))
     received = by_stamp(tester.corrected)
     out = []
@@ -61,7 +63,7 @@ def test_live_calibration_end_to_end(tmp_path, tester):
         errors, rng = sensor()
         imu = session(errors, rng)
         samples = imu.samples()
-        sent = play(tester.imu_pub, tester.temperature_pub, samples, start_ns=START_NS, speed=SPEED)
+        sent = tester.play(samples, start_ns=START_NS)
         assert tester.settle(int(0.99 * sent))
 
         # Before any calibration the stream passes through unchanged, at the input rate, stamps kept.
@@ -111,7 +113,7 @@ def test_live_calibration_end_to_end(tmp_path, tester):
         off = tester.call("calibration/enable", False)
         assert off.success
         tester.corrected.clear()
-        play(tester.imu_pub, None, fresh_samples, start_ns=fresh_start + int(100e9), speed=SPEED, indices=range(50))
+        tester.play(temperature=False, samples=fresh_samples, start_ns=fresh_start + int(100e9), indices=range(50))
         assert tester.settle(48)
         for msg in tester.corrected:
             i = int(np.searchsorted(fresh_samples.t_ns, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec - fresh_start - int(100e9)))
@@ -130,7 +132,7 @@ def test_live_calibration_end_to_end(tmp_path, tester):
         tester.wait_ready()
         tester.corrected.clear()
         later = START_NS + int(500e9)
-        play(tester.imu_pub, None, samples, start_ns=later, speed=SPEED, indices=range(20))
+        tester.play(temperature=False, samples=samples, start_ns=later, indices=range(20))
         assert tester.settle(20)
         expected = saved.apply(samples.accel_raw[:20])
         for msg in tester.corrected:
@@ -157,7 +159,7 @@ def test_node_learns_temperature_drift_while_the_sensor_warms(tmp_path, tester):
         rotations = spread_orientations(48, rng)
         imu = SyntheticImu(errors, rotations, dwell_s=2.0, move_s=0.8, rate_hz=100.0, seed=8,
                            temperature_degc=lambda t: 5.0 + 50.0 * t / (48 * 2.8))
-        sent = play(tester.imu_pub, tester.temperature_pub, imu.samples(), start_ns=START_NS, speed=SPEED)
+        sent = tester.play(imu.samples(), start_ns=START_NS)
         assert tester.settle(int(0.99 * sent))
         assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_model"] == "temperature model fitted", 15), tester.diagnostics[-1]
         span = tester.diagnostics[-1]["temperature_span_degc"]

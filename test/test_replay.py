@@ -107,7 +107,7 @@ def test_replay_gives_the_calibration_the_live_node_gives(tmp_path):
     client = CalibrationClient()
     try:
         client.wait_ready()
-        sent = play(client.imu_pub, client.temperature_pub, samples, start_ns=START_NS, speed=5)
+        sent = client.play(samples, start_ns=START_NS)
         assert client.settle(sent)  # every message arrived: the node saw exactly the recorded session
         answer = client.call("calibrate")
         assert answer.success, answer.message

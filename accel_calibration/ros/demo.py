@@ -57,7 +57,7 @@ def main() -> int:
             start_ns = time.time_ns()
             chunk = int(imu.rate_hz * 2)
             for first in range(0, len(samples.t_ns), chunk):
-                play(client.imu_pub, client.temperature_pub, samples, start_ns=start_ns, speed=SPEED,
+                client.play(samples, start_ns=start_ns,
                      indices=range(first, min(first + chunk, len(samples.t_ns))))
                 show_progress()
             client.spin_until(lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /calibrate", 5)
@@ -74,7 +74,7 @@ def main() -> int:
             fresh_samples = fresh.samples()
             fresh_start = start_ns + int((imu.duration_s + 10) * 1e9)
             client.corrected.clear()
-            sent = play(client.imu_pub, None, fresh_samples, start_ns=fresh_start, speed=SPEED)
+            sent = client.play(temperature=False, samples=fresh_samples, start_ns=fresh_start)
             client.settle(int(0.99 * sent))
             received = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for m in client.corrected}
             before, after = [], []

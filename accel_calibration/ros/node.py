@@ -328,9 +328,8 @@ class CalibrationNode(Node):
         self._publisher.publish(msg)  # non-finite samples pass on untouched: the stack sees what the driver sent
 
     def _on_frame_id(self, frame_id: str) -> None:
-        if self._frame_id is None:
-            self._session.frame_id = frame_id
-        else:
+        self._session.frame_id = frame_id  # a calibration is of the frame the samples were in
+        if self._frame_id is not None:
             self._node_counts["frame_id_changes"] += 1
             self.get_logger().warning(f"imu/data_raw frame_id changed from {self._frame_id!r} to {frame_id!r}",
                                       throttle_duration_sec=LOG_THROTTLE_S)
