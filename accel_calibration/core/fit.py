@@ -1,8 +1,9 @@
 """fit(): the one entry point from pose means to a Calibration, shared by the node, replay, CLI and notebooks.
 
 Bad arguments raise CalibrationError (a ValueError). A fit that cannot be done from good
-arguments -- too few poses, poses that leave the model unobservable, no convergence -- is reported
-in the result (success False, message saying what is missing), never raised.
+arguments -- too few poses, no degree of freedom left to judge the fit, poses that leave the model
+unobservable, no convergence, overflow or a singular solution -- is reported in the result (success
+False, message saying what is missing), never raised: finite poses of the right shape never raise.
 """
 from __future__ import annotations
 
@@ -137,9 +138,15 @@ def _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, in
         ref = _as_points(reference, "reference")
         if ref.shape != accel.shape:
             raise CalibrationError(f"reference must have one row per pose ({len(accel)}), got {len(ref)}")
-        norms = np.linalg.norm(ref, axis=1)
-        if np.any(norms == 0):
-            raise CalibrationError(f"reference row {int(np.flatnonzero(norms == 0)[0])} is zero: give a direction")
+        peak = np.abs(ref).max(axis=1, initial=0.0)
+        if np.any(peak == 0):
+            raise CalibrationError(f"reference row {int(np.flatnonzero(peak == 0)[0])} is zero: give a direction")
+        with np.errstate(over="ignore", under="ignore"):
+            norms = np.linalg.norm(ref, axis=1)
+        odd = ~np.isfinite(norms) | (norms < 1e-150)  # the squares overflow or underflow: scale the row first
+        if np.any(odd):
+            ref[odd] /= peak[odd, None]
+            norms[odd] = np.linalg.norm(ref[odd], axis=1)
         ref = ref / norms[:, None]
     elif reference is not None:
         raise CalibrationError(f"model {model} fits without reference directions; use reference12/reference15")
@@ -180,16 +187,73 @@ def fit(
         options = temperature_options or TemperatureOptions(model=temperature_model)
         if options.model != temperature_model:
             options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
-        return _fit_with_temperature(accel, temps, model, gravity, options, initial, frame_id)
+    else:
+        options = None
+    # The arguments are good: from here on every problem is the data's, reported in the result. Overflow
+    # and the like are expected on wild data (and checked for), so numpy is not to warn about them.
+    try:
+        with np.errstate(all="ignore"):
+            if options is not None:
+                return _fit_with_temperature(accel, temps, model, gravity, options, initial, frame_id)
+            return _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_id)
+    except (ArithmeticError, np.linalg.LinAlgError, CalibrationError, ValueError) as error:
+        text = error.args[-1] if error.args and isinstance(error.args[-1], str) else str(error)
+        reason = text if isinstance(error, CalibrationError) else f"{type(error).__name__}: {text}"
+        return _numerical_failure(accel, temps, reason, model=model)
+
+
+# Beyond this, sums of squares of the poses (cost, normal matrix) overflow double precision.
+LARGEST_VALUE = 1e150
+
+
+def _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_id) -> FitResult:
     n = len(accel)
     # Reference models are separate linear fits per axis (4 or 5 unknowns each), sphere models one joint fit.
     size = {"reference12": 4, "reference15": 5}.get(model, parameter_count(model))
     if n < size:
         return FitResult(False, f"model {model} needs at least {size} poses, got {n}", model, poses=n)
+    largest = float(np.abs(accel).max())
+    if largest > LARGEST_VALUE:
+        row = int(np.argmax(np.abs(accel).max(axis=1)))
+        return FitResult(False, f"pose {row} reads {accel[row].tolist()}: values beyond {LARGEST_VALUE:.0e} overflow "
+                         "the fit; drop the corrupt pose or give the data in smaller units", model, poses=n)
     ref_temperature = None if temps is None else float(temps.mean())
     if model in SPHERE_MODELS:
         return _fit_sphere(accel, model, gravity, initial, ref_temperature, frame_id)
     return _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
+
+
+def _numerical_failure(accel, temps, reason, *, model, **fields) -> FitResult:
+    """A failed result for a fit that broke down numerically, naming the pose most likely to blame."""
+    n = len(accel)
+    message = f"numerical failure fitting model {model} to {n} poses ({reason})"
+    if n:
+        row = int(np.argmax(np.abs(accel).max(axis=1)))
+        message += f": check the poses for a corrupt or outlying one (the largest is pose {row}, {accel[row].tolist()})"
+        if temps is not None:
+            message += f" and the temperatures ({float(temps.min()):.4g}..{float(temps.max()):.4g} degC)"
+    fields.setdefault("poses", n)
+    return FitResult(False, message, model, **fields)
+
+
+def _no_degree_of_freedom(n: int, description: str, model: str, more: str = "orientation", **fields) -> FitResult:
+    fields.setdefault("poses", n)
+    return FitResult(False, f"{n} poses for the {description} leave no degree of freedom to judge the fit: "
+                     f"hold at least one more {more}", model, **fields)
+
+
+def _broken_reason(broken: str, solution) -> str:
+    if solution.iterations == 0:  # the solver could not start: its message says why
+        return solution.message
+    return f"{broken} not finite after {solution.iterations} iterations"
+
+
+def _not_finite(**arrays) -> str | None:
+    """Name of the first array with a NaN or infinite entry (None when all are finite)."""
+    for name, array in arrays.items():
+        if array is not None and not np.all(np.isfinite(array)):
+            return name.replace("_", " ")
+    return None
 
 
 def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
@@ -222,7 +286,14 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
     else:
         bias0, matrix0 = seed_sphere(accel, gravity)
     directions = (accel - bias0) @ matrix0.T
-    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    lengths = np.linalg.norm(directions, axis=1)
+    if not np.all(lengths > 0):
+        row = int(np.flatnonzero(~(lengths > 0))[0])
+        return FitResult(False, f"pose {row} reads {accel[row].tolist()}, exactly the starting estimate of the bias, "
+                         "so it has no direction: drop it if it is a dropped or zeroed sample", name, poses=n)
+    directions /= lengths[:, None]
+    if not np.all(np.isfinite(directions)):
+        return _numerical_failure(accel, None, "the starting point overflows", model=name)
     missing = tuple(missing_directions(directions))
     spread = angular_spread_deg(directions)
     if spread < SAME_DIRECTION_DEG:
@@ -247,6 +318,10 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
         missing_directions=missing,
         poses=n,
     )
+    # Overflow before observability: an infinite condition number from it says nothing about coverage.
+    broken = _not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=solution.jacobian)
+    if broken:
+        return _numerical_failure(accel, None, _broken_reason(broken, solution), **common)
     # Observability first: a fit that wanders along an unobservable direction also fails to converge,
     # and "turn x down" helps the person more than "did not converge".
     if condition > CONDITION_LIMIT:
@@ -256,12 +331,16 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
             + describe_missing(list(missing)),
             **common,
         )
+    if n <= model.size:
+        return _no_degree_of_freedom(n, f"{model.size} parameters of model {name}", **common)
     if not solution.success:
         return FitResult(False, solution.message, **common)
     bias, matrix = model.unpack(solution.x)
-    if np.linalg.det(matrix) <= 0:
+    if not np.linalg.det(matrix) > 0:
         return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
     stds = _standard_deviations(solution, n)
+    if _not_finite(uncertainties=stds):
+        return _numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
     _, matrix_sigma = model.unpack(stds)
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
     calibration = Calibration(
@@ -304,15 +383,25 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
                 missing_directions=missing,
                 poses=n,
             )
+        if n <= k:
+            return _no_degree_of_freedom(n, f"{k} parameters per axis of model {name}", name,
+                                         condition_number=condition, missing_directions=missing)
         solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
         coefficients[j] = solution
         residual_raw[:, j] = accel[:, j] - design @ solution
         dof = n - k
-        variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof if dof > 0 else float("nan")
+        variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof
         covariances[j] = variance * np.linalg.inv(design.T @ design)
     bias = coefficients[:, 0]
     forward = coefficients[:, 1:4]
     q = coefficients[:, 4] if quadratic else None
+    broken = _not_finite(coefficients=coefficients, covariances=covariances)
+    if broken:
+        return _numerical_failure(accel, None, f"{broken} not finite", model=name, condition_number=condition,
+                                  missing_directions=missing)
+    if not abs(np.linalg.det(forward)) >= 1e-12 * np.power(max(1.0, float(np.abs(forward).max())), 3.0):
+        return _numerical_failure(accel, None, "the fitted scale matrix is singular", model=name,
+                                  condition_number=condition, missing_directions=missing)
     matrix = np.linalg.inv(forward)
     # sigma of M = S^-1 by first-order propagation: dM = -M dS M; rows of S are independent fits.
     matrix_var = np.zeros((3, 3))
@@ -322,6 +411,10 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
                 grad = -matrix[a, j] * matrix[:, b]  # d M_ab / d S_jk for k = 0..2
                 matrix_var[a, b] += grad @ covariances[j, 1:4, 1:4] @ grad
     stds = np.sqrt(np.abs(np.array([np.diag(c) for c in covariances])))
+    broken = _not_finite(matrix=matrix, uncertainties=stds, matrix_uncertainties=matrix_var)
+    if broken:
+        return _numerical_failure(accel, None, f"{broken} not finite", model=name, condition_number=condition,
+                                  missing_directions=missing)
     sigma = Sigma(bias=stds[:, 0], matrix=np.sqrt(matrix_var), quadratic=stds[:, 4] if quadratic else None)
     calibration = Calibration(
         bias=bias,
@@ -337,6 +430,9 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
     )
     errors = calibration.apply(accel) - true
     residuals_mg = np.linalg.norm(errors, axis=1) / MG
+    if _not_finite(residuals=residuals_mg):
+        return _numerical_failure(accel, None, "residuals not finite", model=name, condition_number=condition,
+                                  missing_directions=missing)
     calibration = calibration.replace(quality=_quality(residuals_mg, condition))
     return FitResult(
         True,
@@ -355,12 +451,22 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
 
 def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptions, initial, frame_id) -> FitResult:
     n = len(accel)
+    if n < parameter_count(name):
+        return FitResult(False, f"model {name} needs at least {parameter_count(name)} poses, got {n}", name, poses=n)
     problem = temperature_span_problem(temps, options)
     if problem is not None:
         return FitResult(False, problem, name, poses=n)
     reference_degc = options.reference_degc if options.reference_degc is not None else float(np.median(temps))
     span = (float(temps.min()), float(temps.max()))
     if options.model == "segmented":
+        # Each segment needs several poses: more segments than poses means a corrupt temperature, and
+        # would have fit_segmented_drift lay out (and loop over) that many segments.
+        width = options.segment_width_degc
+        segments = np.ceil(span[1] / width) - np.floor(span[0] / width)
+        if not segments <= n:
+            return FitResult(False, f"temperatures {span[0]:.4g}..{span[1]:.4g} degC span {segments:.3g} segments of "
+                             f"{width:g} degC, more than the {n} poses can fill: check the temperatures for a corrupt "
+                             "value", name, poses=n)
         # The seed's scheme: a room-temperature calibration from the poses near T_ref, then each
         # segment's drift against it.
         near = np.abs(temps - reference_degc) <= options.segment_width_degc / 2
@@ -373,10 +479,14 @@ def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptio
                                                       gravity, options)
         except CalibrationError as error:
             return FitResult(False, str(error), name, poses=n)
+        if _not_finite(segment_coefficients=coefficients):
+            return _numerical_failure(accel, temps, "segment drift coefficients not finite", model=name)
         temperature = TemperatureModel("segmented", reference_degc, span, segment_edges_degc=edges,
                                        segment_coefficients=coefficients)
         calibration = base.calibration.replace(temperature=temperature, reference_temperature_degc=reference_degc)
         residuals_mg = (np.linalg.norm(calibration.apply(accel, temps), axis=1) - gravity) / MG
+        if _not_finite(residuals=residuals_mg):
+            return _numerical_failure(accel, temps, "residuals not finite", model=name)
         calibration = calibration.replace(quality=_quality(residuals_mg, base.condition_number))
         return FitResult(True, "segmented temperature model", name, iterations=base.iterations,
                          calibration=calibration, sigma=base.sigma, residuals_mg=residuals_mg,
@@ -384,29 +494,44 @@ def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptio
                          missing_directions=base.missing_directions, poses=n)
 
     # Polynomial: bias and scale drift jointly with M and b, started from the temperature-blind fit.
+    model = ThermalSphereModel(SphereModel(name), options.bias_order, options.scale_order, reference_degc)
+    described = (f"model {name} with a polynomial temperature model (bias order {options.bias_order}, "
+                 f"scale order {options.scale_order})")
+    if n < model.size:
+        return FitResult(False, f"{described} needs at least {model.size} poses, got {n}", name, poses=n)
     base = fit(accel, model=name, gravity=gravity, initial=initial, frame_id=frame_id)
     if not base.success:
         return FitResult(False, base.message, name, poses=n, missing_directions=base.missing_directions)
-    model = ThermalSphereModel(SphereModel(name), options.bias_order, options.scale_order, reference_degc)
-    if n < model.size:
-        return FitResult(False, f"model {name} with a polynomial temperature model (bias order {options.bias_order}, "
-                         f"scale order {options.scale_order}) needs at least {model.size} poses, got {n}", name, poses=n)
     solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, temps, gravity),
                             model.pack(base.calibration.bias, base.calibration.matrix))
     condition = scaled_condition_number(solution.jacobian)
     residuals_mg = solution.residuals / MG
     common = dict(model=name, iterations=solution.iterations, residuals_mg=residuals_mg, cost=solution.cost,
                   condition_number=condition, missing_directions=base.missing_directions, poses=n)
+    broken = _not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=solution.jacobian)
+    if broken:
+        return _numerical_failure(accel, temps, _broken_reason(broken, solution), **common)
     if condition > CONDITION_LIMIT * 100:  # temperature terms are smaller and more correlated by nature
         return FitResult(False, f"poses do not separate the temperature terms (condition number {condition:.3g}): "
                          "hold several orientations at each temperature", **common)
+    if n <= model.size:
+        return _no_degree_of_freedom(n, f"{model.size} parameters of {described}", more="pose", **common)
     if not solution.success:
         return FitResult(False, solution.message, **common)
     bias, matrix, c, d = model.unpack(solution.x)
+    if not np.linalg.det(matrix) > 0:
+        return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
     stds = _standard_deviations(solution, n)
+    if _not_finite(uncertainties=stds):
+        return _numerical_failure(accel, temps, "uncertainties not finite: the normal matrix is singular", **common)
     _, matrix_sigma = model.base.unpack(stds[: model.base.size])
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
     temperature = TemperatureModel("polynomial", reference_degc, span, bias_coefficients=c, scale_coefficients=d)
+    _, scale = temperature.bias_and_scale(np.linspace(span[0], span[1], 101))
+    if not np.all(scale > 0):
+        return FitResult(False, "the fitted scale drift reaches zero within the calibrated temperature range "
+                         f"{span[0]:.4g}..{span[1]:.4g} degC: check the temperatures, or fit with a lower scale order",
+                         **common)
     calibration = Calibration(
         bias=bias, matrix=matrix, model=name, gravity=gravity, bias_sigma=sigma.bias, matrix_sigma=sigma.matrix,
         quality=_quality(residuals_mg, condition), frame_id=frame_id, reference_temperature_degc=reference_degc,

@@ -5,12 +5,19 @@ Jacobi column scaling; this is what makes the online refit after every new pose 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
 ResidualFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def _finite(jacobian: np.ndarray) -> bool:
+    """Whether every entry is finite, in one reduction: the sum of squares is NaN or inf otherwise
+    (and then J^T J, which it is the trace of, would overflow too)."""
+    return math.isfinite(float(np.vdot(jacobian, jacobian)))
 
 
 @dataclass(frozen=True)
@@ -35,11 +42,18 @@ def gauss_newton(
     """Minimise 0.5*|r(x)|^2 from x0.
 
     Stops when the relative cost change falls below `ftol`, or the relative step below `xtol`,
-    and reports non-convergence after `max_iterations` in the result rather than raising.
+    and reports non-convergence after `max_iterations` in the result rather than raising. A start
+    whose residuals or Jacobian are not finite (overflow, a pose at the bias) is reported the same
+    way; a trial point where they are not finite counts as a failed step.
     """
     x = np.array(x0, dtype=float)
     r, jac = residual_and_jacobian(x)
     cost = 0.5 * float(r @ r)
+    if not (math.isfinite(cost) and _finite(jac)):
+        return LeastSquaresSolution(
+            x, cost, r, jac, 0, False,
+            "residuals or Jacobian not finite at the starting point (overflow, or a pose exactly at the bias)",
+        )
     damping = 0.0
     for iteration in range(1, max_iterations + 1):
         normal = jac.T @ jac
@@ -65,9 +79,10 @@ def gauss_newton(
             x_new = x + step
             r_new, jac_new = residual_and_jacobian(x_new)
             cost_new = 0.5 * float(r_new @ r_new)
-            if cost_new <= cost:  # False for NaN too
+            usable = _finite(jac_new)
+            if cost_new <= cost and usable:  # False for a NaN cost too
                 break
-            if cost_new - cost <= ftol * cost:
+            if usable and cost_new - cost <= ftol * cost:
                 # At the optimum to within rounding: no step can do better, so stop here.
                 return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
             # The Gauss-Newton step overshot: damp it (Levenberg-Marquardt) and try again.

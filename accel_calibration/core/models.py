@@ -120,13 +120,16 @@ def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarr
 
     Solves A x^2 + B y^2 + C z^2 + D x + E y + F z = 1 linearly on normalised data, which copes with
     raw counts far from zero (e.g. unsigned 16-bit output centred on 32768). Falls back to zero bias
-    and a common scale when the poses do not define an ellipsoid.
+    and a common scale when the poses do not define an ellipsoid (or their magnitudes overflow).
     """
     centre = accel.mean(axis=0)
     spread = float(np.abs(accel - centre).max()) or 1.0
+    typical = float(np.median(np.linalg.norm(accel, axis=1)))
+    fallback = np.zeros(3), np.eye(3) * gravity / (typical if np.isfinite(typical) and typical > 0 else 1.0)
+    if not np.isfinite(spread):
+        return fallback
     x = (accel - centre) / spread
     design = np.hstack([x**2, x])
-    fallback = np.zeros(3), np.eye(3) * gravity / float(np.median(np.linalg.norm(accel, axis=1)) or 1.0)
     if len(accel) >= 6:
         coeffs, *_ = np.linalg.lstsq(design, np.ones(len(accel)), rcond=None)
         quad, lin = coeffs[:3], coeffs[3:]
