@@ -10,6 +10,13 @@ needed and any raw unit (counts, g, m/s^2) works. Explicit thresholds override.
 A still interval becomes a Pose when motion starts again (or at `max_pose_s`), if it lasted
 `min_hold_s`; `trim_s` is dropped at both ends (settling after the last motion, the onset of the
 next one before the window noticed it).
+
+Hostile input: a sample with a NaN/inf, a stamp not after the last one, or a value beyond `accel_limit`
+/ `gyro_limit` (always beyond _HARD_LIMIT, where squares and sums could overflow) is skipped and
+counted. A large value that is accepted cannot poison the running sums either: when a sample whose
+square dwarfs what remains in the window leaves it, the sums are rebuilt from the window (the
+subtraction would otherwise leave rounding debris far above the noise), so once it has left, the
+detector behaves as if it had never been there.
 """
 from __future__ import annotations
 
@@ -24,6 +31,19 @@ from .pose import Pose
 _BINS_PER_DECADE = 10
 _LOG_MIN, _LOG_MAX = -14, 14  # variance range the histogram covers, decades
 _NBINS = (_LOG_MAX - _LOG_MIN) * _BINS_PER_DECADE
+# Largest magnitude accepted on any axis (and for temperature) whatever the limits: its squares, summed
+# over any window, stay far from overflow. Beyond it a sample is rejected (a temperature: ignored).
+_HARD_LIMIT = 1e12
+# A sample leaving the window whose square exceeds this multiple of what remains in the running sum
+# of squares makes the sums be rebuilt: the subtraction leaves rounding of ~1e-16 of it behind.
+_CANCELLATION = 1e4
+_CANCELLATION_INV = 1.0 / _CANCELLATION
+# The sums are rebuilt about the window's mean when the sum of squares exceeds this multiple of
+# n * variance (the shift is far from the data: the variance would be a small difference of large
+# numbers, ~1e-16 * this relative error). Below _TINY_SQUARES nothing is worth rebuilding.
+_REBASE = 1e6
+_TINY_SQUARES = 1e-150
+_INF = math.inf
 
 
 class _VarianceFloor:
@@ -39,11 +59,13 @@ class _VarianceFloor:
         self._since_query = 0
 
     def add(self, variance: float) -> None:
-        if variance <= 0.0:
-            index = 0
-        else:
+        if 0.0 < variance < _INF:
             index = int((math.log10(variance) - _LOG_MIN) * _BINS_PER_DECADE)
             index = 0 if index < 0 else (_NBINS - 1 if index >= _NBINS else index)
+        elif -_INF < variance <= 0.0:
+            index = 0
+        else:  # NaN or inf: finite sums cannot give one; never let it into the histogram
+            return
         self.counts[index] += 1.0
         self.total += 1.0
         self._since_decay += 1
@@ -84,6 +106,9 @@ class StaticDetector:
       warmup_s: stream time of full windows needed before the learned floor is trusted.
       trim_s: dropped from the end of each interval (motion onset inside the window).
       max_pose_s: a longer still interval is cut into poses of this length (tracks temperature drift).
+      accel_limit, gyro_limit: largest absolute value per axis the sensor can read (input units); a
+        sample beyond it is a glitch, skipped and counted in rejected_samples and rejected_out_of_range.
+        None = no limit but the hard guard of 1e12 (which always applies).
     """
 
     def __init__(
@@ -99,6 +124,8 @@ class StaticDetector:
         warmup_s: float = 2.0,
         trim_s: float | None = None,
         max_pose_s: float = 60.0,
+        accel_limit: float | None = None,
+        gyro_limit: float | None = None,
     ):
         def positive(name, value):
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -120,12 +147,17 @@ class StaticDetector:
             raise CalibrationError(f"noise_quantile must be in (0, 0.5), got {noise_quantile!r}")
         self.accel_var_threshold = None if accel_var_threshold is None else positive("accel_var_threshold", accel_var_threshold)
         self.gyro_var_threshold = None if gyro_var_threshold is None else positive("gyro_var_threshold", gyro_var_threshold)
+        self.accel_limit = None if accel_limit is None else positive("accel_limit", accel_limit)
+        self.gyro_limit = None if gyro_limit is None else positive("gyro_limit", gyro_limit)
+        self._accel_max = _HARD_LIMIT if accel_limit is None else min(self.accel_limit, _HARD_LIMIT)
+        self._gyro_max = _HARD_LIMIT if gyro_limit is None else min(self.gyro_limit, _HARD_LIMIT)
         self._window_ns = int(self.window_s * 1e9)
         self._full_ns = int(0.9 * self.window_s * 1e9)
         self._gap_ns = self._window_ns  # a hole longer than a window breaks continuity
         self._accel_floor = _VarianceFloor(noise_quantile)
         self._gyro_floor = _VarianceFloor(noise_quantile)
-        self.rejected_samples = 0
+        self.rejected_samples = 0  # every sample skipped: NaN/inf, stamp not increasing, out of range
+        self.rejected_out_of_range = 0  # of those, the finite ones beyond accel_limit/gyro_limit/the guard
         self._full_time_ns = 0  # stream time with a full window: the noise floor's evidence
         self.reset()
 
@@ -162,13 +194,19 @@ class StaticDetector:
     # ---------------------------------------------------------------- per sample
     def update(self, t_ns, ax, ay, az, gx=None, gy=None, gz=None, temperature_degc=None) -> Pose | None:
         """One sample (plain floats; called per message). Returns a Pose when a still interval ends."""
-        if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
-            self.rejected_samples += 1
-            return None
+        # One test rejects NaN, inf and out-of-range values alike (comparisons with NaN are False).
+        a, g = self._accel_max, self._gyro_max
         has_gyro = gx is not None
-        if has_gyro and not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+        if not (-a <= ax <= a and -a <= ay <= a and -a <= az <= a) or (
+            has_gyro and not (-g <= gx <= g and -g <= gy <= g and -g <= gz <= g)
+        ):
             self.rejected_samples += 1
+            values = (ax, ay, az, gx, gy, gz) if has_gyro else (ax, ay, az)
+            if all(math.isfinite(v) for v in values):
+                self.rejected_out_of_range += 1
             return None
+        if temperature_degc is not None and not (-_HARD_LIMIT <= temperature_degc <= _HARD_LIMIT):
+            temperature_degc = None  # NaN, inf or absurd: no temperature for this sample, the motion is fine
         last = self._last_ns
         if last is not None and t_ns <= last:
             self.rejected_samples += 1
@@ -193,14 +231,22 @@ class StaticDetector:
         s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
         s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
         horizon = t_ns - self._window_ns
+        stale = False
         while window[0][0] <= horizon:
             old = window.popleft()
             dx, dy, dz, ex, ey, ez = old[8:14]
-            s[0] -= dx; s[1] -= dy; s[2] -= dz; s[3] -= dx * dx + dy * dy + dz * dz  # noqa: E702
-            s[4] -= ex; s[5] -= ey; s[6] -= ez; s[7] -= ex * ex + ey * ey + ez * ez  # noqa: E702
+            qa = dx * dx + dy * dy + dz * dz
+            qg = ex * ex + ey * ey + ez * ez
+            s[0] -= dx; s[1] -= dy; s[2] -= dz; s[3] -= qa  # noqa: E702
+            s[4] -= ex; s[5] -= ey; s[6] -= ez; s[7] -= qg  # noqa: E702
+            qa *= _CANCELLATION_INV
+            qg *= _CANCELLATION_INV
+            if -qa < s[3] < qa or -qg < s[7] < qg:
+                stale = True  # a big value left: what remains is mostly its rounding debris
         self._refresh_countdown -= 1
-        if self._refresh_countdown <= 0:
+        if stale or self._refresh_countdown <= 0:
             self._refresh_sums()
+            s = self._sums
         span = t_ns - window[0][0]
         if span < self._full_ns or len(window) < 5:
             self.state = "filling"
@@ -208,10 +254,19 @@ class StaticDetector:
         self._full_time_ns += t_ns - last if last is not None else 0
         n = len(window)
         accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
+        gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n if has_gyro else None
+        if not (  # all False for NaN
+            -_INF < accel_var < _INF and s[3] <= _REBASE * n * accel_var + _TINY_SQUARES
+            and (gyro_var is None or (-_INF < gyro_var < _INF and s[7] <= _REBASE * n * gyro_var + _TINY_SQUARES))
+        ):
+            # The shift is far from the window (its first sample was a glitch, or the sensor turned a
+            # long way), or, which values inside the guard cannot cause, something is not finite.
+            self._refresh_sums()
+            s = self._sums
+            accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
+            gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n if has_gyro else None
         self._accel_floor.add(accel_var)
-        gyro_var = None
         if has_gyro:
-            gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n
             self._gyro_floor.add(gyro_var)
         accel_limit, gyro_limit = self.thresholds
         if accel_limit is None:
@@ -298,8 +353,9 @@ class StaticDetector:
 
         if self._last_ns is not None or self._full_time_ns:
             raise CalibrationError("process() needs a fresh StaticDetector (this one has seen samples)")
-        poses, rejected = detect_batch(self, t_ns, accel, gyro, temperature_degc)
+        poses, rejected, out_of_range = detect_batch(self, t_ns, accel, gyro, temperature_degc)
         self.rejected_samples += rejected
+        self.rejected_out_of_range += out_of_range
         return poses
 
     # ---------------------------------------------------------------- internals
@@ -309,13 +365,39 @@ class StaticDetector:
         self._shift = None
 
     def _refresh_sums(self):
-        """Running sums drift by rounding over millions of updates: recompute now and then."""
+        """Recompute the running sums from the window: they drift by rounding over millions of updates,
+        a big value leaving them leaves its rounding behind, and a shift far from the data (a glitch as
+        first sample, a long turn) makes the variance a small difference of large numbers. So the shift
+        becomes the window's mean and the window's samples get their differences anew. O(window)."""
         self._refresh_countdown = 10_000
+        window = self._window
+        n = len(window)
+        if not n:
+            self._sums = [0.0] * 8
+            return
+        gyros = [sample[4:7] for sample in window if sample[4] is not None]
+        shift = (
+            sum(sample[1] for sample in window) / n,
+            sum(sample[2] for sample in window) / n,
+            sum(sample[3] for sample in window) / n,
+            *((sum(g[0] for g in gyros) / len(gyros), sum(g[1] for g in gyros) / len(gyros),
+               sum(g[2] for g in gyros) / len(gyros)) if gyros else self._shift[3:6]),
+        )
+        sx, sy, sz, sgx, sgy, sgz = self._shift = shift
+        rebuilt = []
         s = [0.0] * 8
-        for sample in self._window:
-            dx, dy, dz, ex, ey, ez = sample[8:14]
+        for sample in window:
+            t_ns, ax, ay, az, gx, gy, gz, temperature = sample[:8]
+            dx, dy, dz = ax - sx, ay - sy, az - sz
+            if gx is None:
+                ex = ey = ez = 0.0
+            else:
+                ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
+            rebuilt.append((t_ns, ax, ay, az, gx, gy, gz, temperature, dx, dy, dz, ex, ey, ez))
             s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
             s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
+        window.clear()  # in place: callers hold the deque
+        window.extend(rebuilt)
         self._sums = s
 
     def _new_interval(self, reference_sample) -> dict:

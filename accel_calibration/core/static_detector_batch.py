@@ -4,7 +4,13 @@ operations, for bag replay and the CLI where per-sample Python would dominate th
 Equivalent to update() per sample then flush() (tested): the same validity rules, window
 membership from timestamps, the noise floor's histogram queried at the same add counts (every 64
 windows, halved every 200k), the same warm-up adoption, trims, gap and max_pose_s cuts. Only the
-window variances differ, by rounding (cumulative sums instead of running sums).
+window variances differ, by rounding (block sums instead of running sums).
+
+Window sums are not differences of cumulative sums over the whole recording: one large value would
+leave its rounding in every later difference (and a value beyond ~1e154 makes them inf - inf = NaN),
+so the rest of the recording would be lost. Each window is split at a block boundary into the end of
+one block and the start of the next (plus whole blocks between, for an unusually long window), each
+summed within its block only, so a window's sums hold nothing but its own samples.
 """
 from __future__ import annotations
 
@@ -13,13 +19,24 @@ import math
 import numpy as np
 
 from .pose import Pose
-from .static_detector import _BINS_PER_DECADE, _LOG_MAX, _LOG_MIN, _NBINS
+from .static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
 
 _QUERY_EVERY = 64
 
 
 def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
-    """The floor value in force after each add, as _VarianceFloor would give it."""
+    """The floor value in force after each window, as _VarianceFloor would give it (it skips non-finite
+    variances, which finite sums inside the guard cannot give; NaN until the first add)."""
+    finite = np.isfinite(variances)
+    if not finite.all():
+        values = _floor_values_of_adds(variances[finite], quantile, half_life)
+        last_add = np.cumsum(finite) - 1
+        return np.where(last_add >= 0, values[np.maximum(last_add, 0)] if len(values) else np.nan, np.nan)
+    return _floor_values_of_adds(variances, quantile, half_life)
+
+
+def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
+    """The floor value in force after each add."""
     count = len(variances)
     if count == 0:
         return np.zeros(0)
@@ -60,39 +77,79 @@ def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.
     return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
 
 
-def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray) -> np.ndarray:
-    """Total variance (sum over axes) of values[start_i .. i], shifted by each segment's first sample."""
-    shifted = values - values[segment_first]
-    c1 = np.vstack([np.zeros((1, 3)), np.cumsum(shifted, axis=0)])
-    c2 = np.concatenate([[0.0], np.cumsum(np.einsum("ij,ij->i", shifted, shifted))])
-    stop = np.arange(1, len(values) + 1)
-    n = stop - start
-    s1 = c1[stop] - c1[start]
-    s2 = c2[stop] - c2[start]
-    return (s2 - np.einsum("ij,ij->i", s1, s1) / n) / n
+def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray, block: int) -> np.ndarray:
+    """Total variance (sum over axes) of values[start_i .. i], about each segment's median.
+
+    Every window at least `block` samples long is summed from pieces that lie inside it: the end of the
+    block holding its first sample, whole blocks, the start of the block holding its last sample (the
+    window holds a block boundary). Shorter windows (never a full one) are a difference within a block.
+    """
+    n_rows = len(values)
+    reference = np.empty_like(values)
+    firsts = np.flatnonzero(segment_first == np.arange(n_rows))
+    for first, end in zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]):
+        # Median, not the first sample: a glitch there would leave every window far from its reference.
+        reference[first:end] = np.median(values[first:end], axis=0)
+    shifted = values - reference
+    rows = np.column_stack([shifted, np.einsum("ij,ij->i", shifted, shifted)])  # x y z |x|^2
+    blocks = -(-n_rows // block)
+    padded = np.zeros((blocks * block, 4))
+    padded[:n_rows] = rows
+    padded = padded.reshape(blocks, block, 4)
+    prefix = np.cumsum(padded, axis=1).reshape(-1, 4)  # from the block's first row to this one
+    suffix = np.cumsum(padded[:, ::-1], axis=1)[:, ::-1].reshape(-1, 4)  # from this row to the block's last
+    totals = np.vstack([padded.sum(axis=1), np.zeros((1, 4))])
+
+    last = np.arange(n_rows)
+    boundary = last // block * block  # the last block boundary at or before the window's last row
+    spans = boundary > start  # the window holds a block boundary after its first row
+    sums = prefix[last].copy()  # [boundary, last]
+    head = np.flatnonzero(spans)
+    sums[head] += suffix[start[head]]  # [start, end of its block]
+    first_block, last_block = start[head] // block + 1, boundary[head] // block
+    between = first_block < last_block  # whole blocks in between (a window longer than a block)
+    if between.any():
+        pairs = np.column_stack([first_block[between], last_block[between]]).reshape(-1)
+        sums[head[between]] += np.add.reduceat(totals, pairs, axis=0)[::2]
+    inside = np.flatnonzero(boundary < start)  # shorter than a block, not at its start: a difference
+    sums[inside] -= prefix[start[inside] - 1]
+
+    count = last - start + 1
+    s1, s2 = sums[:, :3], sums[:, 3]
+    return (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
 
 
-def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tuple[list[Pose], int]:
+def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tuple[list[Pose], int, int]:
+    """(poses, rejected samples, of which finite but out of range)."""
     d = detector
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     a_all = np.asarray(accel, dtype=float).reshape(-1, 3)
     g_all = None if gyro is None else np.asarray(gyro, dtype=float).reshape(-1, 3)
     temp_all = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).reshape(-1)
-    finite = np.all(np.isfinite(a_all), axis=1)
-    if g_all is not None:
-        finite &= np.all(np.isfinite(g_all), axis=1)
-    t_f = t_all[finite]
+    if temp_all is not None:
+        with np.errstate(invalid="ignore"):
+            # NaN, inf or absurd: that sample has no temperature, as in update()
+            temp_all = np.where(np.abs(temp_all) <= _HARD_LIMIT, temp_all, np.nan)
+    with np.errstate(invalid="ignore"):
+        # As update(): NaN/inf or beyond the limit on any axis rejects the sample (NaN compares False).
+        valid = np.all(np.abs(a_all) <= d._accel_max, axis=1)
+        finite = np.all(np.isfinite(a_all), axis=1)
+        if g_all is not None:
+            valid &= np.all(np.abs(g_all) <= d._gyro_max, axis=1)
+            finite &= np.all(np.isfinite(g_all), axis=1)
+    out_of_range = int(np.count_nonzero(finite & ~valid))
+    t_f = t_all[valid]
     previous_max = np.concatenate([[np.iinfo(np.int64).min], np.maximum.accumulate(t_f)[:-1]]) if len(t_f) else t_f
     accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
     rejected = len(t_all) - int(accepted.sum())
-    keep = np.flatnonzero(finite)[accepted]
+    keep = np.flatnonzero(valid)[accepted]
     t = t_all[keep]
     a = a_all[keep]
     g = None if g_all is None else g_all[keep]
     temps = None if temp_all is None else temp_all[keep]
     n = len(t)
     if n == 0:
-        return [], rejected
+        return [], rejected, out_of_range
 
     window_ns, trim_ns = d._window_ns, int(d.trim_s * 1e9)
     gaps = np.concatenate([[False], np.diff(t) > d._gap_ns])
@@ -102,8 +159,10 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
     full = ((t - t[start]) >= d._full_ns) & (count >= 5)
     dt = np.concatenate([[0], np.diff(t)])
     full_time = np.cumsum(np.where(full, dt, 0))
-    accel_var = _window_variance(a, start, segment_first)
-    gyro_var = None if g is None else _window_variance(g, start, segment_first)
+    # Blocks no longer than the shortest full window: every full window holds a block boundary.
+    block = int(count[full].min()) if full.any() else max(1, int(count.max()))
+    accel_var = _window_variance(a, start, segment_first, block)
+    gyro_var = None if g is None else _window_variance(g, start, segment_first, block)
 
     full_index = np.flatnonzero(full)
     accel_limit = np.full(n, np.nan)
@@ -203,4 +262,4 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
             i = split + 1
     if opened is not None:
         emit(opened, last, False)
-    return poses, rejected
+    return poses, rejected, out_of_range
