@@ -38,16 +38,16 @@ def main() -> int:
         x0 = model.project(*seed_sphere(accel, G))
         fun = lambda p, a=accel: model.residual_and_jacobian(p, a, G)  # noqa: E731
 
-        def ours():
+        def ours(fun=fun, x0=x0):
             return gauss_newton(fun, x0)
 
-        def scipy_lsq():
+        def scipy_lsq(fun=fun, x0=x0):
             return least_squares(lambda p: fun(p)[0], x0, jac=lambda p: fun(p)[1], ftol=1e-12, xtol=1e-12, gtol=1e-15)
 
         a, b = ours(), scipy_lsq()
         assert np.max(np.abs(a.x - b.x)) < 1e-9, "different optimum"
         t_ours, t_scipy = median_us(ours), median_us(scipy_lsq)
-        t_fit = median_us(lambda: fit(accel))
+        t_fit = median_us(lambda accel=accel: fit(accel))
         # The whole fit with scipy in place of our solver (seed, checks and sigma are the same work).
         t_fit_scipy = t_fit - t_ours + t_scipy
         ratios_solver.append(t_scipy / t_ours)

@@ -73,7 +73,8 @@ def main() -> int:
     budget = max(2 * relay1["p99_ms"], relay1["p99_ms"] + 1.0)
     print(f"1 kHz: node delivered {100 * node1['delivered']:.2f} % (target >= 99.5 %), p99 {node1['p99_ms']:.2f} ms "
           f"vs budget {budget:.2f} ms = max(2x, +1 ms) of relay {relay1['p99_ms']:.2f} ms")
-    print(f"2 kHz: delivery node - relay = {100 * (node2['delivered'] - relay2['delivered']):+.2f} pp (target >= -0.5 pp)")
+    print(f"2 kHz: delivery node - relay = {100 * (node2['delivered'] - relay2['delivered']):+.2f} pp "
+          "(target >= -0.5 pp)")
     print(f"CPU per message: node / relay = {node1['cpu_us_per_msg'] / relay1['cpu_us_per_msg']:.2f} at 1 kHz, "
           f"{node2['cpu_us_per_msg'] / relay2['cpu_us_per_msg']:.2f} at 2 kHz")
     return 0

@@ -11,8 +11,8 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration.bag.replay import replay_bag
 from accel_calibration.bag.bag_io import write_session_bag
+from accel_calibration.bag.replay import replay_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 
@@ -45,14 +45,16 @@ def main() -> int:
         for storage in ("sqlite3", "mcap"):
             bag = Path(tmp) / f"session_{storage}"
             write_session_bag(bag, samples, start_ns=1_700_000_000 * 10**9, storage=storage)
-            baseline = best_of(lambda: rosbags_one_by_one(bag))
-            replay = best_of(lambda: replay_bag(bag))
+            baseline = best_of(lambda bag=bag: rosbags_one_by_one(bag))
+            replay = best_of(lambda bag=bag: replay_bag(bag))
             result = replay_bag(bag)
             assert result.calibration is not None, result.problem
             n = len(samples.t_ns)
-            print(f"{storage:7s}: {n} IMU messages; rosbags read+deserialize {baseline:.2f} s ({baseline / n * 1e6:.1f} us/msg), "
+            print(f"{storage:7s}: {n} IMU messages; rosbags read+deserialize {baseline:.2f} s "
+                  f"({baseline / n * 1e6:.1f} us/msg), "
                   f"replay end-to-end {replay:.2f} s ({replay / n * 1e6:.1f} us/msg, {len(result.poses)} poses, "
-                  f"fit {result.calibration.quality.residual_rms_mg:.2f} mg): {baseline / replay:.1f}x faster (target >= 3x)")
+                  f"fit {result.calibration.quality.residual_rms_mg:.2f} mg): {baseline / replay:.1f}x faster "
+                  "(target >= 3x)")
             shutil.rmtree(bag)
     return 0
 

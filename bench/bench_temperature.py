@@ -18,7 +18,8 @@ def main() -> int:
     rows = []
     for seed in range(5):
         rng = np.random.default_rng(seed)
-        temps = np.concatenate([rng.uniform(24.7, 25.3, 24)] + [rng.uniform(lo, lo + 10, 20) for lo in range(-20, 60, 10)])
+        temps = np.concatenate([rng.uniform(24.7, 25.3, 24)]
+                               + [rng.uniform(lo, lo + 10, 20) for lo in range(-20, 60, 10)])
         raw, _ = poses(rng, temps)
         fresh_temps = rng.uniform(-18, 58, 400)
         fresh_raw, fresh_true = poses(rng, fresh_temps, noise_mg=0.0)
@@ -29,11 +30,14 @@ def main() -> int:
             ("bias-only polynomial (autopilots)", "polynomial", TemperatureOptions(bias_order=3, scale_order=0)),
         ]:
             result = fit(raw, temperature_degc=temps, temperature_model=kind, temperature_options=options)
-            row[label] = rms_error_mg(result.calibration, fresh_raw, fresh_true, fresh_temps) if result.success else float("nan")
+            row[label] = (rms_error_mg(result.calibration, fresh_raw, fresh_true, fresh_temps) if result.success
+                          else float("nan"))
         blind = fit(raw).calibration
-        row["no temperature model"] = float(np.sqrt(np.mean(np.sum((blind.apply(fresh_raw) - fresh_true) ** 2, axis=1)))) / MG
+        row["no temperature model"] = float(np.sqrt(np.mean(np.sum((blind.apply(fresh_raw) - fresh_true) ** 2,
+                                                                  axis=1)))) / MG
         rows.append(row)
-    print("rms error at fresh orientations and temperatures, mg (5 simulated sessions of the drifting sensor; targets: polynomial <= 1, "
+    print("rms error at fresh orientations and temperatures, mg (5 simulated sessions of the drifting sensor; "
+          "targets: polynomial <= 1, "
           "segmented <= 5, uncompensated > 50 over the span):")
     for label in rows[0]:
         values = [r[label] for r in rows]

@@ -77,7 +77,8 @@ def subscribe(out: str) -> None:
             last_count, idle_since = count, time.monotonic()
         elif count > 0 and time.monotonic() - idle_since > 5.0:
             break
-    summary = {str(m): {"received": len(v), "p99_ms": float(np.percentile(np.array(v) / 1e6, 99))} for m, v in sorted(minutes.items())}
+    summary = {str(m): {"received": len(v), "p99_ms": float(np.percentile(np.array(v) / 1e6, 99))}
+               for m, v in sorted(minutes.items())}
     with open(out, "w") as f:
         json.dump(summary, f)
     node.destroy_node()

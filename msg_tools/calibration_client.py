@@ -64,8 +64,14 @@ class CalibrationClient:
         and a probe message have come back. Probes carry stamps near 0, before any real session."""
         for name, client in self.clients.items():
             assert client.wait_for_service(timeout_sec=timeout), f"service {name} not available"
-        future = self.clients["calibration/get"].call_async(Trigger.Request())
-        assert self.spin_until(future.done, timeout), "calibration/get did not answer"
+        # A request sent while the client is matched only to a server that just exited (DDS keeps it until
+        # its lease ends) is lost: ask again until the live node answers.
+        deadline = time.monotonic() + timeout
+        while True:
+            future = self.clients["calibration/get"].call_async(Trigger.Request())
+            if self.spin_until(future.done, 1.0):
+                break
+            assert time.monotonic() < deadline, "calibration/get did not answer"
         deadline = time.monotonic() + timeout
         probe = 0
         while time.monotonic() < deadline:
@@ -112,7 +118,7 @@ class CalibrationClient:
                     next_temperature_ns = t[i] + period_ns
                 self.imu_pub.publish(make_imu(stamp, accel[i], gyro[i], frame_id))
             expected = base + start + len(block)
-            if not self.spin_until(lambda: len(self.corrected) >= expected, timeout, poll_s=0.0005):
+            if not self.spin_until(lambda expected=expected: len(self.corrected) >= expected, timeout, poll_s=0.0005):
                 raise AssertionError(f"node echoed {len(self.corrected) - base} of {start + len(block)} messages "
                                      f"within {timeout:g} s")
         return len(order)

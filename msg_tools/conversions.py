@@ -27,7 +27,8 @@ def imu_to_tuple(msg: Imu):
 def imus_to_arrays(msgs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = [imu_to_tuple(m) for m in msgs]
     t = np.array([r[0] for r in rows], dtype=np.int64)
-    return t, np.array([r[1] for r in rows], dtype=float).reshape(-1, 3), np.array([r[2] for r in rows], dtype=float).reshape(-1, 3)
+    return (t, np.array([r[1] for r in rows], dtype=float).reshape(-1, 3),
+            np.array([r[2] for r in rows], dtype=float).reshape(-1, 3))
 
 
 def make_imu(t_ns: int, accel, gyro, frame_id: str = "imu_link", accel_cov=None) -> Imu:

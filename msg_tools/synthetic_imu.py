@@ -44,7 +44,7 @@ class SensorErrors:
         return raw + self.bias_mps2
 
     @classmethod
-    def mpu6050_like(cls, rng: np.random.Generator, noise_mps2: float = 0.04) -> "SensorErrors":
+    def mpu6050_like(cls, rng: np.random.Generator, noise_mps2: float = 0.04) -> SensorErrors:
         """A badly calibrated MPU-6050-class part: bias 20-50 mg, scale 1-3 %, non-orthogonality ~0.5-1 deg,
         ~4 mg noise per sample, gyro bias ~1 deg/s."""
         bias = rng.uniform(0.2, 0.5, 3) * rng.choice([-1.0, 1.0], 3)
@@ -108,7 +108,8 @@ class SyntheticImu:
         self.errors = errors
         self.rotations = list(rotations)
         self.dwell_s, self.move_s, self.rate_hz, self.gravity = dwell_s, move_s, rate_hz, gravity
-        self.temperature = temperature_degc if callable(temperature_degc) else (lambda t, c=float(temperature_degc): np.full_like(t, c))
+        self.temperature = (temperature_degc if callable(temperature_degc)
+                            else (lambda t, c=float(temperature_degc): np.full_like(t, c)))
         self.seed = seed
 
     @property

@@ -10,11 +10,9 @@ pytestmark = pytest.mark.ros
 import yaml
 from scipy.spatial.transform import Rotation
 
-from accel_calibration import MG, Calibration, load_calibration
-from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
-from msg_tools.synthetic_publisher import play
-
+from accel_calibration import MG, load_calibration
 from msg_tools.node_process import NodeProcess
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 START_NS = 1_700_000_000 * 10**9  # header time of the played sessions
 SPEED = 10.0
@@ -27,7 +25,8 @@ def sensor(seed=1, noise=0.02):
 
 
 def session(errors, rng, poses=16, dwell_s=2.5, rate_hz=200.0, seed=2):
-    return SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=dwell_s, move_s=1.0, rate_hz=rate_hz, seed=seed)
+    return SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=dwell_s, move_s=1.0, rate_hz=rate_hz,
+                        seed=seed)
 
 
 def by_stamp(messages):
@@ -77,7 +76,8 @@ def test_live_calibration_end_to_end(tmp_path, tester):
 
         # Poses were found by themselves and the fit is ready.
         assert tester.spin_until(lambda: tester.diagnostics and int(tester.diagnostics[-1]["poses"]) >= 12, 10)
-        assert tester.spin_until(lambda: tester.diagnostics[-1]["advice"] == "ready: call /calibrate", 10), tester.diagnostics[-1]
+        assert tester.spin_until(lambda: tester.diagnostics[-1]["advice"] == "ready: call /calibrate", 10), \
+            tester.diagnostics[-1]
         assert "accepted" in node.log()
 
         answer = tester.call("calibrate")
@@ -116,7 +116,8 @@ def test_live_calibration_end_to_end(tmp_path, tester):
         tester.play(temperature=False, samples=fresh_samples, start_ns=fresh_start + int(100e9), indices=range(50))
         assert tester.settle(48)
         for msg in tester.corrected:
-            i = int(np.searchsorted(fresh_samples.t_ns, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec - fresh_start - int(100e9)))
+            stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            i = int(np.searchsorted(fresh_samples.t_ns, stamp_ns - fresh_start - int(100e9)))
             np.testing.assert_array_equal(accel_of(msg), fresh_samples.accel_raw[i])
         assert tester.call("calibration/enable", True).success
 
@@ -161,7 +162,9 @@ def test_node_learns_temperature_drift_while_the_sensor_warms(tmp_path, tester):
                            temperature_degc=lambda t: 5.0 + 50.0 * t / (48 * 2.8))
         sent = tester.play(imu.samples(), start_ns=START_NS)
         assert tester.settle(int(0.99 * sent))
-        assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_model"] == "temperature model fitted", 15), tester.diagnostics[-1]
+        assert tester.spin_until(
+            lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_model"] == "temperature model fitted",
+            15), tester.diagnostics[-1]
         span = tester.diagnostics[-1]["temperature_span_degc"]
         answer = tester.call("calibrate")
         assert answer.success, answer.message

@@ -3,23 +3,19 @@ crashes, nothing bad reaches the fit, the calibration in force and its file are 
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
 
 pytestmark = pytest.mark.ros
-from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
-from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterValue
-from scipy.spatial.transform import Rotation
 
 from accel_calibration import Calibration, load_calibration, save_calibration
 from msg_tools.conversions import make_imu, make_temperature
-from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
-from msg_tools.synthetic_publisher import play
-
 from msg_tools.node_process import NodeProcess
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 START_NS = 1_700_000_000 * 10**9
 ERROR, WARN = b"\x02", b"\x01"
@@ -117,7 +113,6 @@ def test_bad_messages_are_counted_and_never_reach_the_fit(tmp_path, tester):
         # Interleave poison into a real session: NaN and Inf, a saturated axis (stuck at +16 g), and
         # stamps that go backwards -- inside still dwells, where they would do the most harm.
         poisoned = 0
-        stride = 50
         for start in range(0, len(samples.t_ns), 400):
             tester.play(samples, start_ns=START_NS,
                  indices=range(start, min(start + 400, len(samples.t_ns))))
@@ -127,7 +122,8 @@ def test_bad_messages_are_counted_and_never_reach_the_fit(tmp_path, tester):
             tester.imu_pub.publish(make_imu(t + 3000, (16 * 9.80665, 0.0, 9.8), (0.0, 0.0, 0.0)))
             tester.imu_pub.publish(make_imu(t - 10**9, (50.0, 50.0, 50.0), (0.0, 0.0, 0.0)))
             poisoned += 1
-        assert tester.spin_until(lambda: tester.diagnostics and int(tester.diagnostics[-1]["non_finite"]) >= 2 * poisoned - 2, 10)
+        assert tester.spin_until(
+            lambda: tester.diagnostics and int(tester.diagnostics[-1]["non_finite"]) >= 2 * poisoned - 2, 10)
         last = tester.diagnostics[-1]
         assert int(last["saturated"]) >= poisoned - 1 and int(last["stamp_backwards"]) >= poisoned - 1
         assert last["level"] in (WARN, ERROR)
@@ -158,7 +154,8 @@ def test_temperature_that_stops_is_reported_stale_and_used_again_when_it_resumes
         tester.wait_ready()
         for i in range(20):
             tester.temperature_pub.publish(make_temperature(START_NS + i * 10**8, 30.0))
-        assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_degc"] == "30.00", 5)
+        assert tester.spin_until(
+            lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_degc"] == "30.00", 5)
         # IMU goes on for 3 s of header time, the temperature does not.
         tester.play(still_samples(3.0), start_ns=START_NS + 2 * 10**9, temperature=False)
         assert tester.spin_until(lambda: int(tester.diagnostics[-1]["temperature_stale"]) > 100, 5)
@@ -193,7 +190,8 @@ def test_parameters_mirror_the_calibration_and_are_validated(tmp_path, tester):
     try:
         tester.wait_ready()
         got = _parameter_call(tester, GetParameters, "get_parameters",
-                              GetParameters.Request(names=["calibration.bias", "calibration.matrix", "min_poses", "model"]))
+                              GetParameters.Request(names=["calibration.bias", "calibration.matrix", "min_poses",
+                                                           "model"]))
         bias, matrix, min_poses, model = got.values
         np.testing.assert_allclose(bias.double_array_value, cal.bias)
         np.testing.assert_allclose(matrix.double_array_value, cal.matrix.ravel())
@@ -203,7 +201,8 @@ def test_parameters_mirror_the_calibration_and_are_validated(tmp_path, tester):
             request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=value)])
             return _parameter_call(tester, SetParameters, "set_parameters", request).results[0]
 
-        refused = set_("calibration.bias", ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.0, 0.0, 0.0]))
+        refused = set_("calibration.bias", ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+                                                          double_array_value=[0.0, 0.0, 0.0]))
         assert not refused.successful and "read-only" in refused.reason
         refused = set_("min_poses", ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=3))
         assert not refused.successful and "min_poses" in refused.reason
@@ -227,7 +226,8 @@ def test_bad_startup_parameters_exit_with_one_line(tmp_path):
 def good_session(seed=11, poses=16):
     errors = SensorErrors.mpu6050_like(np.random.default_rng(seed), noise_mps2=0.02)
     rng = np.random.default_rng(seed + 1)
-    return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0, seed=seed)
+    return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0,
+                                seed=seed)
 
 
 def test_auto_calibrate_applies_and_saves_by_itself(tmp_path, tester):
@@ -269,7 +269,8 @@ def test_use_sim_time_with_a_clock_as_bag_play_gives(tmp_path, tester):
         errors, imu = good_session(seed=21)
         samples = imu.samples()
         for first in range(0, len(samples.t_ns), 200):
-            clock_pub.publish(Clock(clock=make_imu(START_NS + int(samples.t_ns[first]), (0, 0, 0), (0, 0, 0)).header.stamp))
+            clock_pub.publish(Clock(clock=make_imu(START_NS + int(samples.t_ns[first]), (0, 0, 0),
+                                                   (0, 0, 0)).header.stamp))
             tester.play(samples, start_ns=START_NS,
                  indices=range(first, min(first + 200, len(samples.t_ns))))
         answer = tester.call("calibrate")

@@ -19,7 +19,6 @@ from std_srvs.srv import Trigger
 from accel_calibration import Calibration, load_calibration, save_calibration
 from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
-from msg_tools.synthetic_publisher import play
 
 START_NS = 1_700_000_000 * 10**9
 IN_FORCE = Calibration(bias=[0.1, -0.2, 0.3], matrix=[[1.01, 0, 0], [0.01, 0.99, 0], [0.0, 0.02, 1.02]])
@@ -80,7 +79,8 @@ def test_a_failed_save_keeps_the_calibration_in_force_and_its_file_whole(tmp_pat
             tester.play(good_session().samples(), start_ns=START_NS)
             answer = tester.call("calibrate")
             assert not answer.success
-            assert answer.message.startswith("not applied: cannot write") and answer.message.endswith("previous calibration kept in force")
+            assert answer.message.startswith("not applied: cannot write")
+            assert answer.message.endswith("previous calibration kept in force")
             expected = ("No space left",) if kind == "full disk" else ("not permitted", "Permission denied")
             assert any(text in answer.message for text in expected), answer.message
             assert load_calibration(cal_file) == IN_FORCE and cal_file.read_bytes() == before

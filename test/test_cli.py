@@ -46,7 +46,8 @@ def test_fit_then_apply_as_a_user_would(tmp_path):
 
     (tmp_path / "in.csv").write_text("t,ax,ay,az\n1.5,0.25,-0.4,10.0\n2.5,10.0,-0.4,0.15\n")
     run = subprocess.run(
-        [BIN / "accel-calib", "apply", "--calibration", tmp_path / "cal.yaml", tmp_path / "in.csv", tmp_path / "out.csv"],
+        [BIN / "accel-calib", "apply", "--calibration", tmp_path / "cal.yaml", tmp_path / "in.csv",
+         tmp_path / "out.csv"],
         capture_output=True, text=True, check=False,
     )
     assert run.returncode == 0, run.stderr

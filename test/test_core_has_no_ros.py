@@ -5,7 +5,8 @@ import sys
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "accel_calibration"
-CORE_MODULES = [f"accel_calibration.core.{p.stem}" for p in sorted((PACKAGE / "core").glob("*.py")) if p.stem != "__init__"] + [
+CORE_MODULES = [f"accel_calibration.core.{p.stem}" for p in sorted((PACKAGE / "core").glob("*.py"))
+                if p.stem != "__init__"] + [
     "accel_calibration",
     "accel_calibration.core.fit",
     "accel_calibration.core.models",
@@ -22,7 +23,8 @@ PROBE = f"""
 import importlib.abc, sys
 class NoRos(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'std_srvs', 'diagnostic_msgs', 'builtin_interfaces', 'rosbags'):
+        if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'std_srvs', 'diagnostic_msgs', 'builtin_interfaces',
+                                  'rosbags'):
             raise ImportError('ROS import from the core: ' + name)
 sys.meta_path.insert(0, NoRos())
 import importlib
@@ -63,7 +65,8 @@ def _imported_layers(path: Path, layer: str) -> set[str]:
 def test_imports_point_one_way():
     for layer, allowed in ALLOWED.items():
         for path in (PACKAGE / layer).glob("*.py"):
-            assert _imported_layers(path, layer) <= allowed, f"{path.name} in {layer}/ imports {_imported_layers(path, layer) - allowed}"
+            assert _imported_layers(path, layer) <= allowed, \
+                f"{path.name} in {layer}/ imports {_imported_layers(path, layer) - allowed}"
     for path in (PACKAGE.parent / "msg_tools").glob("*.py"):
         assert "accel_calibration" not in {layer for node in ast.walk(ast.parse(path.read_text()))
                                            if isinstance(node, ast.ImportFrom) and node.module

@@ -47,7 +47,8 @@ def _imucal_faces(shared):
     with open(shared("real/imucal/annotated_session.csv")) as f:
         for row in csv.DictReader(f):
             sums[row["part"]].append([float(row["acc_x"]), float(row["acc_y"]), float(row["acc_z"])])
-    faces = {"x_p": (1, 0, 0), "x_a": (-1, 0, 0), "y_p": (0, 1, 0), "y_a": (0, -1, 0), "z_p": (0, 0, 1), "z_a": (0, 0, -1)}
+    faces = {"x_p": (1, 0, 0), "x_a": (-1, 0, 0), "y_p": (0, 1, 0), "y_a": (0, -1, 0), "z_p": (0, 0, 1),
+             "z_a": (0, 0, -1)}
     means = np.array([np.mean(sums[name], axis=0) for name in faces])
     return means, np.array(list(faces.values()), dtype=float), list(faces)
 
@@ -71,7 +72,8 @@ def test_reference12_agrees_with_imucal_ferraris_on_the_six_faces(shared):
     # least squares averages the axis over all six faces, which is less noisy. Check that
     # explanation exactly, and that the two differ by under 10 counts (~5 mg at ~2050 counts/g).
     index = {n: i for i, n in enumerate(names)}
-    ferraris_bias = [(means_counts[index[f"{a}_p"], k] + means_counts[index[f"{a}_a"], k]) / 2 for k, a in enumerate("xyz")]
+    ferraris_bias = [(means_counts[index[f"{a}_p"], k] + means_counts[index[f"{a}_a"], k]) / 2
+                     for k, a in enumerate("xyz")]
     assert_allclose(ferraris_bias, b_a, rtol=0, atol=1e-9)
     assert_allclose(cal.bias, means_counts.mean(axis=0), rtol=0, atol=1e-9)
     assert np.max(np.abs(cal.bias - b_a)) < 10.0

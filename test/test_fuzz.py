@@ -9,8 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from accel_calibration import Calibration, CalibrationError, fit, load_calibration, save_calibration
-from accel_calibration.io.calibration_file import calibration_from_yaml
 from accel_calibration.cli.main import main
+from accel_calibration.io.calibration_file import calibration_from_yaml
 
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -26,7 +26,8 @@ bodies = st.fixed_dictionaries(
         "gravity": numbers,
         "bias": vectors,
         "matrix": matrices,
-        "quality": st.one_of(st.dictionaries(st.sampled_from(["residual_rms_mg", "residual_max_mg", "poses", "condition_number"]),
+        "quality": st.one_of(st.dictionaries(st.sampled_from(["residual_rms_mg", "residual_max_mg", "poses",
+                                                              "condition_number"]),
                                              numbers, max_size=4), numbers),
         "uncertainty": st.one_of(st.dictionaries(st.sampled_from(["bias", "matrix"]), matrices, max_size=2), numbers),
         "quadratic": vectors,
@@ -90,7 +91,8 @@ cells = st.one_of(finite.map(repr), st.sampled_from(["nan", "inf", "", "x", "1e9
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(header=st.lists(st.sampled_from(["ax", "ay", "az", "temperature", "ref_x", "ref_y", "ref_z", "t", "AX", ""]), max_size=6),
+@given(header=st.lists(st.sampled_from(["ax", "ay", "az", "temperature", "ref_x", "ref_y", "ref_z", "t", "AX", ""]),
+                       max_size=6),
        rows=st.lists(st.lists(cells, max_size=7), max_size=15),
        model=st.sampled_from(["sphere9", "six", "reference12"]))
 def test_cli_on_arbitrary_csv_never_tracebacks_and_keeps_the_output(tmp_path_factory, header, rows, model):

@@ -24,7 +24,8 @@ REPO = Path(__file__).resolve().parents[1]
 def good_session(seed=11, poses=16):
     errors = SensorErrors.mpu6050_like(np.random.default_rng(seed), noise_mps2=0.02)
     rng = np.random.default_rng(seed + 1)
-    return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0, seed=seed)
+    return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0,
+                                seed=seed)
 
 
 @pytest.fixture
@@ -59,7 +60,8 @@ def test_calibrate_too_early_then_a_session_then_calibrate_reset_calibrate(tmp_p
     assert saved.frame_id == "imu_link"
     assert tester.call("calibration/reset").success
     again = tester.call("calibrate")
-    assert not again.success and "gate poses" in again.message and again.message.endswith("previous calibration kept in force")
+    assert not again.success and "gate poses" in again.message
+    assert again.message.endswith("previous calibration kept in force")
     assert tester.call("calibration/get").success
     assert node.process.poll() is None
     assert node.stop() == 0 and "Traceback" not in node.log()
@@ -73,7 +75,8 @@ def test_sigterm_while_calibrate_is_served_exits_0_with_no_temp_file(tmp_path, t
     assert not (tmp_path / ".cal.yaml.stale123.tmp").exists()  # stale temp files are removed at start-up
     _, imu = good_session(seed=5)
     tester.play(imu.samples(), start_ns=START_NS)
-    futures = [tester.clients["calibrate"].call_async(__import__("std_srvs.srv", fromlist=["Trigger"]).Trigger.Request())
+    futures = [tester.clients["calibrate"].call_async(
+                   __import__("std_srvs.srv", fromlist=["Trigger"]).Trigger.Request())
                for _ in range(5)]
     assert tester.spin_until(lambda: any(f.done() for f in futures), 20)
     node.process.send_signal(signal.SIGTERM)
@@ -148,7 +151,8 @@ def test_params_file_applies_under_a_namespace_with_a_per_node_file(tmp_path, no
         assert not future.result().results[0].successful
         _, imu = good_session(seed=8)
         client.play(imu.samples(), start_ns=START_NS)
-        assert client.spin_until(lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /uav1/calibrate", 10), \
+        assert client.spin_until(
+            lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /uav1/calibrate", 10), \
             client.diagnostics[-1]
         assert client.call("calibrate").success
         assert (tmp_path / ".ros" / "accel_calibration" / "uav1" / "accel_calibration.yaml").exists()

@@ -12,7 +12,8 @@ G = 9.80665
 
 
 def poses_from(raw):
-    return [Pose(accel_mps2=a, accel_cov=np.eye(3) * 1e-6, samples=200, start_ns=i * 10**9, end_ns=i * 10**9 + 5 * 10**8)
+    return [Pose(accel_mps2=a, accel_cov=np.eye(3) * 1e-6, samples=200, start_ns=i * 10**9,
+                 end_ns=i * 10**9 + 5 * 10**8)
             for i, a in enumerate(raw)]
 
 
@@ -78,5 +79,6 @@ def test_bad_gate_settings_are_refused(gates, name):
     with pytest.raises(CalibrationError, match=name):
         Settings(**gates)
     with pytest.raises(CalibrationError, match=name.split("_")[0]):
-        QualityGates(**{("scale_band" if k.startswith("scale") else k): v for k, v in gates.items()} if "scale_min" not in gates
+        QualityGates(**{("scale_band" if k.startswith("scale") else k): v for k, v in gates.items()}
+                     if "scale_min" not in gates
                      else {"scale_band": (gates["scale_min"], gates["scale_max"])})

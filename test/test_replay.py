@@ -8,18 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration import Calibration, load_calibration, save_calibration
-from accel_calibration.cli.main import main
-from accel_calibration.bag.replay import replay_bag
+from accel_calibration import load_calibration, save_calibration
 from accel_calibration.bag.bag_io import decode_imus, write_session_bag
+from accel_calibration.bag.replay import replay_bag
+from accel_calibration.cli.main import main
 from msg_tools.calibration_client import CalibrationClient
 from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
-from msg_tools.synthetic_publisher import play
 
 BIN = Path(sys.executable).parent
 START_NS = 1_700_000_000 * 10**9
@@ -55,7 +53,8 @@ def test_bulk_decoder_matches_rosbags_on_real_bags(shared, name):
 
 @pytest.mark.parametrize("name", ["test2_sqlite3", "test2_mcap_zstd"])
 def test_real_drive_without_a_pose_session_is_refused_in_one_line(shared, name):
-    run = subprocess.run([BIN / "accel-calib", "replay", shared(f"real/bags/{name}")], capture_output=True, text=True, check=False)
+    run = subprocess.run([BIN / "accel-calib", "replay", shared(f"real/bags/{name}")], capture_output=True, text=True,
+                         check=False)
     assert run.returncode == 1
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr
     assert "too few static poses" in run.stderr and "no multi-pose session" in run.stderr
@@ -143,7 +142,8 @@ def test_report_from_a_poses_table(tmp_path):
     save_calibration(replay.calibration, tmp_path / "cal.yaml")
     rows = ["ax,ay,az"] + [",".join(f"{v:.9f}" for v in p.accel_mps2) for p in replay.poses]
     (tmp_path / "poses.csv").write_text("\n".join(rows) + "\n")
-    assert main(["report", str(tmp_path / "cal.yaml"), "--poses", str(tmp_path / "poses.csv"), "-o", str(tmp_path / "r.png")]) == 0
+    assert main(["report", str(tmp_path / "cal.yaml"), "--poses", str(tmp_path / "poses.csv"),
+                 "-o", str(tmp_path / "r.png")]) == 0
     assert main(["report", str(tmp_path / "cal.yaml"), "--bag", str(bag), "-o", str(tmp_path / "r2.png")]) == 0
     assert (tmp_path / "r.png").stat().st_size > 20_000
 
@@ -154,7 +154,8 @@ def test_bag_errors_are_one_line(tmp_path, capsys):
     write_session_bag(only_temperature, samples, start_ns=START_NS, imu_topic="/other")
     for args, message in [
         (["replay", str(tmp_path / "absent")], "no such bag"),
-        (["replay", str(only_temperature), "--imu-topic", "/imu/data_raw"], "no sensor_msgs/msg/Imu topic /imu/data_raw; the bag has"),
+        (["replay", str(only_temperature), "--imu-topic", "/imu/data_raw"],
+         "no sensor_msgs/msg/Imu topic /imu/data_raw; the bag has"),
         (["replay", str(only_temperature), "--jobs", "0"], "--jobs"),
     ]:
         assert main(args) == 1

@@ -93,7 +93,8 @@ def test_mpu6050_matches_reference_intervals(shared):
 def synthetic_stream(rate_hz, rng, noise_mps2=0.02):
     """Dwells of 3 s at the six faces and two tilts, joined by 1 s rotations (smooth step). The first
     dwell also teaches the detector its noise floor (warmup_s = 2 s) and must still become a pose."""
-    directions = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 0, -1], [-1, 0, 0], [0, -1, 0], [0.6, 0.0, 0.8], [0.0, -0.6, 0.8]], float)
+    directions = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [0, 0, -1], [-1, 0, 0], [0, -1, 0], [0.6, 0.0, 0.8],
+                           [0.0, -0.6, 0.8]], float)
     t, accel = [], []
     dt = 1.0 / rate_hz
     now = 0.0
@@ -189,7 +190,8 @@ def test_bad_samples_are_skipped_and_counted():
     for i in range(len(t)):
         if i % 97 == 0:
             assert detector.update(int(t[i]) - 5, np.nan, 0.0, 9.8) is None  # NaN
-            assert detector.update(int(t[i - 1]) if i else 0, 0.0, 0.0, 9.8) is None or i == 0  # stamp not after the last
+            # stamp not after the last
+            assert detector.update(int(t[i - 1]) if i else 0, 0.0, 0.0, 9.8) is None or i == 0
         if (p := detector.update(int(t[i]), *accel[i])) is not None:
             poses.append(p)
     if (p := detector.flush()) is not None:

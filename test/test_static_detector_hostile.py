@@ -67,7 +67,8 @@ def assert_finite(pose):
 
 
 def assert_same_poses(a_list, b_list, atol=1e-9):
-    assert len(a_list) == len(b_list), ([(p.start_ns, p.end_ns) for p in a_list], [(p.start_ns, p.end_ns) for p in b_list])
+    assert len(a_list) == len(b_list), ([(p.start_ns, p.end_ns) for p in a_list],
+                                        [(p.start_ns, p.end_ns) for p in b_list])
     for a, b in zip(a_list, b_list):
         assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
         np.testing.assert_allclose(a.accel_mps2, b.accel_mps2, rtol=0, atol=atol)
@@ -207,7 +208,8 @@ def test_bad_limits_name_the_argument(name, bad):
 
 # ------------------------------------------------------------------ property
 finite = st.floats(allow_nan=False, allow_infinity=False)
-hostile_value = st.one_of(finite, st.sampled_from([1e12, -1e12, 1.0000001e12, 1e154, -1e200, 1e300, 1.7976931348623157e308, 5e-324]))
+hostile_value = st.one_of(finite, st.sampled_from([1e12, -1e12, 1.0000001e12, 1e154, -1e200, 1e300,
+                                                   1.7976931348623157e308, 5e-324]))
 
 
 @st.composite
@@ -220,7 +222,8 @@ def hostile_streams(draw):
     accel = np.repeat(rng.normal(0.0, 9.8, (dwells, 3)), -(-n // dwells), axis=0)[:n] + rng.normal(0.0, 0.02, (n, 3))
     gyro = rng.normal(0.0, 0.002, (n, 3))
     temps = 25.0 + rng.normal(0.0, 0.1, n)
-    if draw(st.integers(0, 3)) == 0:
+    noisy = draw(st.integers(0, 3)) > 0
+    if not noisy:
         accel = np.array(draw(st.lists(st.tuples(finite, finite, finite), min_size=n, max_size=n)))
         gyro = np.array(draw(st.lists(st.tuples(finite, finite, finite), min_size=n, max_size=n)))
     for _ in range(draw(st.integers(0, 12))):
@@ -238,13 +241,13 @@ def hostile_streams(draw):
     settings_ = dict(window_s=10.5 * dt, min_hold_s=20 * dt, warmup_s=20 * dt, max_pose_s=50 * dt)
     if draw(st.booleans()):
         settings_["accel_var_threshold"] = 1e-2
-    return t, accel, gyro, temps, settings_
+    return t, accel, gyro, temps, settings_, noisy
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=hostile_streams())
 def test_arbitrary_finite_floats_never_break_the_detector(data):
-    t, accel, gyro, temps, settings_ = data
+    t, accel, gyro, temps, settings_, noisy = data
     detector = StaticDetector(**settings_)
     poses = []
     for i in range(len(t)):
@@ -259,5 +262,18 @@ def test_arbitrary_finite_floats_never_break_the_detector(data):
         poses.append(last)
     for pose in poses:
         assert_finite(pose)
-    for pose in StaticDetector(**settings_).process(t, accel, gyro, temps):
+    batch_detector = StaticDetector(**settings_)
+    batch = batch_detector.process(t, accel, gyro, temps)
+    for pose in batch:
         assert_finite(pose)
+    assert (batch_detector.rejected_samples, batch_detector.rejected_out_of_range) == (
+        detector.rejected_samples, detector.rejected_out_of_range)
+    if noisy:
+        # Sensor noise under the hostile values: no window variance sits on a threshold or a histogram
+        # bin edge, where the two paths' rounding could decide differently. So: the same poses.
+        assert len(batch) == len(poses)
+        for a, b in zip(batch, poses):
+            assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+            np.testing.assert_allclose(a.accel_mps2, b.accel_mps2, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(a.accel_cov, b.accel_cov, rtol=1e-7, atol=1e-12)
+            np.testing.assert_allclose(a.gyro_radps, b.gyro_radps, rtol=1e-9, atol=1e-9)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from accel_calibration import MG, Calibration, CalibrationError, fit, load_calibration, save_calibration
+from accel_calibration import MG, CalibrationError, fit, load_calibration, save_calibration
 from accel_calibration.cli.main import main
 from accel_calibration.core.temperature_models import TemperatureOptions
 from msg_tools.synthetic_imu import SensorErrors
@@ -47,7 +47,8 @@ def test_polynomial_within_1_mg_and_uncompensated_over_50(session):
     result = fit(raw, temperature_degc=temps, temperature_model="polynomial")
     assert result.success, result.message
     cal = result.calibration
-    assert cal.temperature.kind == "polynomial" and cal.temperature.range_degc[0] < -19 and cal.temperature.range_degc[1] > 59
+    assert cal.temperature.kind == "polynomial"
+    assert cal.temperature.range_degc[0] < -19 and cal.temperature.range_degc[1] > 59
     assert rms_error_mg(cal, fresh_raw, fresh_true, fresh_temps) <= 1.0
     uncompensated = float(np.sqrt(np.mean(np.sum((cal.apply(fresh_raw) - fresh_true) ** 2, axis=1)))) / MG
     assert uncompensated > 50.0
@@ -122,9 +123,11 @@ def test_cli_fit_and_apply_with_temperature(session, tmp_path, capsys):
     raw, temps, fresh_raw, fresh_true, fresh_temps = session
     rows = ["ax,ay,az,temperature"] + [f"{a:.9f},{b:.9f},{c:.9f},{t:.3f}" for (a, b, c), t in zip(raw, temps)]
     (tmp_path / "poses.csv").write_text("\n".join(rows) + "\n")
-    assert main(["fit", str(tmp_path / "poses.csv"), "--temperature-model", "polynomial", "-o", str(tmp_path / "cal.yaml")]) == 0
+    assert main(["fit", str(tmp_path / "poses.csv"), "--temperature-model", "polynomial",
+                 "-o", str(tmp_path / "cal.yaml")]) == 0
     assert "temperature" in capsys.readouterr().out
-    rows = ["ax,ay,az,temperature"] + [f"{a:.9f},{b:.9f},{c:.9f},{t:.3f}" for (a, b, c), t in zip(fresh_raw, fresh_temps)]
+    rows = ["ax,ay,az,temperature"] + [f"{a:.9f},{b:.9f},{c:.9f},{t:.3f}"
+                                       for (a, b, c), t in zip(fresh_raw, fresh_temps)]
     rows.append(f"{fresh_raw[0][0]},{fresh_raw[0][1]},{fresh_raw[0][2]},90.0")  # outside the range
     (tmp_path / "in.csv").write_text("\n".join(rows) + "\n")
     assert main(["apply", "-c", str(tmp_path / "cal.yaml"), str(tmp_path / "in.csv"), str(tmp_path / "out.csv")]) == 0
@@ -132,7 +135,8 @@ def test_cli_fit_and_apply_with_temperature(session, tmp_path, capsys):
     out = np.genfromtxt(tmp_path / "out.csv", delimiter=",", names=True)
     corrected = np.column_stack([out["ax"], out["ay"], out["az"]])[:-1]
     assert np.sqrt(np.mean(np.sum((corrected - fresh_true) ** 2, axis=1))) / MG <= 1.0
-    assert main(["fit", str(tmp_path / "poses.csv"), "--temperature-model", "segmented", "-o", str(tmp_path / "s.yaml")]) == 0
+    assert main(["fit", str(tmp_path / "poses.csv"), "--temperature-model", "segmented",
+                 "-o", str(tmp_path / "s.yaml")]) == 0
 
 
 def test_real_mpu6050_bag_span_is_too_small(shared):

@@ -47,7 +47,8 @@ def open_reader(path):
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
     except Exception as error:  # rosbags raises its own types per storage; one line for any of them
-        raise BagError(f"{path}: not a readable rosbag2 ({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None
+        first_line = str(error).splitlines()[0] if str(error) else ""
+        raise BagError(f"{path}: not a readable rosbag2 ({type(error).__name__}: {first_line})") from None
     return reader
 
 
@@ -92,12 +93,14 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     if found is None or len(found[imu_topic.topic]) != imu_topic.msgcount:
         return None
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(found[imu_topic.topic], path, typestore.deserialize_cdr)
+    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(found[imu_topic.topic], path,
+                                                                     typestore.deserialize_cdr)
     imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
     temperatures = None
     if temperature_topic is not None:
         messages = [typestore.deserialize_cdr(raw, TEMPERATURE) for raw in found[temperature_topic.topic]]
-        temperatures = (np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages], dtype=np.int64),
+        temperatures = (np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages],
+                                 dtype=np.int64),
                         np.array([m.temperature for m in messages], dtype=float))
     return imu, temperatures
 
@@ -112,7 +115,8 @@ def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path
             raise BagError(f"{path}: no {msgtype} topic {wanted}; the bag has {have}")
         return chosen[0]
     if len(found) > 1:
-        raise BagError(f"{path}: several {msgtype} topics ({', '.join(c.topic for c in found)}): choose one with --{label}-topic")
+        raise BagError(f"{path}: several {msgtype} topics ({', '.join(c.topic for c in found)}): "
+                       f"choose one with --{label}-topic")
     return found[0] if found else None
 
 
@@ -126,7 +130,8 @@ def _layout(frame_id_length: int) -> dict:
     return {"gyro": gyro, "accel": accel, "size": accel + 24 + 72}
 
 
-def decode_imus(raws: list, path, deserialize) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
+def decode_imus(raws: list, path, deserialize
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
     lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
     t = np.empty(len(raws), dtype=np.int64)
     accel = np.empty((len(raws), 3))
@@ -235,7 +240,7 @@ def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarr
     if destination.exists():
         raise BagError(f"{destination}: already exists (rosbag2 writes a new directory)")
     patched = {length: block.copy() for length, (block, _) in imu.groups.items()}
-    for length, (block, layout) in imu.groups.items():
+    for length, (_block, layout) in imu.groups.items():
         rows = np.flatnonzero(imu.group_of == length)
         values = np.ascontiguousarray(corrected_accel[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 24)
         patched[length][imu.row_of[rows], layout["accel"]:layout["accel"] + 24] = values
@@ -311,7 +316,8 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
             records[a], records[b] = records[b], records[a]
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         imu_connection = writer.add_connection(imu_topic, IMU, typestore=store)
-        temperature_connection = writer.add_connection(temperature_topic, TEMPERATURE, typestore=store) if temperature_topic else None
+        temperature_connection = (writer.add_connection(temperature_topic, TEMPERATURE, typestore=store)
+                                  if temperature_topic else None)
         accel, gyro, temps = samples.accel_raw, samples.gyro_raw, samples.temperature_degc
         for log_time, kind, i in records:
             if kind == "t":

@@ -10,14 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.calibration import STANDARD_GRAVITY, Calibration
+from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
 from ..core.fit import FitResult
 from ..core.pose import Pose
-from .bag_io import BagError
 from ..core.session import CalibrationSession
 from ..core.settings import Settings
 from ..core.temperature_filter import TemperatureFilter
+from .bag_io import BagError
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,8 @@ class ReplayError(BagError):
     """One line: the bag and what was (not) found in it."""
 
 
-def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False, for_copy: bool = False) -> ReplayResult:
+def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False,
+               for_copy: bool = False) -> ReplayResult:
     """`for_copy`: read in rosbags' message order, which write_corrected_bag needs."""
 
 

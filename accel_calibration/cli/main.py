@@ -12,12 +12,12 @@ import sys
 import numpy as np
 
 from ..core.calibration import MG, STANDARD_GRAVITY
-from ..io.calibration_file import load_calibration, save_calibration, write_text_atomically
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.fit import fit
 from ..core.models import MODELS, REFERENCE_MODELS
-from ..io.pose_table import read_table, table_with_accel
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+from ..io.calibration_file import load_calibration, save_calibration, write_text_atomically
+from ..io.pose_table import read_table, table_with_accel
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -36,13 +36,17 @@ def _parser() -> argparse.ArgumentParser:
     fit_cmd.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z]")
     fit_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
     fit_cmd.add_argument("--model", choices=MODELS, default="sphere9", help="error model (default sphere9)")
-    fit_cmd.add_argument("--gravity", type=float, default=STANDARD_GRAVITY, help="local gravity, m/s^2 (default 9.80665)")
+    fit_cmd.add_argument("--gravity", type=float, default=STANDARD_GRAVITY,
+                         help="local gravity, m/s^2 (default 9.80665)")
     fit_cmd.add_argument("--frame-id", default="", help="sensor frame id stored in the file")
     fit_cmd.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="none",
                          help="temperature drift model, needs a temperature column (default none)")
-    fit_cmd.add_argument("--bias-order", type=int, default=2, help="polynomial: order of the bias drift, 0..3 (default 2)")
-    fit_cmd.add_argument("--scale-order", type=int, default=1, help="polynomial: order of the scale drift, 0..2 (default 1)")
-    fit_cmd.add_argument("--segment-width", type=float, default=10.0, help="segmented: segment width, degC (default 10)")
+    fit_cmd.add_argument("--bias-order", type=int, default=2,
+                         help="polynomial: order of the bias drift, 0..3 (default 2)")
+    fit_cmd.add_argument("--scale-order", type=int, default=1,
+                         help="polynomial: order of the scale drift, 0..2 (default 1)")
+    fit_cmd.add_argument("--segment-width", type=float, default=10.0,
+                         help="segmented: segment width, degC (default 10)")
     fit_cmd.add_argument("--reference-temperature", type=float, default=None,
                          help="T_ref, degC (default: the poses' median temperature)")
     fit_cmd.add_argument("--min-span", type=float, default=10.0, help="smallest temperature span to fit a model, degC")
@@ -51,12 +55,15 @@ def _parser() -> argparse.ArgumentParser:
     replay_cmd = commands.add_parser("replay", help="recalibrate from rosbag2 recordings (sqlite3 or mcap)")
     replay_cmd.add_argument("bags", nargs="+", help="rosbag2 directories")
     replay_cmd.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
-    replay_cmd.add_argument("--temperature-topic", default=None, help="sensor_msgs/Temperature topic (default: the only one)")
+    replay_cmd.add_argument("--temperature-topic", default=None,
+                            help="sensor_msgs/Temperature topic (default: the only one)")
     replay_cmd.add_argument("--output", "-o", default=None,
                             help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
     replay_cmd.add_argument("--corrected-bag", default=None,
-                            help="write a copy of the bag with the IMU accelerations corrected (several bags: a directory)")
-    replay_cmd.add_argument("--report", default=None, help="also write a report figure (PNG; several bags: a directory)")
+                            help="write a copy of the bag with the IMU accelerations corrected "
+                                 "(several bags: a directory)")
+    replay_cmd.add_argument("--report", default=None,
+                            help="also write a report figure (PNG; several bags: a directory)")
     replay_cmd.add_argument("--params-file", default=None,
                             help="ROS 2 parameters YAML (config/accel_calibration.yaml): the node's settings")
     replay_cmd.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
@@ -68,8 +75,10 @@ def _parser() -> argparse.ArgumentParser:
     replay_cmd.add_argument("--gravity", type=float, default=None, help="same as -p gravity:=...")
     replay_cmd.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
     replay_cmd.add_argument("--window", type=float, default=None, help="detector window, s (-p static.window_s:=...)")
-    replay_cmd.add_argument("--min-hold", type=float, default=None, help="shortest still interval, s (-p static.min_hold_s:=...)")
-    replay_cmd.add_argument("--k-sigma", type=float, default=None, help="detector threshold over the noise floor (-p static.k_sigma:=...)")
+    replay_cmd.add_argument("--min-hold", type=float, default=None,
+                            help="shortest still interval, s (-p static.min_hold_s:=...)")
+    replay_cmd.add_argument("--k-sigma", type=float, default=None,
+                            help="detector threshold over the noise floor (-p static.k_sigma:=...)")
     replay_cmd.add_argument("--jobs", "-j", type=int, default=1, help="bags processed in parallel")
 
     report_cmd = commands.add_parser("report", help="a figure of a calibration against its poses")
@@ -98,8 +107,10 @@ def _fit(args) -> int:
     options = None
     if args.temperature_model != "none":
         if table.temperature_degc is None:
-            raise CalibrationError(f"{args.poses}: --temperature-model {args.temperature_model} needs a temperature column")
-        options = TemperatureOptions(model=args.temperature_model, bias_order=args.bias_order, scale_order=args.scale_order,
+            raise CalibrationError(f"{args.poses}: --temperature-model {args.temperature_model} "
+                                   "needs a temperature column")
+        options = TemperatureOptions(model=args.temperature_model, bias_order=args.bias_order,
+                                     scale_order=args.scale_order,
                                      segment_width_degc=args.segment_width, min_span_degc=args.min_span,
                                      reference_degc=args.reference_temperature)
     result = fit(
@@ -159,7 +170,8 @@ def _replay_settings(args):
         except OSError as error:
             raise CalibrationError(f"cannot read --params-file {args.params_file}: {error.strerror}") from None
         except yaml.YAMLError as error:
-            raise CalibrationError(f"--params-file {args.params_file}: not valid YAML ({str(error).splitlines()[0]})") from None
+            raise CalibrationError(f"--params-file {args.params_file}: not valid YAML "
+                                   f"({str(error).splitlines()[0]})") from None
         values.update(params_file_values(document, source=args.params_file))
         values.pop("calibration_file", None)  # the node's file; replay writes --output
         values.pop("output_reliability", None)

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import datetime as _dt
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import CalibrationError
 from .models import MODELS, apply_forward_inverse
@@ -14,7 +16,7 @@ STANDARD_GRAVITY = 9.80665
 MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
 
 
-def _frozen(values, shape, name) -> np.ndarray:
+def _frozen(values: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:
     try:
         array = np.array(values, dtype=float)
     except (TypeError, ValueError):
@@ -52,14 +54,14 @@ class Calibration:
     bias_sigma: np.ndarray | None = None  # 1-sigma of b
     matrix_sigma: np.ndarray | None = None  # 1-sigma of M's entries (0 where the model fixes them)
     quality: Quality | None = None
-    created: str = field(default_factory=lambda: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    created: str = field(default_factory=lambda: _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
     frame_id: str = ""
     sensor_id: str = ""
     reference_temperature_degc: float | None = None
     gyro_bias_radps: np.ndarray | None = None  # (3,) mean gyro output at rest, from the static poses
     temperature: TemperatureModel | None = None  # bias/scale drift with temperature
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "bias", _frozen(self.bias, (3,), "bias"))
         set_(self, "matrix", _frozen(self.matrix, (3, 3), "matrix"))
@@ -84,11 +86,11 @@ class Calibration:
             set_(self, "matrix_sigma", _frozen(self.matrix_sigma, (3, 3), "matrix_sigma"))
 
     @classmethod
-    def identity(cls, **kwargs) -> "Calibration":
+    def identity(cls, **kwargs: Any) -> Calibration:
         """The do-nothing calibration (raw passes through)."""
         return cls(bias=np.zeros(3), matrix=np.eye(3), **kwargs)
 
-    def apply(self, raw, temperature=None) -> np.ndarray:
+    def apply(self, raw: ArrayLike, temperature: ArrayLike | None = None) -> np.ndarray:
         """Correct raw accelerations, (3,) or (N, 3), vectorised.
 
         `temperature` (degC, scalar or (N,)) is used when the calibration has a temperature model;
@@ -104,13 +106,13 @@ class Calibration:
         if not np.all(np.isfinite(temps)):
             raise CalibrationError("temperature must be finite")
         drift, scale = self.temperature.bias_and_scale(temps)
-        corrected = ((rows - self.bias - drift) / scale) @ self.matrix.T
+        corrected: np.ndarray = ((rows - self.bias - drift) / scale) @ self.matrix.T
         return corrected.reshape(array.shape)
 
-    def temperature_clamped(self, temperature) -> np.ndarray:
+    def temperature_clamped(self, temperature: ArrayLike | None) -> np.ndarray:
         """Which temperatures lie outside the calibrated range (and are clamped by `apply`)."""
         if self.temperature is None or temperature is None:
-            return np.zeros(np.shape(temperature), dtype=bool)
+            return np.zeros(() if temperature is None else np.shape(temperature), dtype=bool)
         return self.temperature.clamp(temperature)[1]
 
     def terms_at(self, temperature_degc: float | None) -> tuple[float, ...]:
@@ -128,14 +130,14 @@ class Calibration:
         """M row-major and b as plain floats, for per-message code where numpy costs more than it saves."""
         return tuple(float(v) for v in self.matrix.ravel()), tuple(float(v) for v in self.bias)
 
-    def replace(self, **changes) -> "Calibration":
+    def replace(self, **changes: Any) -> Calibration:
         return replace(self, **changes)
 
-    def __eq__(self, other):
+    def __eq__(self, other: object) -> bool:
         if not isinstance(other, Calibration):
             return NotImplemented
 
-        def same(a, b):
+        def same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
             if a is None or b is None:
                 return a is None and b is None
             return np.array_equal(a, b)
@@ -153,10 +155,11 @@ class Calibration:
             and _same_temperature(self.temperature, other.temperature)
         )
 
-    __hash__ = None
+    # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.
+    __hash__ = None  # type: ignore[assignment]
 
 
-def _same_temperature(a, b) -> bool:
+def _same_temperature(a: TemperatureModel | None, b: TemperatureModel | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
     return (

@@ -46,7 +46,7 @@ class Correction:
 
     @classmethod
     def build(cls, calibration: Calibration | None, temperature_degc: float | None = None,
-              noise_var_per_axis: float | None = None) -> "Correction | None":
+              noise_var_per_axis: float | None = None) -> Correction | None:
         """None when there is nothing to apply and no covariance to report."""
         if calibration is None:
             cov = rep145_covariance(np.eye(3), noise_var_per_axis, None, None, 0.0)

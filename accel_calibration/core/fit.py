@@ -7,10 +7,12 @@ False, message saying what is missing), never raised: finite poses of the right 
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
 from .coverage import (
@@ -22,8 +24,8 @@ from .coverage import (
     scaled_condition_number,
 )
 from .errors import CalibrationError
-from .gauss_newton import gauss_newton
-from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, matrix_entries, parameter_count, seed_sphere
+from .gauss_newton import LeastSquaresSolution, gauss_newton
+from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, parameter_count, seed_sphere
 from .pose import Pose
 from .temperature_models import (
     TEMPERATURE_MODELS,
@@ -66,6 +68,8 @@ class FitResult:
         if self.calibration is None:
             return "\n".join(lines)
         c, s = self.calibration, self.sigma
+        # fit() builds every result that has a calibration with its sigma and quality.
+        assert s is not None and c.quality is not None
         lines.append(f"poses {self.poses}, iterations {self.iterations}, condition number {self.condition_number:.3g}")
         lines.append(
             "bias b (raw units; m/s^2 for SI input):  "
@@ -77,6 +81,7 @@ class FitResult:
                 "  [" + "  ".join(f"{c.matrix[i, j]:+.7g} ± {s.matrix[i, j]:.2g}" for j in range(3)) + "]"
             )
         if c.quadratic is not None:
+            assert s.quadratic is not None  # reference15 reports the quadratic term's sigma with it
             lines.append(
                 "quadratic q (s^2/m): "
                 + "  ".join(f"{AXES[i]} {c.quadratic[i]:+.4g} ± {s.quadratic[i]:.2g}" for i in range(3))
@@ -90,17 +95,19 @@ class FitResult:
                          f"{t.range_degc[0]:.1f}..{t.range_degc[1]:.1f} degC")
             if t.kind == "polynomial":
                 for k, row in enumerate(t.bias_coefficients, start=1):
-                    lines.append(f"  bias drift dT^{k}: " + "  ".join(f"{v / 9.80665e-3:+.4g}" for v in row) + f" mg/degC^{k}")
+                    lines.append(f"  bias drift dT^{k}: " + "  ".join(f"{v / 9.80665e-3:+.4g}" for v in row)
+                                 + f" mg/degC^{k}")
                 for k, row in enumerate(t.scale_coefficients, start=1):
                     lines.append(f"  scale drift dT^{k}: " + "  ".join(f"{v:+.3g}" for v in row) + f" /degC^{k}")
             else:
-                lines.append(f"  {len(t.segment_coefficients)} segments of {t.segment_edges_degc[1] - t.segment_edges_degc[0]:g} degC")
+                width = t.segment_edges_degc[1] - t.segment_edges_degc[0]
+                lines.append(f"  {len(t.segment_coefficients)} segments of {width:g} degC")
         if self.missing_directions:
             lines.append("not covered (fit still observable): " + ", ".join(self.missing_directions))
         return "\n".join(lines)
 
 
-def _as_points(accel, name) -> np.ndarray:
+def _as_points(accel: ArrayLike | Sequence[Pose], name: str) -> np.ndarray:
     try:
         array = np.array(accel, dtype=float)
     except (TypeError, ValueError):
@@ -113,16 +120,19 @@ def _as_points(accel, name) -> np.ndarray:
     return array
 
 
-def _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial):
+def _check_arguments(accel_mps2: ArrayLike | Sequence[Pose], model: str, gravity: float,
+                     temperature_degc: ArrayLike | None, reference: ArrayLike | None, initial: Calibration | None
+                     ) -> tuple[np.ndarray, float, np.ndarray | None, np.ndarray | None]:
     if isinstance(accel_mps2, (list, tuple)) and accel_mps2 and isinstance(accel_mps2[0], Pose):
         poses: Sequence[Pose] = accel_mps2
         accel_mps2 = [p.accel_mps2 for p in poses]
         if temperature_degc is None and all(p.temperature_degc is not None for p in poses):
-            temperature_degc = [p.temperature_degc for p in poses]
+            temperature_degc = [p.temperature_degc for p in poses if p.temperature_degc is not None]
     accel = _as_points(accel_mps2, "accel_mps2")
     if model not in MODELS:
         raise CalibrationError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
-    if isinstance(gravity, bool) or not isinstance(gravity, (int, float, np.floating)) or not np.isfinite(gravity) or gravity <= 0:
+    if (isinstance(gravity, bool) or not isinstance(gravity, (int, float, np.floating)) or not np.isfinite(gravity)
+            or gravity <= 0):
         raise CalibrationError(f"gravity must be a positive number of m/s^2, got {gravity!r}")
     temps = None
     if temperature_degc is not None:
@@ -156,12 +166,12 @@ def _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, in
 
 
 def fit(
-    accel_mps2,
+    accel_mps2: ArrayLike | Sequence[Pose],
     *,
     model: str = "sphere9",
     gravity: float = STANDARD_GRAVITY,
-    temperature_degc=None,
-    reference=None,
+    temperature_degc: ArrayLike | None = None,
+    reference: ArrayLike | None = None,
     initial: Calibration | None = None,
     frame_id: str = "",
     temperature_model: str = "none",
@@ -178,7 +188,8 @@ def fit(
     """
     accel, gravity, temps, ref = _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial)
     if temperature_model not in TEMPERATURE_MODELS:
-        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, got {temperature_model!r}")
+        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
+                               f"got {temperature_model!r}")
     if temperature_model != "none":
         if temps is None:
             raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
@@ -194,6 +205,7 @@ def fit(
     try:
         with np.errstate(all="ignore"):
             if options is not None:
+                assert temps is not None  # checked above: a temperature model needs temperature_degc
                 return _fit_with_temperature(accel, temps, model, gravity, options, initial, frame_id)
             return _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_id)
     except (ArithmeticError, np.linalg.LinAlgError, CalibrationError, ValueError) as error:
@@ -206,7 +218,8 @@ def fit(
 LARGEST_VALUE = 1e150
 
 
-def _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_id) -> FitResult:
+def _fit_without_temperature(accel: np.ndarray, model: str, gravity: float, temps: np.ndarray | None,
+                             ref: np.ndarray | None, initial: Calibration | None, frame_id: str) -> FitResult:
     n = len(accel)
     # Reference models are separate linear fits per axis (4 or 5 unknowns each), sphere models one joint fit.
     size = {"reference12": 4, "reference15": 5}.get(model, parameter_count(model))
@@ -220,10 +233,12 @@ def _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_i
     ref_temperature = None if temps is None else float(temps.mean())
     if model in SPHERE_MODELS:
         return _fit_sphere(accel, model, gravity, initial, ref_temperature, frame_id)
+    assert ref is not None  # _check_arguments requires reference directions for the reference models
     return _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
 
 
-def _numerical_failure(accel, temps, reason, *, model, **fields) -> FitResult:
+def _numerical_failure(accel: np.ndarray, temps: np.ndarray | None, reason: str, *, model: str,
+                       **fields: Any) -> FitResult:
     """A failed result for a fit that broke down numerically, naming the pose most likely to blame."""
     n = len(accel)
     message = f"numerical failure fitting model {model} to {n} poses ({reason})"
@@ -236,19 +251,20 @@ def _numerical_failure(accel, temps, reason, *, model, **fields) -> FitResult:
     return FitResult(False, message, model, **fields)
 
 
-def _no_degree_of_freedom(n: int, description: str, model: str, more: str = "orientation", **fields) -> FitResult:
+def _no_degree_of_freedom(n: int, description: str, model: str, more: str = "orientation",
+                          **fields: Any) -> FitResult:
     fields.setdefault("poses", n)
     return FitResult(False, f"{n} poses for the {description} leave no degree of freedom to judge the fit: "
                      f"hold at least one more {more}", model, **fields)
 
 
-def _broken_reason(broken: str, solution) -> str:
+def _broken_reason(broken: str, solution: LeastSquaresSolution) -> str:
     if solution.iterations == 0:  # the solver could not start: its message says why
         return solution.message
     return f"{broken} not finite after {solution.iterations} iterations"
 
 
-def _not_finite(**arrays) -> str | None:
+def _not_finite(**arrays: np.ndarray | None) -> str | None:
     """Name of the first array with a NaN or infinite entry (None when all are finite)."""
     for name, array in arrays.items():
         if array is not None and not np.all(np.isfinite(array)):
@@ -265,7 +281,7 @@ def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
     )
 
 
-def _standard_deviations(solution, n: int) -> np.ndarray:
+def _standard_deviations(solution: LeastSquaresSolution, n: int) -> np.ndarray:
     """1-sigma of each parameter: residual variance (cost over the degrees of freedom) times the
     inverse Gauss-Newton normal matrix. NaN when there are no degrees of freedom left."""
     size = len(solution.x)
@@ -275,10 +291,12 @@ def _standard_deviations(solution, n: int) -> np.ndarray:
         covariance = variance * np.linalg.inv(solution.jacobian.T @ solution.jacobian)
     except np.linalg.LinAlgError:
         covariance = np.full((size, size), np.nan)
-    return np.sqrt(np.abs(np.diag(covariance)))
+    stds: np.ndarray = np.sqrt(np.abs(np.diag(covariance)))
+    return stds
 
 
-def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> FitResult:
+def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibration | None,
+                ref_temperature: float | None, frame_id: str) -> FitResult:
     model = SphereModel(name)
     n = len(accel)
     if initial is not None:
@@ -299,7 +317,8 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
     if spread < SAME_DIRECTION_DEG:
         return FitResult(
             False,
-            f"all {n} poses point the same way (within {spread:.1f} deg): turn the sensor ({describe_missing(list(missing))})",
+            f"all {n} poses point the same way (within {spread:.1f} deg): "
+            f"turn the sensor ({describe_missing(list(missing))})",
             name,
             missing_directions=missing,
             poses=n,
@@ -309,7 +328,7 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
     )
     condition = scaled_condition_number(solution.jacobian)
     residuals_mg = solution.residuals / MG
-    common = dict(
+    common: dict[str, Any] = dict(
         model=name,
         iterations=solution.iterations,
         residuals_mg=residuals_mg,
@@ -357,7 +376,8 @@ def _fit_sphere(accel, name, gravity, initial, ref_temperature, frame_id) -> Fit
     return FitResult(True, solution.message, calibration=calibration, sigma=sigma, **common)
 
 
-def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) -> FitResult:
+def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity: float,
+                   ref_temperature: float | None, frame_id: str) -> FitResult:
     """Forward model per axis j: a_raw_j = b_j + sum_k S_jk a_k (+ q_j a_j^2), linear least squares."""
     n = len(accel)
     true = gravity * directions
@@ -449,7 +469,8 @@ def _fit_reference(accel, directions, name, gravity, ref_temperature, frame_id) 
     )
 
 
-def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptions, initial, frame_id) -> FitResult:
+def _fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravity: float,
+                          options: TemperatureOptions, initial: Calibration | None, frame_id: str) -> FitResult:
     n = len(accel)
     if n < parameter_count(name):
         return FitResult(False, f"model {name} needs at least {parameter_count(name)} poses, got {n}", name, poses=n)
@@ -471,12 +492,13 @@ def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptio
         # segment's drift against it.
         near = np.abs(temps - reference_degc) <= options.segment_width_degc / 2
         base = fit(accel[near], model=name, gravity=gravity, initial=initial, frame_id=frame_id)
-        if not base.success:
+        if not base.success or base.calibration is None:  # a successful fit always carries its calibration
             return FitResult(False, f"room-temperature calibration from the {int(near.sum())} poses within "
-                             f"{options.segment_width_degc / 2:g} degC of {reference_degc:.1f} degC: {base.message}", name, poses=n)
+                             f"{options.segment_width_degc / 2:g} degC of {reference_degc:.1f} degC: {base.message}",
+                             name, poses=n)
         try:
-            edges, coefficients = fit_segmented_drift(accel, temps, base.calibration.bias, base.calibration.matrix,
-                                                      gravity, options)
+            edges, coefficients = fit_segmented_drift(accel, temps, base.calibration.bias,
+                                                      base.calibration.matrix, gravity, options)
         except CalibrationError as error:
             return FitResult(False, str(error), name, poses=n)
         if _not_finite(segment_coefficients=coefficients):
@@ -500,14 +522,15 @@ def _fit_with_temperature(accel, temps, name, gravity, options: TemperatureOptio
     if n < model.size:
         return FitResult(False, f"{described} needs at least {model.size} poses, got {n}", name, poses=n)
     base = fit(accel, model=name, gravity=gravity, initial=initial, frame_id=frame_id)
-    if not base.success:
+    if not base.success or base.calibration is None:  # a successful fit always carries its calibration
         return FitResult(False, base.message, name, poses=n, missing_directions=base.missing_directions)
     solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, temps, gravity),
                             model.pack(base.calibration.bias, base.calibration.matrix))
     condition = scaled_condition_number(solution.jacobian)
     residuals_mg = solution.residuals / MG
-    common = dict(model=name, iterations=solution.iterations, residuals_mg=residuals_mg, cost=solution.cost,
-                  condition_number=condition, missing_directions=base.missing_directions, poses=n)
+    common: dict[str, Any] = dict(model=name, iterations=solution.iterations, residuals_mg=residuals_mg,
+                                  cost=solution.cost, condition_number=condition,
+                                  missing_directions=base.missing_directions, poses=n)
     broken = _not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=solution.jacobian)
     if broken:
         return _numerical_failure(accel, temps, _broken_reason(broken, solution), **common)

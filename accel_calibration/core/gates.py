@@ -37,7 +37,7 @@ class QualityGates:
             raise CalibrationError(f"scale_min < 1 < scale_max must hold, got {lo!r}, {hi!r}")
 
     @classmethod
-    def from_settings(cls, settings: Settings) -> "QualityGates":
+    def from_settings(cls, settings: Settings) -> QualityGates:
         return cls(min_poses=settings.min_poses, max_residual_rms_mg=settings.max_residual_rms_mg,
                    max_bias_sigma_mg=settings.max_bias_sigma_mg, max_bias_mps2=settings.max_bias_mps2,
                    scale_band=(settings.scale_min, settings.scale_max))
@@ -49,6 +49,8 @@ class QualityGates:
         if not result.success:
             return f"gate fit: {result.message}"
         calibration = result.calibration
+        # fit() gives every successful result its calibration, with quality.
+        assert calibration is not None and calibration.quality is not None
         rms = calibration.quality.residual_rms_mg
         if rms > self.max_residual_rms_mg:
             return f"gate residual: rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)"
@@ -59,7 +61,7 @@ class QualityGates:
             return "gate coverage: no pose with " + ", no pose with ".join(result.missing_directions)
         return self.plausibility(calibration)
 
-    def plausibility(self, calibration) -> str | None:
+    def plausibility(self, calibration: Calibration) -> str | None:
         """The bias-range and scale-band gates alone: also what a calibration file must meet before the
         node puts it in force (a well-formed file can still hold absurd numbers)."""
         bias = float(np.max(np.abs(calibration.bias)))

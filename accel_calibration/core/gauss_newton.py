@@ -6,8 +6,8 @@ Jacobi column scaling; this is what makes the online refit after every new pose 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

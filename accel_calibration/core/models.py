@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 SPHERE_MODELS = ("six", "sphere9")
 REFERENCE_MODELS = ("reference12", "reference15")
@@ -30,13 +31,13 @@ _MATRIX_ENTRIES = {
 }
 
 
-_ENTRY_INDEX = {
+_ENTRY_INDEX: dict[str, tuple[NDArray[np.int_], NDArray[np.int_]]] = {
     name: (np.array([i for i, _ in entries]), np.array([j for _, j in entries]))
     for name, entries in _MATRIX_ENTRIES.items()
 }
 
 
-_FLAT_INDEX = {name: rows * 3 + cols for name, (rows, cols) in _ENTRY_INDEX.items()}
+_FLAT_INDEX: dict[str, NDArray[np.int_]] = {name: rows * 3 + cols for name, (rows, cols) in _ENTRY_INDEX.items()}
 
 
 def parameter_count(model: str) -> int:
@@ -57,7 +58,7 @@ class SphereModel:
     name: str
 
     @property
-    def entries(self):
+    def entries(self) -> tuple[tuple[int, int], ...]:
         return _MATRIX_ENTRIES[self.name]
 
     @property
@@ -74,11 +75,11 @@ class SphereModel:
         return p[:3].copy(), matrix
 
     @property
-    def _index(self):
+    def _index(self) -> tuple[NDArray[np.int_], NDArray[np.int_]]:
         return _ENTRY_INDEX[self.name]
 
     @property
-    def _flat_index(self):
+    def _flat_index(self) -> NDArray[np.int_]:
         return _FLAT_INDEX[self.name]
 
     def project(self, bias: np.ndarray, matrix: np.ndarray) -> np.ndarray:
@@ -94,11 +95,12 @@ class SphereModel:
         lower = np.diag(np.sign(np.diag(lower))) @ lower
         return self.pack(bias, lower)
 
-    def residual_and_jacobian(self, p, accel, gravity):
+    def residual_and_jacobian(self, p: np.ndarray, accel: np.ndarray,
+                              gravity: float) -> tuple[np.ndarray, np.ndarray]:
         """r_i = |M (a_i - b)| - g and its Jacobian (N x size). Called every Gauss-Newton iteration:
         kept to a handful of vectorised numpy calls."""
         rows, cols = self._index
-        matrix = np.zeros(9)
+        matrix: np.ndarray = np.zeros(9)
         matrix[self._flat_index] = p[3:]
         matrix = matrix.reshape(3, 3)
         centred = accel - p[:3]
@@ -152,10 +154,11 @@ def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarr
     return fallback
 
 
-def apply_forward_inverse(raw, bias, matrix, quadratic):
+def apply_forward_inverse(raw: np.ndarray, bias: np.ndarray, matrix: np.ndarray,
+                          quadratic: np.ndarray | None) -> np.ndarray:
     """Invert a_raw = b + S a + q*a^2 for a (S = M^-1). Fixed-point iteration from the linear answer;
     q*a is ~1e-3 so three iterations reach 1e-9 relative."""
-    linear = (raw - bias) @ matrix.T
+    linear: np.ndarray = (raw - bias) @ matrix.T
     if quadratic is None:
         return linear
     corrected = linear

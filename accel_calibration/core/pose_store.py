@@ -31,8 +31,10 @@ def merge_poses(a: Pose, b: Pose) -> Pose:
     temperature = spread = None
     if a.temperature_degc is not None and b.temperature_degc is not None:
         temperature = wa * a.temperature_degc + wb * b.temperature_degc
-        lows = [a.temperature_degc - (a.temperature_spread_degc or 0) / 2, b.temperature_degc - (b.temperature_spread_degc or 0) / 2]
-        highs = [a.temperature_degc + (a.temperature_spread_degc or 0) / 2, b.temperature_degc + (b.temperature_spread_degc or 0) / 2]
+        lows = [a.temperature_degc - (a.temperature_spread_degc or 0) / 2,
+                b.temperature_degc - (b.temperature_spread_degc or 0) / 2]
+        highs = [a.temperature_degc + (a.temperature_spread_degc or 0) / 2,
+                 b.temperature_degc + (b.temperature_spread_degc or 0) / 2]
         spread = max(highs) - min(lows)
     return replace(
         b,
@@ -67,7 +69,7 @@ class PoseStore:
     def poses(self) -> list[Pose]:
         return list(self._poses)
 
-    def copy(self) -> "PoseStore":
+    def copy(self) -> PoseStore:
         other = PoseStore.__new__(PoseStore)
         other.__dict__.update(self.__dict__)
         other._poses = list(self._poses)

@@ -9,8 +9,8 @@ Each half is used from one thread; they share nothing mutable but the counters (
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .screening import Counters, SampleScreen
-from .settings import DYNAMIC, BY_NAME, Settings
+from .settings import BY_NAME, DYNAMIC, Settings
 from .static_detector import StaticDetector
 from .temperature_filter import TemperatureFilter
 from .temperature_models import temperature_span_problem
@@ -45,13 +45,7 @@ class Progress:
     temperature_status: str = "no temperature"
 
 
-def advice_for(missing) -> str:
-    """'turn x down' style advice for the first face not yet covered."""
-    axis, _, way = missing[0].partition(" pointing ")
-    return f"turn {axis} {way}"
-
-
-def advice_for(missing) -> str:
+def advice_for(missing: Sequence[str]) -> str:
     """'turn x down' style advice for the first face not yet covered."""
     axis, _, way = missing[0].partition(" pointing ")
     return f"turn {axis} {way}"
@@ -189,7 +183,7 @@ class CalibrationSession:
         if self.temperature_problem(poses) is None:
             options = self.settings.temperature
             result = fit(accel, model=self.model, gravity=gravity,
-                         temperature_degc=[p.temperature_degc for p in poses],
+                         temperature_degc=[p.temperature_degc for p in poses if p.temperature_degc is not None],
                          temperature_model=options.model, temperature_options=options)
             if result.success:
                 self.last_fit = result
@@ -245,15 +239,21 @@ class CalibrationSession:
         n = len(self.store)
         missing = tuple(missing_directions(self.directions(calibration))) if n else ALL_FACES
         fit_ = self.last_fit if self.last_fit is not None and self.last_fit.success else None
-        rms = fit_.calibration.quality.residual_rms_mg if fit_ else None
-        sigma = float(np.max(fit_.sigma.bias) / MG) if fit_ and np.all(np.isfinite(fit_.sigma.bias)) else None
+        rms = sigma = None
+        fitted_temperature = None
+        if fit_ is not None:
+            # fit() gives every successful result its calibration (with quality) and sigma.
+            assert fit_.calibration is not None and fit_.calibration.quality is not None and fit_.sigma is not None
+            rms = fit_.calibration.quality.residual_rms_mg
+            sigma = float(np.max(fit_.sigma.bias) / MG) if np.all(np.isfinite(fit_.sigma.bias)) else None
+            fitted_temperature = fit_.calibration.temperature
         need = max(self.settings.min_poses, parameter_count(self.model) + 1)
         ready = fit_ is not None and self.gates.check(fit_) is None and n >= need
         temps = [p.temperature_degc for p in self.store.poses if p.temperature_degc is not None]
         span = (float(min(temps)), float(max(temps))) if temps else None
         problem = self.temperature_problem()
         if problem is None:
-            status = "temperature model fitted" if fit_ and fit_.calibration.temperature is not None else \
+            status = "temperature model fitted" if fitted_temperature is not None else \
                 "temperature span sufficient; needs more poses per temperature"
         else:
             status = problem

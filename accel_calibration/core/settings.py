@@ -8,8 +8,9 @@ message names the parameter as the user typed it (`static.window_s`, not an inte
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any
 
 from .errors import SettingsError
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
@@ -86,7 +87,8 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("static.gyro_var_threshold", 0.0,
               "static detector: gyro window variance threshold, (rad/s)^2; 0 = learned noise floor",
               0.0, 1e6, zero_means_auto=True),
-    Parameter("static.k_sigma", 6.0, "static detector: threshold as a multiple of the noise-floor variance", 1.0, 1000.0),
+    Parameter("static.k_sigma", 6.0, "static detector: threshold as a multiple of the noise-floor variance",
+              1.0, 1000.0),
 )
 BY_NAME = {p.name: p for p in PARAMETERS}
 
@@ -102,7 +104,8 @@ def check_value(parameter: Parameter, value: Any) -> Any:
     if kind is float:
         # ROS parameters are typed: 10 is an integer, and a double parameter does not take it.
         if isinstance(value, bool) or not isinstance(value, float):
-            raise SettingsError(f"{name} must be a floating-point number (write {_as_float_text(value)}), got {value!r}")
+            raise SettingsError(f"{name} must be a floating-point number (write {_as_float_text(value)}), "
+                                f"got {value!r}")
         if not math.isfinite(value):
             raise SettingsError(f"{name} must be a finite number, got {value!r}")
     elif kind is int:
@@ -175,7 +178,8 @@ class Settings:
         needed = parameter_count(self.model)
         if self.min_poses < needed + 1:
             raise SettingsError(f"min_poses must be at least {needed + 1} for model {self.model} "
-                                f"({needed} parameters and one degree of freedom to judge the fit), got {self.min_poses}")
+                                f"({needed} parameters and one degree of freedom to judge the fit), "
+                                f"got {self.min_poses}")
         if self.max_poses < self.min_poses:
             raise SettingsError(f"max_poses ({self.max_poses}) must be at least min_poses ({self.min_poses})")
         if self.static_min_hold_s <= self.static_window_s / 2:
@@ -183,7 +187,7 @@ class Settings:
                                 f"({self.static_window_s:g})")
 
     @classmethod
-    def from_parameters(cls, values: Mapping[str, Any], base: "Settings | None" = None) -> "Settings":
+    def from_parameters(cls, values: Mapping[str, Any], base: Settings | None = None) -> Settings:
         """Settings from user-named values (`static.window_s`), over `base` (default: the defaults).
         Unknown names are refused with the list of known ones."""
         unknown = sorted(set(values) - set(BY_NAME))
@@ -209,7 +213,8 @@ class Settings:
         )
 
 
-def params_file_values(document: Any, node_name: str = "accel_calibration", source: str = "params file") -> dict[str, Any]:
+def params_file_values(document: Any, node_name: str = "accel_calibration",
+                       source: str = "params file") -> dict[str, Any]:
     """The parameters a ROS 2 params file gives this node: the `/**` block, then a block for the node's
     name (plain or with a namespace, e.g. `/uav1/accel_calibration`), later blocks winning, as rcl does.
     Nested mappings are flattened to dotted names (`static: {window_s: ..}` -> `static.window_s`)."""

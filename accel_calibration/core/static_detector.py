@@ -22,14 +22,18 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Any, Final, overload
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import CalibrationError
 from .pose import Pose
 
 _BINS_PER_DECADE = 10
-_LOG_MIN, _LOG_MAX = -14, 14  # variance range the histogram covers, decades
+# Variance range the histogram covers, decades (Final: 10 ** _LOG_MAX is then known to be an int).
+_LOG_MIN: Final = -14
+_LOG_MAX: Final = 14
 _NBINS = (_LOG_MAX - _LOG_MIN) * _BINS_PER_DECADE
 # Largest magnitude accepted on any axis (and for temperature) whatever the limits: its squares, summed
 # over any window, stay far from overflow. Beyond it a sample is rejected (a temperature: ignored).
@@ -44,6 +48,10 @@ _CANCELLATION_INV = 1.0 / _CANCELLATION
 _REBASE = 1e6
 _TINY_SQUARES = 1e-150
 _INF = math.inf
+# One accepted sample: t_ns, ax ay az, gx gy gz (None without gyro), temperature (None without), then
+# the differences from the shift: dx dy dz, ex ey ez.
+_Sample = tuple[int, float, float, float, float | None, float | None, float | None, float | None,
+                float, float, float, float, float, float]
 
 
 class _VarianceFloor:
@@ -126,8 +134,8 @@ class StaticDetector:
         max_pose_s: float = 60.0,
         accel_limit: float | None = None,
         gyro_limit: float | None = None,
-    ):
-        def positive(name, value):
+    ) -> None:
+        def positive(name: str, value: object) -> float:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise CalibrationError(f"{name} must be a positive number, got {value!r}")
             return float(value)
@@ -145,13 +153,16 @@ class StaticDetector:
             raise CalibrationError("max_pose_s must be at least min_hold_s")
         if not (isinstance(noise_quantile, float) and 0.0 < noise_quantile < 0.5):
             raise CalibrationError(f"noise_quantile must be in (0, 0.5), got {noise_quantile!r}")
-        self.accel_var_threshold = None if accel_var_threshold is None else positive("accel_var_threshold", accel_var_threshold)
-        self.gyro_var_threshold = None if gyro_var_threshold is None else positive("gyro_var_threshold", gyro_var_threshold)
+        self.accel_var_threshold = (None if accel_var_threshold is None
+                                    else positive("accel_var_threshold", accel_var_threshold))
+        self.gyro_var_threshold = (None if gyro_var_threshold is None
+                                   else positive("gyro_var_threshold", gyro_var_threshold))
         self.accel_limit = None if accel_limit is None else positive("accel_limit", accel_limit)
         self.gyro_limit = None if gyro_limit is None else positive("gyro_limit", gyro_limit)
-        self._accel_max = _HARD_LIMIT if accel_limit is None else min(self.accel_limit, _HARD_LIMIT)
-        self._gyro_max = _HARD_LIMIT if gyro_limit is None else min(self.gyro_limit, _HARD_LIMIT)
+        self._accel_max = _HARD_LIMIT if self.accel_limit is None else min(self.accel_limit, _HARD_LIMIT)
+        self._gyro_max = _HARD_LIMIT if self.gyro_limit is None else min(self.gyro_limit, _HARD_LIMIT)
         self._window_ns = int(self.window_s * 1e9)
+        self._max_pose_ns = int(self.max_pose_s * 1e9)  # in whole ns, as process() has it
         self._full_ns = int(0.9 * self.window_s * 1e9)
         self._gap_ns = self._window_ns  # a hole longer than a window breaks continuity
         self._accel_floor = _VarianceFloor(noise_quantile)
@@ -164,14 +175,17 @@ class StaticDetector:
     # ---------------------------------------------------------------- state
     def reset(self) -> None:
         """Forget the stream (not the learned noise floor)."""
-        self._window: deque = deque()
+        self._window: deque[_Sample] = deque()
         self._sums = [0.0] * 8  # ax ay az |a|^2 gx gy gz |g|^2, of values minus the shift
-        self._shift = None
+        self._shift: tuple[float, float, float, float, float, float] | None = None
         self._refresh_countdown = 10_000
-        self._last_ns = None
-        self._interval = None  # running sums of the current still interval
-        self._pending: deque = deque()  # the interval's newest trim_s of samples, not yet committed
-        self._warmup_max = (0.0, 0.0) if self.thresholds[0] is None else None
+        self._last_ns: int | None = None
+        self._interval: dict[str, Any] | None = None  # running sums of the current still interval
+        self._pending: deque[_Sample] = deque()  # the interval's newest trim_s of samples, not yet committed
+        # Samples of an open interval whose window was not full (a hole in the stamps shorter than a gap,
+        # e.g. a rejected sample): no verdict on them; they join the interval if it goes on.
+        self._undecided: list[_Sample] = []
+        self._warmup_max: tuple[float, float] | None = (0.0, 0.0) if self.thresholds[0] is None else None
         self.state = "waiting"
 
     @property
@@ -192,7 +206,18 @@ class StaticDetector:
         return accel, gyro
 
     # ---------------------------------------------------------------- per sample
-    def update(self, t_ns, ax, ay, az, gx=None, gy=None, gz=None, temperature_degc=None) -> Pose | None:
+    @overload
+    def update(self, t_ns: int, ax: float, ay: float, az: float, gx: None = None, gy: None = None,
+               gz: None = None, temperature_degc: float | None = None) -> Pose | None: ...
+
+    @overload
+    def update(self, t_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float,
+               temperature_degc: float | None = None) -> Pose | None: ...
+
+    # The overloads are the contract: the gyro's three axes come together or not at all. The body tests
+    # `gx is not None` once (has_gyro) and then uses all three, which mypy cannot follow: Any here.
+    def update(self, t_ns: int, ax: float, ay: float, az: float, gx: Any = None, gy: Any = None, gz: Any = None,
+               temperature_degc: float | None = None) -> Pose | None:
         """One sample (plain floats; called per message). Returns a Pose when a still interval ends."""
         # One test rejects NaN, inf and out-of-range values alike (comparisons with NaN are False).
         a, g = self._accel_max, self._gyro_max
@@ -216,9 +241,10 @@ class StaticDetector:
             emitted = self._end_interval()
             self._clear_window()
         self._last_ns = t_ns
-        if self._shift is None:
-            self._shift = (ax, ay, az, gx or 0.0, gy or 0.0, gz or 0.0)
-        sx, sy, sz, sgx, sgy, sgz = self._shift
+        shift = self._shift
+        if shift is None:
+            shift = self._shift = (ax, ay, az, gx or 0.0, gy or 0.0, gz or 0.0)
+        sx, sy, sz, sgx, sgy, sgz = shift
         dx, dy, dz = ax - sx, ay - sy, az - sz
         if has_gyro:
             ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
@@ -250,6 +276,8 @@ class StaticDetector:
         span = t_ns - window[0][0]
         if span < self._full_ns or len(window) < 5:
             self.state = "filling"
+            if self._interval is not None:
+                self._undecided.append(sample)
             return emitted
         self._full_time_ns += t_ns - last if last is not None else 0
         n = len(window)
@@ -266,14 +294,16 @@ class StaticDetector:
             accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
             gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n if has_gyro else None
         self._accel_floor.add(accel_var)
-        if has_gyro:
+        if gyro_var is not None:  # has_gyro
             self._gyro_floor.add(gyro_var)
         accel_limit, gyro_limit = self.thresholds
         if accel_limit is None:
             # Learning the noise floor. The stream usually starts still (a vehicle on the ground): keep a
             # provisional interval and the loudest windows seen, and adopt it once the threshold is known.
             self.state = "learning noise"
-            self._warmup_max = (max(self._warmup_max[0], accel_var), max(self._warmup_max[1], gyro_var or 0.0))
+            warmup_max = self._warmup_max
+            assert warmup_max is not None  # set by reset() while the accel threshold is unknown
+            self._warmup_max = (max(warmup_max[0], accel_var), max(warmup_max[1], gyro_var or 0.0))
             if self._interval is None:
                 self._start_interval()
             else:
@@ -285,14 +315,15 @@ class StaticDetector:
             if self._interval is not None and not (
                 loudest_accel <= accel_limit and (gyro_limit is None or loudest_gyro <= gyro_limit)
             ):
-                self._interval, self._pending = None, deque()  # it moved during warm-up: no pose from it
+                # It moved during warm-up: no pose from it.
+                self._interval, self._pending, self._undecided = None, deque(), []
         still = accel_var <= accel_limit and (gyro_var is None or gyro_limit is None or gyro_var <= gyro_limit)
         if still:
             if self._interval is None:
                 self._start_interval()
             else:
                 self._extend_interval(sample)
-                if t_ns - self._interval["opened_ns"] >= self.max_pose_s * 1e9:
+                if t_ns - self._interval["opened_ns"] >= self._max_pose_ns:
                     # Parked for long: cut here so slow drifts (temperature) show up as separate poses.
                     emitted = self._end_interval() or emitted
                     self._start_interval()
@@ -310,17 +341,18 @@ class StaticDetector:
         if interval is None:
             return None
         saved = {key: (value.copy() if isinstance(value, np.ndarray) else value) for key, value in interval.items()}
-        pending = self._pending
+        pending, undecided = self._pending, self._undecided
         try:
             return self._end_interval(keep_pending=True)
         finally:
-            self._interval, self._pending = saved, pending
+            self._interval, self._pending, self._undecided = saved, pending, undecided
 
     def flush(self) -> Pose | None:
         """End of stream: the ongoing still interval, if long enough."""
         return self._end_interval(keep_pending=True)
 
-    def process_streaming(self, t_ns, accel, gyro=None, temperature_degc=None) -> list[Pose]:
+    def process_streaming(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
+                          temperature_degc: ArrayLike | None = None) -> list[Pose]:
         """update() sample by sample, then flush(): the reference `process` must agree with."""
         t_ns = np.asarray(t_ns, dtype=np.int64)
         poses = []
@@ -343,7 +375,8 @@ class StaticDetector:
             poses.append(last)
         return poses
 
-    def process(self, t_ns, accel, gyro=None, temperature_degc=None) -> list[Pose]:
+    def process(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
+                temperature_degc: ArrayLike | None = None) -> list[Pose]:
         """A whole recording at once (bag replay, CLI): the poses update() would give sample by sample
         followed by flush(), computed with array operations (window sums from cumulative sums, the noise
         floor's histogram queried at the same points, the interval rules applied per run of still
@@ -359,12 +392,12 @@ class StaticDetector:
         return poses
 
     # ---------------------------------------------------------------- internals
-    def _clear_window(self):
+    def _clear_window(self) -> None:
         self._window.clear()
         self._sums = [0.0] * 8
         self._shift = None
 
-    def _refresh_sums(self):
+    def _refresh_sums(self) -> None:
         """Recompute the running sums from the window: they drift by rounding over millions of updates,
         a big value leaving them leaves its rounding behind, and a shift far from the data (a glitch as
         first sample, a long turn) makes the variance a small difference of large numbers. So the shift
@@ -375,13 +408,17 @@ class StaticDetector:
         if not n:
             self._sums = [0.0] * 8
             return
-        gyros = [sample[4:7] for sample in window if sample[4] is not None]
+        # A sample has the gyro's three axes or none (sample[4] is None exactly when sample[5:7] are).
+        gyros = [(gx, gy, gz) for _, _, _, _, gx, gy, gz, *_ in window
+                 if gx is not None and gy is not None and gz is not None]
+        old_shift = self._shift
+        assert old_shift is not None  # set by the window's first sample
         shift = (
             sum(sample[1] for sample in window) / n,
             sum(sample[2] for sample in window) / n,
             sum(sample[3] for sample in window) / n,
             *((sum(g[0] for g in gyros) / len(gyros), sum(g[1] for g in gyros) / len(gyros),
-               sum(g[2] for g in gyros) / len(gyros)) if gyros else self._shift[3:6]),
+               sum(g[2] for g in gyros) / len(gyros)) if gyros else old_shift[3:6]),
         )
         sx, sy, sz, sgx, sgy, sgz = self._shift = shift
         rebuilt = []
@@ -389,7 +426,7 @@ class StaticDetector:
         for sample in window:
             t_ns, ax, ay, az, gx, gy, gz, temperature = sample[:8]
             dx, dy, dz = ax - sx, ay - sy, az - sz
-            if gx is None:
+            if gx is None or gy is None or gz is None:  # no gyro (its three axes come together)
                 ex = ey = ez = 0.0
             else:
                 ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
@@ -400,7 +437,7 @@ class StaticDetector:
         window.extend(rebuilt)
         self._sums = s
 
-    def _new_interval(self, reference_sample) -> dict:
+    def _new_interval(self, reference_sample: _Sample) -> dict[str, Any]:
         return {
             "n": 0, "start_ns": None, "end_ns": None,
             "a": np.zeros(3), "aa": np.zeros((3, 3)), "g": np.zeros(3), "gn": 0,
@@ -408,14 +445,15 @@ class StaticDetector:
             "ref": np.array(reference_sample[1:4]),  # shift: keeps sums of raw counts ~32768 exact
         }
 
-    def _commit(self, interval, samples) -> None:
+    def _commit(self, interval: dict[str, Any], samples: list[_Sample]) -> None:
         """Add samples to the interval's sums (numpy over a batch: this runs once per trim_s, not per sample)."""
         if not samples:
             return
         accel = np.array([s[1:4] for s in samples]) - interval["ref"]
         interval["a"] += accel.sum(axis=0)
         interval["aa"] += accel.T @ accel
-        gyros = [s[4:7] for s in samples if s[4] is not None]
+        gyros = [(gx, gy, gz) for _, _, _, _, gx, gy, gz, *_ in samples
+                 if gx is not None and gy is not None and gz is not None]  # all three or none
         if gyros:
             interval["g"] += np.sum(gyros, axis=0)
             interval["gn"] += len(gyros)
@@ -430,7 +468,7 @@ class StaticDetector:
         interval["end_ns"] = samples[-1][0]
         interval["n"] += len(samples)
 
-    def _start_interval(self):
+    def _start_interval(self) -> None:
         """The whole window is still, but its oldest part may hold the tail of the last motion (the
         variance fell below the threshold before the sensor fully settled): skip its first trim_s.
         Its newest trim_s stays pending like every later sample, so the motion onset can be dropped."""
@@ -441,9 +479,13 @@ class StaticDetector:
         cut = samples[-1][0] - int(self.trim_s * 1e9)
         self._commit(self._interval, [s for s in samples if first <= s[0] <= cut])
         self._pending = deque(s for s in samples if s[0] > cut and s[0] >= first)
+        self._undecided = []
 
-    def _extend_interval(self, sample):
+    def _extend_interval(self, sample: _Sample) -> None:
         pending = self._pending
+        if self._undecided:  # the window is full again and the interval goes on: they were in it
+            pending.extend(self._undecided)
+            self._undecided = []
         pending.append(sample)
         trim_ns = int(self.trim_s * 1e9)
         cut = sample[0] - trim_ns
@@ -452,7 +494,9 @@ class StaticDetector:
             ready = []
             while pending and pending[0][0] <= cut:
                 ready.append(pending.popleft())
-            self._commit(self._interval, ready)
+            interval = self._interval
+            assert interval is not None  # extended only while an interval is open
+            self._commit(interval, ready)
 
     def _end_interval(self, keep_pending: bool = False) -> Pose | None:
         """Close the still interval. Pending samples (the newest trim_s) are dropped when motion ended
@@ -460,6 +504,7 @@ class StaticDetector:
         interval = self._interval
         self._interval = None
         pending, self._pending = self._pending, deque()
+        self._undecided = []  # after the interval's last decided sample: not in it, as in process()
         if interval is None:
             return None
         if keep_pending:

@@ -15,11 +15,16 @@ summed within its block only, so a window's sums hold nothing but its own sample
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .pose import Pose
 from .static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
+
+if TYPE_CHECKING:
+    from .static_detector import StaticDetector
 
 _QUERY_EVERY = 64
 
@@ -54,7 +59,7 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
         np.add.at(per_block, (block[counted], index[counted]), 1.0)
         counts = np.cumsum(per_block, axis=0)
         running = np.cumsum(counts, axis=1)
-        hit = (running >= quantile * query_adds[:, None]) & (counts > 0)
+        hit: np.ndarray = (running >= quantile * query_adds[:, None]) & (counts > 0)
         values = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
         return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
     values = np.empty(len(query_adds))
@@ -64,7 +69,7 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
     for q, upto in enumerate(query_adds):
         while done < upto:
             next_decay = (done // half_life + 1) * half_life
-            stop = min(upto, next_decay)
+            stop = min(int(upto), next_decay)
             counts += np.bincount(index[done:stop], minlength=_NBINS)
             total += stop - done
             done = stop
@@ -93,7 +98,7 @@ def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.nd
     shifted = values - reference
     rows = np.column_stack([shifted, np.einsum("ij,ij->i", shifted, shifted)])  # x y z |x|^2
     blocks = -(-n_rows // block)
-    padded = np.zeros((blocks * block, 4))
+    padded: np.ndarray = np.zeros((blocks * block, 4))
     padded[:n_rows] = rows
     padded = padded.reshape(blocks, block, 4)
     prefix = np.cumsum(padded, axis=1).reshape(-1, 4)  # from the block's first row to this one
@@ -116,10 +121,12 @@ def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.nd
 
     count = last - start + 1
     s1, s2 = sums[:, :3], sums[:, 3]
-    return (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
+    variance: np.ndarray = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
+    return variance
 
 
-def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tuple[list[Pose], int, int]:
+def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
+                 temperature_degc: ArrayLike | None = None) -> tuple[list[Pose], int, int]:
     """(poses, rejected samples, of which finite but out of range)."""
     d = detector
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
@@ -173,7 +180,7 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
         accel_limit[full_index] = d.accel_var_threshold
     else:
         accel_limit[full_index] = np.where(warm[full_index], d.k_sigma * floor_a, np.nan)
-    if g is not None:
+    if gyro_var is not None:  # there is a gyro
         floor_g = _floor_values(gyro_var[full_index], d._gyro_floor.quantile, d._gyro_floor.half_life)
         if d.gyro_var_threshold is not None:
             gyro_limit[full_index] = d.gyro_var_threshold
@@ -186,7 +193,7 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
 
     poses: list[Pose] = []
 
-    def emit(opened: int, last: int, trim_end: bool):
+    def emit(opened: int, last: int, trim_end: bool) -> None:
         first_time = t[start[opened]] + trim_ns
         k0 = int(np.searchsorted(t, first_time, side="left"))
         k0 = max(k0, int(start[opened]))
@@ -216,7 +223,8 @@ def detect_batch(detector, t_ns, accel, gyro=None, temperature_degc=None) -> tup
     state = np.where(~full, 0, np.where(learning, 1, np.where(still, 2, 3)))
     boundary = np.flatnonzero(np.concatenate([[True], (state[1:] != state[:-1]) | gaps[1:]]))
     ends = np.concatenate([boundary[1:], [n]]) - 1
-    opened = last = None  # index that opened the current interval, last sample added to it
+    opened: int | None = None  # index that opened the current interval
+    last = 0  # the last sample added to it (read only while one is open)
     warmup_open = d.accel_var_threshold is None
     loudest_accel = loudest_gyro = 0.0
     max_pose_ns = int(d.max_pose_s * 1e9) if math.isfinite(d.max_pose_s) else None

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 TAU_S = 0.5
 PLAUSIBLE_DEGC = (-60.0, 150.0)
@@ -41,7 +42,7 @@ class TemperatureFilter:
             return None
         return self.value
 
-    def series(self, stamps_ns, degc, sample_t_ns) -> tuple[np.ndarray, int]:
+    def series(self, stamps_ns: ArrayLike, degc: ArrayLike, sample_t_ns: ArrayLike) -> tuple[np.ndarray, int]:
         """For a recording: the held filtered temperature at each sample stamp (NaN when missing or
         stale, as `at` says) and how many samples were stale. Readings are taken in stamp order."""
         order = np.argsort(stamps_ns, kind="stable")

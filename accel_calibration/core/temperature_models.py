@@ -21,10 +21,15 @@ span is under `min_span_degc` (10 by default) or a segment has too few or too al
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import CalibrationError
+
+if TYPE_CHECKING:
+    from .models import SphereModel
 
 TEMPERATURE_MODELS = ("none", "polynomial", "segmented")
 SEGMENT_BLEND = 0.1  # half-width of the cross-fade around a segment edge, as a fraction of the segment
@@ -42,9 +47,10 @@ class TemperatureOptions:
     reference_degc: float | None = None  # T_ref; None = the poses' median temperature
     min_poses_per_segment: int = 12  # 9 unknowns per segment (3 axes x quadratic) plus margin
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.model not in TEMPERATURE_MODELS:
-            raise CalibrationError(f"temperature model must be one of {', '.join(TEMPERATURE_MODELS)}, got {self.model!r}")
+            raise CalibrationError(f"temperature model must be one of {', '.join(TEMPERATURE_MODELS)}, "
+                                   f"got {self.model!r}")
         if not (isinstance(self.bias_order, int) and 0 <= self.bias_order <= 3):
             raise CalibrationError(f"bias_order must be 0..3, got {self.bias_order!r}")
         if not (isinstance(self.scale_order, int) and 0 <= self.scale_order <= 2):
@@ -65,19 +71,20 @@ class TemperatureModel:
     segment_edges_degc: np.ndarray = field(default_factory=lambda: np.zeros(0))  # segmented: K+1 edges
     segment_coefficients: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))  # K x (q0,q1,q2) x axis
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.kind not in ("polynomial", "segmented"):
             raise CalibrationError(f"temperature model kind must be polynomial or segmented, got {self.kind!r}")
         set_ = object.__setattr__
-        for name, shape_tail in (("bias_coefficients", (3,)), ("scale_coefficients", (3,))):
-            array = np.array(getattr(self, name), dtype=float).reshape((-1, 3))
+        for name in ("bias_coefficients", "scale_coefficients"):
+            array: np.ndarray = np.array(getattr(self, name), dtype=float).reshape((-1, 3))
             if not np.all(np.isfinite(array)) or len(array) > 3:
                 raise CalibrationError(f"temperature {name} must be up to 3 rows of 3 finite numbers")
             array.flags.writeable = False
             set_(self, name, array)
         edges = np.array(self.segment_edges_degc, dtype=float).reshape(-1)
         coefficients = np.array(self.segment_coefficients, dtype=float).reshape((-1, 3, 3))
-        if self.kind == "segmented" and (len(edges) != len(coefficients) + 1 or len(coefficients) == 0 or np.any(np.diff(edges) <= 0)):
+        if self.kind == "segmented" and (len(edges) != len(coefficients) + 1 or len(coefficients) == 0
+                                         or np.any(np.diff(edges) <= 0)):
             raise CalibrationError("segmented temperature model needs K+1 increasing edges for K segments")
         for array in (edges, coefficients):
             if not np.all(np.isfinite(array)):
@@ -91,13 +98,13 @@ class TemperatureModel:
         set_(self, "range_degc", (lo, hi))
         set_(self, "reference_degc", float(self.reference_degc))
 
-    def clamp(self, temperature_degc) -> tuple[np.ndarray, np.ndarray]:
+    def clamp(self, temperature_degc: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(temperature clamped to the calibrated range, mask of the values that were clamped)."""
         t = np.asarray(temperature_degc, dtype=float)
         lo, hi = self.range_degc
         return np.clip(t, lo, hi), (t < lo) | (t > hi)
 
-    def bias_and_scale(self, temperature_degc) -> tuple[np.ndarray, np.ndarray]:
+    def bias_and_scale(self, temperature_degc: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Per-sample additive drift of the raw output (N, 3) and scale divisor (N, 3)."""
         t, _ = self.clamp(np.atleast_1d(temperature_degc))
         if self.kind == "polynomial":
@@ -117,10 +124,11 @@ class TemperatureModel:
         count = len(centres)
         k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, count - 1)
 
-        def quadratic(index, temps):
+        def quadratic(index: np.ndarray, temps: np.ndarray) -> np.ndarray:
             d = (temps - centres[index])[:, None]
             q = coefficients[index]
-            return q[:, 0] + q[:, 1] * d + q[:, 2] * d * d
+            value: np.ndarray = q[:, 0] + q[:, 1] * d + q[:, 2] * d * d
+            return value
 
         drift = quadratic(k, t)
         # Within BLEND of an inner edge, cross-fade to the neighbour so the output has no step there;
@@ -130,7 +138,8 @@ class TemperatureModel:
             near = np.abs(t - edges[i]) < half
             if near.any():
                 w = ((t[near] - (edges[i] - half)) / (2 * half))[:, None]  # 0 below the zone, 1 above
-                drift[near] = (1 - w) * quadratic(np.full(near.sum(), i - 1), t[near]) + w * quadratic(np.full(near.sum(), i), t[near])
+                drift[near] = ((1 - w) * quadratic(np.full(near.sum(), i - 1), t[near])
+                               + w * quadratic(np.full(near.sum(), i), t[near]))
         return drift
 
 
@@ -151,25 +160,27 @@ class ThermalSphereModel:
     p = [b (3), free entries of M (lower-triangular, 6), c_1..c_nb (3 each), d_1..d_ns (3 each)]
     """
 
-    def __init__(self, base, bias_order: int, scale_order: int, reference_degc: float):
+    def __init__(self, base: SphereModel, bias_order: int, scale_order: int, reference_degc: float) -> None:
         self.base = base  # SphereModel
         self.bias_order, self.scale_order = bias_order, scale_order
         self.reference_degc = reference_degc
         self.size = base.size + 3 * (bias_order + scale_order)
 
-    def pack(self, bias, matrix, bias_coefficients=None, scale_coefficients=None):
+    def pack(self, bias: np.ndarray, matrix: np.ndarray, bias_coefficients: np.ndarray | None = None,
+             scale_coefficients: np.ndarray | None = None) -> np.ndarray:
         c = np.zeros((self.bias_order, 3)) if bias_coefficients is None else bias_coefficients
         d = np.zeros((self.scale_order, 3)) if scale_coefficients is None else scale_coefficients
         return np.concatenate([self.base.pack(bias, matrix), np.ravel(c), np.ravel(d)])
 
-    def unpack(self, p):
+    def unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         bias, matrix = self.base.unpack(p[: self.base.size])
         rest = p[self.base.size:]
         c = rest[: 3 * self.bias_order].reshape(self.bias_order, 3)
         d = rest[3 * self.bias_order:].reshape(self.scale_order, 3)
         return bias, matrix, c, d
 
-    def residual_and_jacobian(self, p, accel, temperature, gravity):
+    def residual_and_jacobian(self, p: np.ndarray, accel: np.ndarray, temperature: np.ndarray,
+                              gravity: float) -> tuple[np.ndarray, np.ndarray]:
         bias, matrix, c, d = self.unpack(p)
         dt = (temperature - self.reference_degc)[:, None]
         powers_b = [dt**k for k in range(1, self.bias_order + 1)]
@@ -197,7 +208,8 @@ class ThermalSphereModel:
         return norm - gravity, jac
 
 
-def fit_segmented_drift(accel, temperature, bias, matrix, gravity, options: TemperatureOptions):
+def fit_segmented_drift(accel: np.ndarray, temperature: np.ndarray, bias: np.ndarray, matrix: np.ndarray,
+                        gravity: float, options: TemperatureOptions) -> tuple[np.ndarray, np.ndarray]:
     """Per segment, the drift of the raw output as a per-axis quadratic of temperature, least squares on
     the sphere constraint |M (a - b - drift(T))| = g with M, b held at the room-temperature calibration.
     (Estimating each pose's drift from its direction alone would see only the drift along gravity.)
@@ -224,7 +236,8 @@ def fit_segmented_drift(accel, temperature, bias, matrix, gravity, options: Temp
             )
         d = (temps - (lo + hi) / 2)[:, None]
 
-        def residual_and_jacobian(q, d=d, points=points):
+        def residual_and_jacobian(q: np.ndarray, d: np.ndarray = d,
+                                  points: np.ndarray = points) -> tuple[np.ndarray, np.ndarray]:
             q = q.reshape(3, 3)
             centred = points - bias - (q[0] + q[1] * d + q[2] * d * d)
             y = centred @ matrix.T

@@ -4,9 +4,10 @@ which at rest are |M^-1 g + b|: within a few percent of g for any plausible MEMS
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
-def units_problem(accel_mps2, gravity: float) -> str | None:
+def units_problem(accel_mps2: ArrayLike, gravity: float) -> str | None:
     magnitudes = np.linalg.norm(np.asarray(accel_mps2, dtype=float).reshape(-1, 3), axis=1)
     if len(magnitudes) == 0:
         return None
@@ -14,9 +15,10 @@ def units_problem(accel_mps2, gravity: float) -> str | None:
     if 0.7 * gravity <= typical <= 1.3 * gravity:
         return None
     if 0.7 <= typical <= 1.3:
-        return (f"units: still poses read |a| = {typical:.3f}, which looks like g, not m/s^2 (expected ~{gravity:.2f}): "
-                "convert the stream (x 9.80665) before calibrating")
+        return (f"units: still poses read |a| = {typical:.3f}, which looks like g, not m/s^2 "
+                f"(expected ~{gravity:.2f}): convert the stream (x 9.80665) before calibrating")
     if typical > 30 * gravity:
         return (f"units: still poses read |a| = {typical:.0f}, which looks like raw sensor counts, not m/s^2: "
                 "scale the driver's output to m/s^2 before calibrating")
-    return f"units: still poses read |a| = {typical:.3f}, expected ~{gravity:.2f} m/s^2: check the driver's units and scaling"
+    return (f"units: still poses read |a| = {typical:.3f}, expected ~{gravity:.2f} m/s^2: "
+            "check the driver's units and scaling")

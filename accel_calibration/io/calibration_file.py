@@ -20,13 +20,14 @@ import math
 import os
 import tempfile
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import yaml
 
 from ..core.calibration import Calibration, Quality
-from ..core.temperature_models import TemperatureModel
 from ..core.errors import CalibrationError
+from ..core.temperature_models import TemperatureModel
 
 
 class CalibrationFileError(CalibrationError):
@@ -147,7 +148,9 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
                 temperature = TemperatureModel(
                     kind=t["model"],
                     reference_degc=_number(t.get("reference_degc"), "temperature.reference_degc"),
-                    range_degc=tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", [])),
+                    # Any length: TemperatureModel rejects one that is not (low, high) with a ValueError.
+                    range_degc=cast(tuple[float, float],
+                                    tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", []))),
                     bias_coefficients=t.get("bias_coefficients") or np.zeros((0, 3)),
                     scale_coefficients=t.get("scale_coefficients") or np.zeros((0, 3)),
                     segment_edges_degc=t.get("segment_edges_degc") or np.zeros(0),

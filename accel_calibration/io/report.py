@@ -36,7 +36,8 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
     sphere.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", linewidth=0.5)
     colour = temps if temps is not None else np.abs(after)
     points = sphere.scatter(*directions.T, c=colour, cmap="coolwarm", s=30, depthshade=False)
-    figure.colorbar(points, ax=sphere, shrink=0.6, label="pose temperature, degC" if temps is not None else "|residual|, mg")
+    figure.colorbar(points, ax=sphere, shrink=0.6,
+                    label="pose temperature, degC" if temps is not None else "|residual|, mg")
     sphere.set_title("pose directions (gravity in the sensor frame)")
     sphere.set_xlabel("x")
     sphere.set_ylabel("y")

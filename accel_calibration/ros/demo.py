@@ -30,12 +30,12 @@ def main() -> int:
     from msg_tools.calibration_client import CalibrationClient
     from msg_tools.node_process import NodeProcess
     from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
-    from msg_tools.synthetic_publisher import play
 
     rng = np.random.default_rng(2026)
     errors = SensorErrors.mpu6050_like(rng)
     imu = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=3.0, move_s=1.5, rate_hz=200.0, seed=1)
-    print(f"sensor: MPU-6050-class, bias {np.round(errors.bias_mps2, 3)} m/s^2, scale {np.round(np.diag(errors.matrix), 3)}, "
+    print(f"sensor: MPU-6050-class, bias {np.round(errors.bias_mps2, 3)} m/s^2, "
+          f"scale {np.round(np.diag(errors.matrix), 3)}, "
           f"noise {errors.noise_mps2 / MG:.0f} mg")
     with tempfile.TemporaryDirectory() as tmp:
         cal_file = Path(tmp) / "accel_calibration.yaml"
@@ -51,7 +51,8 @@ def main() -> int:
                 if client.diagnostics and len(client.diagnostics) > shown[0]:
                     shown[0] = len(client.diagnostics)
                     d = client.diagnostics[-1]
-                    print(f"  poses {d['poses']}/{d['poses_needed']}  fit {d['fit_residual_rms_mg'] or '-'} mg rms  -> {d['advice']}")
+                    print(f"  poses {d['poses']}/{d['poses_needed']}  fit {d['fit_residual_rms_mg'] or '-'} mg rms  "
+                          f"-> {d['advice']}")
 
             samples = imu.samples()
             start_ns = time.time_ns()
@@ -60,7 +61,8 @@ def main() -> int:
                 client.play(samples, start_ns=start_ns,
                      indices=range(first, min(first + chunk, len(samples.t_ns))))
                 show_progress()
-            client.spin_until(lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /calibrate", 5)
+            client.spin_until(
+                lambda: client.diagnostics and client.diagnostics[-1]["advice"] == "ready: call /calibrate", 5)
             show_progress()
 
             answer = client.call("calibrate")
@@ -78,12 +80,13 @@ def main() -> int:
             client.settle(int(0.99 * sent))
             received = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec: m for m in client.corrected}
             before, after = [], []
-            for start, end, truth in fresh.static_intervals():
+            for _start, end, truth in fresh.static_intervals():
                 index = [i for i, t in enumerate(fresh_samples.t_ns) if end - 1e9 <= t < end]
                 raw = fresh_samples.accel_raw[index].mean(axis=0)
                 corrected = np.mean([[received[k].linear_acceleration.x, received[k].linear_acceleration.y,
                                       received[k].linear_acceleration.z]
-                                     for k in (fresh_start + int(fresh_samples.t_ns[i]) for i in index) if k in received], axis=0)
+                                     for k in (fresh_start + int(fresh_samples.t_ns[i]) for i in index)
+                                     if k in received], axis=0)
                 before.append(np.linalg.norm(raw - truth) / MG)
                 after.append(np.linalg.norm(corrected - truth) / MG)
             print(f"error at {len(before)} fresh orientations (1 s averages): before {np.mean(before):.1f} mg mean / "

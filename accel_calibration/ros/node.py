@@ -19,9 +19,10 @@ import queue
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -38,7 +39,6 @@ from ..core.calibration import Calibration
 from ..core.correction import Correction
 from ..core.errors import AccelCalibrationError, CalibrationError, SettingsError
 from ..core.fit import FitResult
-from ..core.gates import QualityGates
 from ..core.session import CalibrationSession
 from ..core.settings import PARAMETERS, RELIABILITIES, Parameter, Settings, check_value
 from ..io.calibration_file import (
@@ -74,10 +74,12 @@ def _descriptor(parameter: Parameter, read_only: bool) -> ParameterDescriptor:
     descriptor = ParameterDescriptor(description=parameter.description, read_only=read_only)
     if parameter.low is not None and parameter.high is not None:
         if type(parameter.default) is int:
-            descriptor.integer_range = [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high), step=0)]
+            descriptor.integer_range = [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high),
+                                                     step=0)]
         else:
             low = 0.0 if parameter.zero_means_auto else float(parameter.low)
-            descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=float(parameter.high), step=0.0)]
+            descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=float(parameter.high),
+                                                                  step=0.0)]
     if parameter.choices:
         descriptor.additional_constraints = "one of: " + ", ".join(parameter.choices)
     return descriptor
@@ -128,11 +130,13 @@ class CalibrationNode(Node):
         self.create_service(Trigger, "calibration/get", self._guard("calibration/get", self._srv_get, _failed_trigger),
                             qos_profile=SERVICE_QOS)
         self.create_service(SetBool, "calibration/enable",
-                            self._guard("calibration/enable", self._srv_enable, _failed_set_bool), qos_profile=SERVICE_QOS)
+                            self._guard("calibration/enable", self._srv_enable, _failed_set_bool),
+                            qos_profile=SERVICE_QOS)
         self.create_timer(1.0, self._guard("diagnostics", self._publish_diagnostics))
 
     # ------------------------------------------------------------------ the boundary
-    def _guard(self, name: str, callback: Callable[..., Any], fallback: Callable[[], Any] | None = None) -> Callable[..., Any]:
+    def _guard(self, name: str, callback: Callable[..., Any],
+               fallback: Callable[[], Any] | None = None) -> Callable[..., Any]:
         """No exception from a callback may end the node: log it (throttled), count it, carry on."""
 
         @functools.wraps(callback)
@@ -242,7 +246,8 @@ class CalibrationNode(Node):
         values = {
             "bias": [float(v) for v in calibration.bias],
             "matrix": [float(v) for v in calibration.matrix.ravel()],
-            "residual_rms_mg": float(quality.residual_rms_mg) if quality and math.isfinite(quality.residual_rms_mg) else 0.0,
+            "residual_rms_mg": (float(quality.residual_rms_mg)
+                                if quality and math.isfinite(quality.residual_rms_mg) else 0.0),
             "poses": int(quality.poses) if quality else 0,
         }
         for name, value in values.items():
@@ -497,7 +502,8 @@ class CalibrationNode(Node):
             "temperature_degc": "" if temperature is None else f"{temperature:.2f}",
         }
         span = progress.temperature_span_degc
-        values["temperature_span_degc"] = "" if span is None else f"{span[0]:.1f}..{span[1]:.1f} ({span[1] - span[0]:.1f})"
+        values["temperature_span_degc"] = ("" if span is None
+                                           else f"{span[0]:.1f}..{span[1]:.1f} ({span[1] - span[0]:.1f})")
         values["temperature_model"] = progress.temperature_status
         values.update({key: str(value) for key, value in counts.items()})
         for name, count in self._errors.items():
