@@ -13,10 +13,11 @@ next one before the window noticed it).
 
 Hostile input: a sample with a NaN/inf, a stamp not after the last one, or a value beyond `accel_limit`
 / `gyro_limit` (always beyond _HARD_LIMIT, where squares and sums could overflow) is skipped and
-counted. A large value that is accepted cannot poison the running sums either: when a sample whose
-square dwarfs what remains in the window leaves it, the sums are rebuilt from the window (the
-subtraction would otherwise leave rounding debris far above the noise), so once it has left, the
-detector behaves as if it had never been there.
+counted. A large value that is accepted cannot poison the running sums either: they are rebuilt from
+the window, about its mean, when a sample whose square dwarfs what remains leaves it (the subtraction
+would leave its rounding behind, far above the noise) and when the shift is far from the window's data
+(a glitch as the first sample), so once it has left the window the detector behaves as if it had never
+been there. A temperature that is NaN, inf or beyond the guard counts as no temperature.
 """
 from __future__ import annotations
 
@@ -378,7 +379,7 @@ class StaticDetector:
     def process(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
                 temperature_degc: ArrayLike | None = None) -> list[Pose]:
         """A whole recording at once (bag replay, CLI): the poses update() would give sample by sample
-        followed by flush(), computed with array operations (window sums from cumulative sums, the noise
+        followed by flush(), computed with array operations (window sums from sums within blocks, the noise
         floor's histogram queried at the same points, the interval rules applied per run of still
         samples). Needs a fresh detector. Agreement with update() is tested; window variances differ
         only by rounding (~1e-12 relative)."""
@@ -473,9 +474,12 @@ class StaticDetector:
         variance fell below the threshold before the sensor fully settled): skip its first trim_s.
         Its newest trim_s stays pending like every later sample, so the motion onset can be dropped."""
         samples = list(self._window)
-        self._interval = self._new_interval(samples[0])
-        self._interval["opened_ns"] = samples[0][0]
         first = samples[0][0] + int(self.trim_s * 1e9)
+        # The sums' reference: a sample of the interval itself, not the skipped oldest one, which may be
+        # far from it (a glitch accepted during the warm-up) and would cost the mean its precision.
+        own = next((s for s in samples if s[0] >= first), samples[-1])
+        self._interval = self._new_interval(own)
+        self._interval["opened_ns"] = samples[0][0]
         cut = samples[-1][0] - int(self.trim_s * 1e9)
         self._commit(self._interval, [s for s in samples if first <= s[0] <= cut])
         self._pending = deque(s for s in samples if s[0] > cut and s[0] >= first)

@@ -82,19 +82,27 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
     return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
 
 
-def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray, block: int) -> np.ndarray:
-    """Total variance (sum over axes) of values[start_i .. i], about each segment's median.
+def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """Total variance (sum over axes) of values[start_i .. i] for each full window i (0 elsewhere:
+    never used), about each segment's median.
 
-    Every window at least `block` samples long is summed from pieces that lie inside it: the end of the
-    block holding its first sample, whole blocks, the start of the block holding its last sample (the
-    window holds a block boundary). Shorter windows (never a full one) are a difference within a block.
+    Blocks are as long as the shortest full window, so every full window holds a block boundary; it
+    is summed from pieces that lie inside it: the end of the block holding its first sample, whole
+    blocks between (only for a window longer than the shortest), the start of the block holding its
+    last sample.
     """
     n_rows = len(values)
+    variance = np.zeros(n_rows)
+    windows = np.flatnonzero(full)  # index of each full window's last sample
+    if not len(windows):
+        return variance
+    first = start[windows]
+    block = int((windows - first).min()) + 1
     reference = np.empty_like(values)
     firsts = np.flatnonzero(segment_first == np.arange(n_rows))
-    for first, end in zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]):
+    for begin, end in zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]):
         # Median, not the first sample: a glitch there would leave every window far from its reference.
-        reference[first:end] = np.median(values[first:end], axis=0)
+        reference[begin:end] = np.median(values[begin:end], axis=0)
     shifted = values - reference
     rows = np.column_stack([shifted, np.einsum("ij,ij->i", shifted, shifted)])  # x y z |x|^2
     blocks = -(-n_rows // block)
@@ -105,23 +113,19 @@ def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.nd
     suffix = np.cumsum(padded[:, ::-1], axis=1)[:, ::-1].reshape(-1, 4)  # from this row to the block's last
     totals = np.vstack([padded.sum(axis=1), np.zeros((1, 4))])
 
-    last = np.arange(n_rows)
-    boundary = last // block * block  # the last block boundary at or before the window's last row
-    spans = boundary > start  # the window holds a block boundary after its first row
-    sums = prefix[last].copy()  # [boundary, last]
-    head = np.flatnonzero(spans)
-    sums[head] += suffix[start[head]]  # [start, end of its block]
-    first_block, last_block = start[head] // block + 1, boundary[head] // block
-    between = first_block < last_block  # whole blocks in between (a window longer than a block)
+    boundary = windows // block * block  # the last block boundary at or before the window's last row
+    sums = prefix[windows].copy()  # [boundary, last]
+    head = np.flatnonzero(boundary > first)  # the window starts before that boundary
+    sums[head] += suffix[first[head]]  # [first, end of its block]
+    first_block, last_block = first[head] // block + 1, boundary[head] // block
+    between = first_block < last_block  # whole blocks in between
     if between.any():
         pairs = np.column_stack([first_block[between], last_block[between]]).reshape(-1)
         sums[head[between]] += np.add.reduceat(totals, pairs, axis=0)[::2]
-    inside = np.flatnonzero(boundary < start)  # shorter than a block, not at its start: a difference
-    sums[inside] -= prefix[start[inside] - 1]
 
-    count = last - start + 1
+    count = windows - first + 1
     s1, s2 = sums[:, :3], sums[:, 3]
-    variance: np.ndarray = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
+    variance[windows] = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
     return variance
 
 
@@ -166,10 +170,8 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     full = ((t - t[start]) >= d._full_ns) & (count >= 5)
     dt = np.concatenate([[0], np.diff(t)])
     full_time = np.cumsum(np.where(full, dt, 0))
-    # Blocks no longer than the shortest full window: every full window holds a block boundary.
-    block = int(count[full].min()) if full.any() else max(1, int(count.max()))
-    accel_var = _window_variance(a, start, segment_first, block)
-    gyro_var = None if g is None else _window_variance(g, start, segment_first, block)
+    accel_var = _window_variance(a, start, segment_first, full)
+    gyro_var = None if g is None else _window_variance(g, start, segment_first, full)
 
     full_index = np.flatnonzero(full)
     accel_limit = np.full(n, np.nan)
