@@ -1,0 +1,151 @@
+"""Finding 7 of the session issue: /calibrate must not stop the corrected stream, and the correction
+terms are written from two threads (temperature on the executor, a new calibration on the worker).
+
+The node runs in this process (its real spin loop, real rclpy/DDS to a client node), so a save can
+be held open on an event: the stream is shown to flow *while* the fit and file write are in
+progress, with no timing luck involved."""
+from __future__ import annotations
+
+import sys
+import threading
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
+from accel_calibration.core.calibration import Calibration
+from accel_calibration.core.correction import Correction
+from accel_calibration.core.temperature_models import TemperatureModel
+from accel_calibration.ros.node import CalibrationNode, spin_until
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+pytestmark = pytest.mark.ros
+START_NS = 1_700_000_000 * 10**9
+
+
+@pytest.fixture
+def running_node(ros, tmp_path):
+    """A CalibrationNode spun by its own spin loop in a thread; always stopped."""
+    holder = {}
+
+    def start(**parameters):
+        overrides = [Parameter("calibration_file", value=str(tmp_path / "cal.yaml"))]
+        overrides += [Parameter(name, value=value) for name, value in parameters.items()]
+        node = CalibrationNode(parameter_overrides=overrides)
+        stop = threading.Event()
+        thread = threading.Thread(target=spin_until, args=(node, stop), daemon=True)
+        thread.start()
+        holder.update(node=node, stop=stop, thread=thread)
+        return node
+
+    yield start
+    if holder:
+        holder["stop"].set()
+        holder["thread"].join(timeout=10)
+        holder["node"].close()
+        holder["node"].destroy_node()
+
+
+def _session_samples(seed=5, poses=16):
+    errors = SensorErrors.mpu6050_like(np.random.default_rng(seed), noise_mps2=0.02)
+    imu = SyntheticImu(errors, spread_orientations(poses, np.random.default_rng(seed + 1)), dwell_s=2.5, move_s=1.0,
+                       rate_hz=200.0, seed=seed)
+    return errors, imu.samples()
+
+
+def test_corrected_stream_flows_while_calibrate_fits_and_saves(running_node, tester, tmp_path):
+    node = running_node()
+    errors, samples = _session_samples()
+    # The poses go in directly (what playback would give, without its minutes of DDS traffic).
+    for pose in node._session.add_recording(samples.t_ns + START_NS, samples.accel_raw, samples.gyro_raw):
+        node._session.add_pose(pose)
+    tester.wait_ready()
+
+    save_started, release_save = threading.Event(), threading.Event()
+    real_save = node._save
+
+    def slow_save(calibration):
+        save_started.set()
+        assert release_save.wait(30), "test never released the save"
+        real_save(calibration)
+
+    node._save = slow_save
+    future = tester.clients["calibrate"].call_async(Trigger.Request())
+    assert tester.spin_until(save_started.is_set, 30), "/calibrate never reached the save"
+
+    # The worker is inside the save; the executor must still carry every message through.
+    before = len(tester.corrected)
+    sent = tester.play(samples, start_ns=START_NS + 10**12, indices=range(0, 400))
+    assert len(tester.corrected) - before >= sent == 400
+    assert not future.done(), "/calibrate answered before its save finished"
+    assert node._calibration is None, "applied before it was saved"
+    # Raw passes through untouched while nothing is in force.
+    np.testing.assert_allclose([m.linear_acceleration.z for m in tester.corrected[before:before + 5]],
+                               samples.accel_raw[:5, 2])
+
+    release_save.set()
+    assert tester.spin_until(future.done, 30)
+    assert future.result().success, future.result().message
+    assert (tmp_path / "cal.yaml").exists()
+    np.testing.assert_allclose(node._calibration.bias, errors.bias_mps2, atol=0.005)
+
+    # And after it: the stream is corrected by what was saved.
+    before = len(tester.corrected)
+    tester.play(samples, start_ns=START_NS + 2 * 10**12, indices=range(0, 50), temperature=False)
+    first = tester.corrected[before].linear_acceleration
+    expected = node._calibration.apply(samples.accel_raw[0])
+    np.testing.assert_allclose([first.x, first.y, first.z], expected, atol=1e-9)
+
+
+def test_correction_is_never_torn_between_temperature_and_a_new_calibration(running_node):
+    """Temperature updates (executor) and installs (worker) both rebuild the correction: whatever
+    interleaving, the correction in force is always the one built from the calibration in force and
+    the filtered temperature, never a mix of an old calibration with a new temperature."""
+    node = running_node()
+    rng = np.random.default_rng(3)
+    # Each with its own temperature drift, so a correction built from one calibration and another's
+    # moment would be visibly wrong.
+    calibrations = [Calibration(model="sphere9", bias=rng.normal(0, 0.05, 3),
+                                matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
+                                reference_temperature_degc=25.0,
+                                temperature=TemperatureModel(kind="polynomial", reference_degc=25.0,
+                                                             range_degc=(0.0, 60.0),
+                                                             bias_coefficients=rng.normal(0, 0.01, (1, 3))))
+                    for _ in range(20)]
+    torn = 0
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads interleave every few bytecodes: a race shows within the run
+    try:
+        k = 0
+        for round_ in range(150):
+            batch = calibrations[round_ % 7: round_ % 7 + 4]
+            installer = threading.Thread(target=lambda batch=batch: [node._install(c) for c in batch])
+            installer.start()
+            for _ in range(30):  # the executor side meanwhile: temperature readings
+                k += 1
+                node._on_temperature(_temperature(START_NS + k * 10**8, 20.0 + (k % 40) * 0.5))
+            installer.join()
+            # At rest, the correction in force is the calibration in force at the temperature it
+            # says it was evaluated at: never an older calibration written back by the other thread.
+            calibration, correction = node._calibration, node._correction
+            expected = Correction.build(calibration, correction.temperature_degc)
+            if not np.allclose(correction.apply(1.0, 2.0, 9.0), expected.apply(1.0, 2.0, 9.0), atol=1e-12):
+                torn += 1
+    finally:
+        sys.setswitchinterval(switch)
+    assert torn == 0, f"{torn} of 150 rounds left a correction built from another calibration"
+    # And it follows the temperature: once the readings stop, the terms are those of the last one.
+    node._on_temperature(_temperature(START_NS + 2001 * 10**8, 45.0))
+    assert abs(node._correction.temperature_degc - node._session.temperature.value) < 0.05
+    final = Correction.build(node._calibration, node._session.temperature.value)
+    np.testing.assert_allclose(node._correction.apply(1.0, 2.0, 9.0), final.apply(1.0, 2.0, 9.0), atol=1e-4)
+
+
+def _temperature(stamp_ns, degc):
+    from sensor_msgs.msg import Temperature
+
+    msg = Temperature()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10**9)
+    msg.temperature = degc
+    return msg
