@@ -287,3 +287,14 @@ def test_gates_change_at_run_time_the_rest_is_fixed():
     assert session.gates.max_residual_rms_mg == 3.0
     with pytest.raises(SettingsError, match="merge_angle_deg is fixed at start-up"):
         session.update_settings(Settings.from_parameters({"merge_angle_deg": 9.0}, base=session.settings))
+
+
+def test_gyro_range_default_is_2000_deg_per_s():
+    """The default gyro full scale (34.9 rad/s = 2000 deg/s): 30 rad/s is a fast turn, kept; 40 is
+    beyond every MEMS gyro's range, so counted out of range and kept out of the fit."""
+    assert Settings().gyro_range_radps == pytest.approx(np.radians(2000.0), abs=0.01)
+    session = CalibrationSession()
+    session.add_sample(1_000_000, 0.0, 0.0, 9.8, 30.0, 0.0, 0.0)
+    assert session.counters.gyro_out_of_range == 0
+    session.add_sample(2_000_000, 0.0, 0.0, 9.8, 0.0, -40.0, 0.0)
+    assert session.counters.gyro_out_of_range == 1
