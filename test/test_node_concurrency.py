@@ -163,3 +163,15 @@ def test_a_message_in_another_frame_than_the_calibration_is_warned_and_counted(r
     node._install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="camera_imu_optical_frame"))
     node._check_frame(node._calibration)
     assert node.counters()["frame_id_mismatch"] == 1
+
+
+def test_a_service_callback_that_raises_answers_failure_and_the_node_carries_on(running_node, tester):
+    node = running_node()
+    tester.wait_ready()
+    node._calibration = object()  # calibration/get cannot serialise this: its callback raises
+    answer = tester.call("calibration/get")
+    assert not answer.success and answer.message.startswith("internal error (AttributeError")
+    assert node.counters()["callback_errors"] == 1
+    node._calibration = None
+    assert not tester.call("calibration/get").success  # still answering, now the ordinary refusal
+    assert tester.call("calibration/enable", data=True).success
