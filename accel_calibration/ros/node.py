@@ -112,8 +112,8 @@ class CalibrationNode(Node):
             self.get_logger().info(f"removed {removed} stale temporary file(s) beside {self._calibration_path}")
         self._load_calibration_at_start()
         self.add_on_set_parameters_callback(self._guard("parameters", self._on_set_parameters,
-                                                        lambda: SetParametersResult(successful=False,
-                                                                                    reason="internal error")))
+                                                        lambda args, error: SetParametersResult(
+                                                            successful=False, reason=f"internal error: {error}")))
 
         reliability = (ReliabilityPolicy.RELIABLE if node_values["output_reliability"] == "reliable"
                        else ReliabilityPolicy.BEST_EFFORT)
@@ -136,7 +136,7 @@ class CalibrationNode(Node):
 
     # ------------------------------------------------------------------ the boundary
     def _guard(self, name: str, callback: Callable[..., Any],
-               fallback: Callable[[], Any] | None = None) -> Callable[..., Any]:
+               fallback: Callable[[tuple[Any, ...], Exception], Any] | None = None) -> Callable[..., Any]:
         """No exception from a callback may end the node: log it (throttled), count it, carry on."""
 
         @functools.wraps(callback)
@@ -148,7 +148,7 @@ class CalibrationNode(Node):
                 self.get_logger().error(f"{name} callback failed ({type(error).__name__}: {error}); "
                                         "the node carries on", throttle_duration_sec=LOG_THROTTLE_S)
                 if fallback is not None:
-                    return fallback() if not args or not hasattr(args[-1], "success") else _fail(args[-1], error)
+                    return fallback(args, error)
                 return None
 
         return guarded
@@ -533,12 +533,13 @@ def _fail(response: Any, error: Exception) -> Any:
     return response
 
 
-def _failed_trigger() -> Any:
-    return Trigger.Response(success=False, message="internal error")
+def _failed_service(args: tuple[Any, ...], error: Exception) -> Any:
+    """Fallback of a guarded service callback (request, response): the response says what failed."""
+    return _fail(args[-1], error)
 
 
-def _failed_set_bool() -> Any:
-    return SetBool.Response(success=False, message="internal error")
+# Trigger and SetBool services alike answer through the response rclpy handed the callback.
+_failed_trigger = _failed_set_bool = _failed_service
 
 
 def _quality_text(calibration: Calibration) -> str:
