@@ -27,6 +27,13 @@ setup(
         'backports.zstd; python_version < "3.14"',
         "matplotlib",
         "tqdm",
+        # accel-calib replay of PX4 logs (bag/ulog_reader.py) and CSV sample streams (bag/csv_stream.py).
+        "pyulog",
+        "pyarrow",
+        # accel-calib fleet and history (cli/fleet.py, io/history.py): Dask distributed and SQLAlchemy 2.
+        "dask[distributed]",
+        "distributed",
+        "SQLAlchemy>=2",
     ],
     zip_safe=True,
     maintainer="accel_calibration developers",

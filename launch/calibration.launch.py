@@ -26,6 +26,7 @@ def generate_launch_description() -> LaunchDescription:
     imu_topic = LaunchConfiguration("imu_topic")
     temperature_topic = LaunchConfiguration("temperature_topic")
     output_topic = LaunchConfiguration("output_topic")
+    armed_topic = LaunchConfiguration("armed_topic")
 
     return LaunchDescription([
         DeclareLaunchArgument("namespace", default_value="", description="Namespace of the node"),
@@ -37,6 +38,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="sensor_msgs/Temperature input of the IMU die"),
         DeclareLaunchArgument("output_topic", default_value="imu/data_calibrated",
                               description="Calibrated sensor_msgs/Imu output"),
+        DeclareLaunchArgument("armed_topic", default_value="armed",
+                              description="std_msgs/Bool, true while armed or flying: nothing is collected"),
         Node(
             package=PACKAGE,
             executable="calibration_node",
@@ -47,6 +50,7 @@ def generate_launch_description() -> LaunchDescription:
                 ("imu/data_raw", imu_topic),
                 ("imu/temperature", temperature_topic),
                 ("imu/data_calibrated", output_topic),
+                ("armed", armed_topic),
             ],
             output="screen",
             emulate_tty=True,

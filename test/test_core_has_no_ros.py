@@ -24,7 +24,8 @@ import importlib.abc, sys
 class NoRos(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'std_srvs', 'diagnostic_msgs', 'builtin_interfaces',
-                                  'rosbags'):
+                                  'rosbags', 'dask', 'distributed', 'sqlalchemy'):
+            # ROS from the core; Dask and SQLAlchemy only when a fleet/history command runs
             raise ImportError('ROS import from the core: ' + name)
 sys.meta_path.insert(0, NoRos())
 import importlib

@@ -215,3 +215,18 @@ def test_finite_poses_never_raise(args):
         warnings.simplefilter("error")  # a numpy RuntimeWarning would be raised here, and fail the test
         result = fit(accel, **kwargs)
     assert_sound(result)
+
+
+@pytest.mark.parametrize("units_per_mps2", [1e-6, 1.0, 2.6e4])
+def test_reference_fit_takes_data_in_any_units(units_per_mps2):
+    """No absolute determinant limit: raw data in micro-units or high-resolution counts fit alike."""
+    rng = np.random.default_rng(1)
+    directions = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+                           [1, 1, 0], [0, 1, 1], [1, 0, 1], [-1, 1, 0], [0, -1, 1], [1, 0, -1]], float)
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    matrix, bias = np.eye(3) + rng.normal(0, 0.01, (3, 3)), rng.normal(0, 0.05, 3)
+    raw = (np.linalg.inv(matrix) @ (directions * 9.80665).T).T + bias + rng.normal(0, 1e-4, (12, 3))
+    result = fit(raw * units_per_mps2, model="reference12", reference=directions)
+    assert result.success, result.message
+    np.testing.assert_allclose(result.calibration.bias / units_per_mps2, bias, atol=1e-4)
+    np.testing.assert_allclose(result.calibration.matrix * units_per_mps2, matrix, atol=1e-4)

@@ -29,6 +29,7 @@ LAUNCH_ARGUMENTS = {
     "imu_topic": "imu/data_raw",
     "temperature_topic": "imu/temperature",
     "output_topic": "imu/data_calibrated",
+    "armed_topic": "armed",
 }
 # Import name -> distribution name in install_requires, where they differ.
 DISTRIBUTION = {"yaml": "PyYAML", "backports": "backports.zstd"}
@@ -154,7 +155,7 @@ def test_launch_file_starts_calibration_node(launch_tree):
     for key in ("namespace", "parameters", "remappings"):
         assert key in keywords, f"Node(...) has no {key}="
     remapped = [ast.literal_eval(t.elts[0]) for t in keywords["remappings"].elts]
-    assert sorted(remapped) == sorted(["imu/data_raw", "imu/temperature", "imu/data_calibrated"])
+    assert sorted(remapped) == sorted(["imu/data_raw", "imu/temperature", "imu/data_calibrated", "armed"])
 
 
 def test_launch_file_declares_its_arguments(launch_tree):
@@ -257,3 +258,24 @@ def test_config_applies_to_any_namespace_and_node_name():
     assert list(document) == ["/**"]
     parameters = document["/**"]["ros__parameters"]
     assert isinstance(parameters, dict) and parameters
+
+
+def test_config_lists_every_parameter_at_its_default():
+    """The example params file is the parameter table written out: every setting, its default (a
+    file that pinned calibration_file would make every node under any namespace write one file)."""
+    from accel_calibration.core.settings import PARAMETERS
+    from accel_calibration.ros.node import NODE_PARAMETERS
+
+    def flatten(tree, prefix=""):
+        for key, value in tree.items():
+            if isinstance(value, dict):
+                yield from flatten(value, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}", value
+
+    listed = dict(flatten(yaml.safe_load(CONFIG_FILE.read_text(encoding="utf-8"))["/**"]["ros__parameters"]))
+    expected = {p.name: p.default for p in PARAMETERS + NODE_PARAMETERS}
+    assert sorted(set(expected) - set(listed)) == [], "parameters missing from the example file"
+    assert sorted(set(listed) - set(expected)) == [], "example file sets parameters the node does not have"
+    for name, default in expected.items():
+        assert listed[name] == pytest.approx(default) if isinstance(default, float) else listed[name] == default, name

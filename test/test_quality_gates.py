@@ -44,7 +44,9 @@ def test_a_good_session_passes_every_gate():
     [
         (session(n=10), {}, "gate poses: have 10 poses, need min_poses=12"),
         (session(noise_mg=30.0), {}, "gate residual"),
-        (session(), dict(max_bias_sigma_mg=0.01), "gate sigma"),
+        (session(), dict(max_bias_sigma_mg=0.01), "gate sigma: bias"),
+        (session(), dict(max_scale_sigma_ppm=1.0), "gate sigma: scale"),
+        (session(), dict(max_misalignment_sigma_mrad=0.001), "gate sigma: misalignment"),
         (session(bias=(2.5, 0.0, 0.0)), {}, "gate bias: |b| 2.4"),
         (session(scale=(1.25, 1.0, 1.0)), {}, "gate scale: correction gain x 1.2"),
         (session(scale=(1.05, 1.0, 1.0)), dict(scale_min=0.98, scale_max=1.02), "gate scale"),
@@ -55,12 +57,17 @@ def test_each_gate_refuses_with_its_name(raw, gates, gate):
     assert problem is not None and gate in problem, problem
 
 
-def test_coverage_gate_names_the_missing_face():
+def test_a_missing_face_alone_is_not_refused_but_a_loose_parameter_is():
+    """Issue 10: the coverage gate ("no pose with x pointing down") is gone; what is judged is each
+    parameter's sigma against its bound, and the refusal says which orientation would help."""
     rng = np.random.default_rng(3)
     directions = Rotation.random(400, random_state=rng).apply([0.0, 0.0, 1.0])
     directions = directions[directions[:, 0] > -0.5][:30]  # x never points down
-    _, problem = calibrate(session(directions=directions))
-    assert problem is not None and "gate" in problem and "x pointing down" in problem
+    result, problem = calibrate(session(directions=directions))
+    assert problem is None and "x pointing down" in result.missing_directions
+    _, problem = calibrate(session(directions=directions), max_scale_sigma_ppm=20.0)
+    assert problem is not None and problem.startswith("gate sigma: scale x uncertainty"), problem
+    assert "turn x down would lower it most" in problem
 
 
 def test_stream_in_g_is_detected_not_fitted():

@@ -56,12 +56,21 @@ def test_polynomial_within_1_mg_and_uncompensated_over_50(session):
     np.testing.assert_allclose(cal.temperature.scale_coefficients, DRIFTING.scale_drift, atol=1e-5)
 
 
-def test_segmented_within_5_mg(session):
+def test_segmented_on_spread_temperatures_blended_within_2_mg_picked_coarse(session):
+    """Issue 11: `segmented` is the seed paper's model (per segment, a quadratic in the measured
+    acceleration, one set of coefficients per segment). Here each segment's poses are spread over its
+    10 degC: blended (fitted as applied, every pose at its own temperature) it still follows the drift;
+    the paper's pick gives every temperature in a segment the same coefficients, ~10 mg off at its ends
+    with this sensor's ~2 mg/degC. (The paper's own protocol, one temperature per segment: test_segmented.)"""
     raw, temps, fresh_raw, fresh_true, fresh_temps = session
-    result = fit(raw, temperature_degc=temps, temperature_model="segmented",
-                 temperature_options=TemperatureOptions(model="segmented", reference_degc=25.0))
-    assert result.success, result.message
-    assert rms_error_mg(result.calibration, fresh_raw, fresh_true, fresh_temps) <= 5.0
+    errors = {}
+    for blend in (True, False):
+        result = fit(raw, temperature_degc=temps, temperature_model="segmented",
+                     temperature_options=TemperatureOptions(model="segmented", reference_degc=25.0,
+                                                            segment_blend=blend))
+        assert result.success, result.message
+        errors[blend] = rms_error_mg(result.calibration, fresh_raw, fresh_true, fresh_temps)
+    assert errors[True] <= 2.0 and errors[False] > 5.0, errors
 
 
 def test_ignoring_scale_drift_is_measurably_worse(session):
@@ -79,7 +88,8 @@ def test_segmented_output_has_no_step_at_segment_edges(session):
     cal = fit(raw, temperature_degc=temps, temperature_model="segmented",
               temperature_options=TemperatureOptions(model="segmented", reference_degc=25.0)).calibration
     sample = np.array([[3.0, -2.0, 9.0]])
-    for edge in cal.temperature.segment_edges_degc[1:-1]:
+    assert cal.temperature.segment_blend  # the default: no step at an edge
+    for edge in cal.temperature.segment_bounds_degc[1:, 0]:
         below, above = cal.apply(sample, edge - 1e-6), cal.apply(sample, edge + 1e-6)
         assert np.abs(below - above).max() < 1e-6 * G
 
@@ -97,11 +107,13 @@ def test_refusals_name_the_reason(session):
     raw, temps, *_ = session
     narrow = fit(raw[:40], temperature_degc=np.linspace(24.7, 25.0, 40), temperature_model="polynomial")
     assert not narrow.success and "span 0.3 degC" in narrow.message and "under 10 degC" in narrow.message
-    # Drop most poses of one segment: the segmented fit names it.
-    keep = ~((temps >= 30) & (temps < 40)) | (np.arange(len(temps)) % 5 == 0)
+    # Drop most poses of one segment (segments are centred on multiples of 10 degC): the segmented fit
+    # names it and what it needs.
+    keep = ~((temps >= 45) & (temps < 55)) | (np.arange(len(temps)) % 5 == 0)
     sparse = fit(raw[keep], temperature_degc=temps[keep], temperature_model="segmented",
                  temperature_options=TemperatureOptions(model="segmented", reference_degc=25.0))
-    assert not sparse.success and "segment 30..40 degC has" in sparse.message
+    assert not sparse.success and "segment 45..55 degC (5 poses at 50.4 degC) cannot be determined: hold a pose " \
+        "with x pointing up" in sparse.message and "5 more poses" in sparse.message, sparse.message
     with pytest.raises(CalibrationError, match="needs temperature_degc"):
         fit(raw, temperature_model="polynomial")
     with pytest.raises(CalibrationError, match="bias_order"):

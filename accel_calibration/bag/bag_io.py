@@ -4,7 +4,9 @@ decode sensor_msgs/Imu in bulk, and write a copy of a bag with the IMU accelerat
 Bulk decoding: an Imu's CDR layout is fixed apart from the header's frame_id string, so messages of
 one length share every field offset; each such group is one uint8 matrix and each field one column
 slice viewed as little-endian int32/uint32/float64. (Per-message deserialization costs ~10-13 us
-here; this costs well under 1 us.)
+here; this costs well under 1 us.) Only for the standard sensor_msgs/msg/Imu: a recording whose Imu
+definition (or its hash) differs is read message by message through its own recorded definition, by
+field name, or refused; and a metadata.yaml whose types disagree with the storage is refused.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ from ..core.errors import AccelCalibrationError
 
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
+MAX_METADATA_BYTES = 16 << 20  # a rosbag2 metadata.yaml is a few KB, ~1 KB more per topic or file
 
 
 class BagError(AccelCalibrationError):
@@ -43,6 +46,7 @@ def open_reader(path):
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    refuse_special_files(path)
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
@@ -53,6 +57,9 @@ def open_reader(path):
 
 
 def storage_of(path) -> str:
+    if Path(path).is_file():  # a single storage file given directly: its magic bytes say which
+        with open(path, "rb") as stream:
+            return "mcap" if stream.read(5) == b"\x89MCAP" else "sqlite3"
     return "mcap" if any(Path(path).glob("*.mcap")) else "sqlite3"
 
 
@@ -63,34 +70,194 @@ class TopicInfo:
     topic: str
     msgtype: str
     msgcount: int
+    digest: str = ""  # type_description_hash (RIHS01) of the recorded definition, where written
+
+
+def refuse_special_files(path) -> None:
+    """A bag's files must be regular files: a FIFO named *.db3 or metadata.yaml would block the reader
+    for ever, a device would never end."""
+    import os
+    import stat
+
+    path = Path(path)
+    try:
+        candidates = ([path / "metadata.yaml", *path.glob("*.mcap"), *path.glob("*.db3")] if path.is_dir()
+                      else [path])
+        for candidate in candidates:
+            try:
+                mode = os.stat(candidate).st_mode
+            except FileNotFoundError:
+                continue
+            if not stat.S_ISREG(mode):
+                raise BagError(f"{path}: {candidate.name} is not a regular file (a FIFO, device or directory): "
+                               "not a recording")
+    except OSError as error:
+        raise BagError(f"{path}: cannot read ({error.strerror or error})") from None
 
 
 def metadata_topics(path) -> list[TopicInfo] | None:
-    """Topics from the bag's metadata.yaml, or None when it is missing or unexpected."""
-    import yaml
+    """Topics from the bag's metadata.yaml, or None when it is missing or unexpected (rosbags then
+    reads the bag, or says what is wrong). Unsafe YAML (alias bombs, deep nesting, a FIFO, a huge file)
+    is refused at once, in one line."""
+    import os
 
+    from ..io.calibration_file import read_regular_file, safe_yaml_load
+
+    metadata = Path(path) / "metadata.yaml"
+    if not os.path.lexists(metadata):
+        return None
+    raw = read_regular_file(metadata, MAX_METADATA_BYTES, "rosbag2 metadata.yaml", error=BagError)
     try:
-        info = yaml.safe_load((Path(path) / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise BagError(f"{metadata}: not a text file: not a rosbag2 metadata.yaml") from None
+    document = safe_yaml_load(text, str(metadata), error=BagError)
+    try:
+        info = document["rosbag2_bagfile_information"]
         if info.get("compression_format"):  # whole-file compression: leave it to rosbags
             return None
-        return [TopicInfo(t["topic_metadata"]["name"], t["topic_metadata"]["type"], int(t["message_count"]))
+        return [TopicInfo(str(t["topic_metadata"]["name"]), str(t["topic_metadata"]["type"]),
+                          int(t["message_count"]), str(t["topic_metadata"].get("type_description_hash") or ""))
                 for t in info["topics_with_message_count"]]
-    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
         return None
+
+
+_STANDARD_HASHES: dict[str, str] = {}
+
+
+def standard_hash(msgtype: str) -> str:
+    """RIHS01 of the ROS 2 Jazzy definition of `msgtype` (what the fixed offsets assume)."""
+    if msgtype not in _STANDARD_HASHES:
+        from rosbags.typesys import Stores, get_typestore
+
+        _STANDARD_HASHES[msgtype] = get_typestore(Stores.ROS2_JAZZY).hash_rihs01(msgtype)
+    return _STANDARD_HASHES[msgtype]
+
+
+_DEFINITION_HASHES: dict[tuple[str, str, str], str | None] = {}
+
+
+def definition_hash(msgtype: str, encoding: str, text: str) -> str | None:
+    """RIHS01 of a recorded definition (ros2msg or ros2idl text), or None when it cannot be parsed.
+    The text rosbags itself writes is recognised without parsing (the parser costs ~0.1 s to build)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    key = (msgtype, encoding, text)
+    if key not in _DEFINITION_HASHES:
+        standard = get_typestore(Stores.ROS2_JAZZY)
+        try:
+            same_text = encoding == "ros2msg" and text == standard.generate_msgdef(msgtype, ros_version=2)[0]
+        except Exception:  # noqa: BLE001 - a type the standard store does not know
+            same_text = False
+        _DEFINITION_HASHES[key] = standard_hash(msgtype) if same_text else _parsed_hash(msgtype, encoding, text)
+    return _DEFINITION_HASHES[key]
+
+
+def _parsed_hash(msgtype: str, encoding: str, text: str) -> str | None:
+    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+    try:
+        if encoding == "ros2msg":
+            types = get_types_from_msg(text, msgtype)
+        elif encoding == "ros2idl":
+            types = {}
+            separator = "=" * 80 + "\n"
+            parts = text.split(separator)[1:] if text.startswith(separator + "IDL: ") else [text]
+            for part in parts:
+                types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
+        else:
+            return None
+        store = get_typestore(Stores.EMPTY)
+        store.register(types)
+        return store.hash_rihs01(msgtype)
+    except Exception:  # noqa: BLE001 - a damaged definition is just "not the standard one"
+        return None
+
+
+def recorded_definitions(path) -> dict[str, tuple[str, str, str]] | None:
+    """{topic: (message type, definition encoding, definition text)} as the storage files record them
+    (not as metadata.yaml says); encoding "" where the storage holds no definition. None when the
+    storage cannot be read this way (rosbags then reads it, or says what is wrong)."""
+    import sqlite3
+
+    from .mcap_scan import recorded_types
+
+    path = Path(path)
+    found: dict[str, tuple[str, str, str]] = {}
+    if storage_of(path) == "mcap":
+        for file in sorted(path.glob("*.mcap")) if path.is_dir() else [path]:
+            types = recorded_types(file)
+            if types is None:
+                return None
+            found.update(types)
+        return found
+    try:
+        for file in [path] if path.is_file() else sorted(path.glob("*.db3")):
+            connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
+            try:
+                tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+                definitions = {}
+                if "message_definitions" in tables:
+                    definitions = {name: (encoding, text) for name, encoding, text in connection.execute(
+                        "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions")}
+                for name, msgtype in connection.execute("SELECT name, type FROM topics"):
+                    encoding, text = definitions.get(msgtype, ("", ""))
+                    found[str(name)] = (str(msgtype), str(encoding), str(text))
+            finally:
+                connection.close()
+    except sqlite3.Error:
+        return None
+    return found
+
+
+def check_recorded_types(path, topics, recorded: dict[str, tuple[str, str, str]] | None) -> None:
+    """Refuse a bag whose metadata.yaml (or reader) gives a topic another type than its storage records:
+    reading it would decode one message type as another."""
+    if not recorded:
+        return
+    for topic in topics:
+        if topic is None:
+            continue
+        stored = recorded.get(topic.topic)
+        if stored is not None and stored[0] != topic.msgtype:
+            raise BagError(f"{path}: metadata.yaml says {topic.topic} is {topic.msgtype}, but the recording holds "
+                           f"{stored[0]} messages on it: the metadata does not belong to this recording")
+
+
+def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | None) -> bool:
+    """True when every record of `topic`'s definition (the metadata's hash, the storage's definition)
+    is the ROS 2 Jazzy one, or absent (older bags: the standard is what they were recorded with)."""
+    standard = standard_hash(topic.msgtype)
+    if topic.digest and topic.digest != standard:
+        return False
+    stored = (recorded or {}).get(topic.topic)
+    if stored is not None and stored[1]:
+        return definition_hash(topic.msgtype, stored[1], stored[2]) == standard
+    return True
 
 
 def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
     """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
     from rosbags.typesys import Stores, get_typestore
 
-    topics = [imu_topic.topic] + ([temperature_topic.topic] if temperature_topic else [])
+    refuse_special_files(path)
+    wanted = [imu_topic] + ([temperature_topic] if temperature_topic else [])
+    if any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in wanted):
+        return None  # another definition: rosbags reads it through its own, checked against this hash
+    topics = [topic.topic for topic in wanted]
     if storage_of(path) == "mcap":
         from .mcap_scan import scan_topics
 
-        found = scan_topics(path, topics, progress)
+        recorded: dict[str, tuple[str, str, str]] | None = {}
+        found = scan_topics(path, topics, progress, schemas=recorded)
     else:
         found = _scan_sqlite(path, topics, progress)
+        recorded = recorded_definitions(path) if found is not None else None
     if found is None or len(found[imu_topic.topic]) != imu_topic.msgcount:
+        return None
+    check_recorded_types(path, wanted, recorded)
+    if not all(is_standard_definition(topic, recorded) for topic in wanted):
         return None
     typestore = get_typestore(Stores.ROS2_JAZZY)
     t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(found[imu_topic.topic], path,
@@ -98,11 +265,24 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
     temperatures = None
     if temperature_topic is not None:
-        messages = [typestore.deserialize_cdr(raw, TEMPERATURE) for raw in found[temperature_topic.topic]]
-        temperatures = (np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages],
-                                 dtype=np.int64),
-                        np.array([m.temperature for m in messages], dtype=float))
+        temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
     return imu, temperatures
+
+
+def decode_temperatures(raws: list, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps ns, degC) of sensor_msgs/Temperature messages; a message that does not decode is one
+    BagError naming it."""
+    stamps = np.empty(len(raws), dtype=np.int64)
+    values = np.empty(len(raws))
+    for i, raw in enumerate(raws):
+        try:
+            msg = deserialize(raw, TEMPERATURE)
+            stamps[i] = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+            values[i] = float(msg.temperature)
+        except Exception as error:  # noqa: BLE001 - rosbags raises several types for damaged bytes
+            raise BagError(f"{path}: temperature message {i + 1} does not decode as {TEMPERATURE} "
+                           f"({type(error).__name__}): a damaged recording") from None
+    return stamps, values
 
 
 def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path) -> object | None:
@@ -130,8 +310,30 @@ def _layout(frame_id_length: int) -> dict:
     return {"gyro": gyro, "accel": accel, "size": accel + 24 + 72}
 
 
-def decode_imus(raws: list, path, deserialize
+def _imu_by_name(raw, index: int, path, deserialize) -> tuple[int, tuple, tuple, str]:
+    """(stamp ns, accel, gyro, frame_id) of one message through `deserialize` (the recording's own
+    definition), by field name; a missing field or damaged bytes is one BagError naming the message."""
+    try:
+        msg = deserialize(raw, IMU)
+    except Exception as error:  # noqa: BLE001 - rosbags raises several types for damaged bytes
+        raise BagError(f"{path}: IMU message {index + 1} does not decode as {IMU} ({type(error).__name__}): "
+                       "a damaged recording") from None
+    try:
+        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+        a, w = msg.linear_acceleration, msg.angular_velocity
+        accel = (float(a.x), float(a.y), float(a.z))
+        gyro = (float(w.x), float(w.y), float(w.z))
+        frame_id = str(msg.header.frame_id)
+    except (AttributeError, TypeError, ValueError, OverflowError) as error:
+        raise BagError(f"{path}: its recorded {IMU} definition lacks what an IMU message has "
+                       f"({error}): cannot read it as accelerations") from None
+    return stamp, accel, gyro, frame_id
+
+
+def decode_imus(raws: list, path, deserialize, fixed_layout: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
+    """`fixed_layout`: the messages are the standard sensor_msgs/msg/Imu, so fields sit at known offsets
+    (the bulk path); False reads every message through `deserialize` by field name."""
     lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
     t = np.empty(len(raws), dtype=np.int64)
     accel = np.empty((len(raws), 3))
@@ -143,21 +345,19 @@ def decode_imus(raws: list, path, deserialize
     for length in np.unique(lengths):
         index = np.flatnonzero(lengths == length)
         block = np.frombuffer(b"".join([raws[i] for i in index]), dtype=np.uint8).reshape(len(index), int(length))
-        little = block[:, 1] == 1
-        string_length = block[:, 12:16].copy().view("<u4").ravel()
         layout = None
-        if little.all() and np.all(string_length == string_length[0]):
-            layout = _layout(int(string_length[0]))
-            if layout["size"] != length:
-                layout = None
+        if fixed_layout and length >= 16:
+            little = block[:, 1] == 1
+            string_length = block[:, 12:16].copy().view("<u4").ravel()
+            if little.all() and np.all(string_length == string_length[0]):
+                layout = _layout(int(string_length[0]))
+                if layout["size"] != length:
+                    layout = None
         if layout is None:
-            # Big-endian or unusual messages: deserialize one by one (rare; correctness first).
+            # Big-endian, unusual or another definition: deserialize one by one (rare; correctness first).
             for i in index:
-                msg = deserialize(raws[i], IMU)
-                t[i] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                a, w = msg.linear_acceleration, msg.angular_velocity
-                accel[i], gyro[i] = (a.x, a.y, a.z), (w.x, w.y, w.z)
-                frame_id = frame_id or msg.header.frame_id
+                t[i], accel[i], gyro[i], message_frame = _imu_by_name(raws[i], int(i), path, deserialize)
+                frame_id = frame_id or message_frame
             group_of[index] = -1
             continue
         sec = block[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
@@ -179,6 +379,7 @@ def read_imu_and_temperature(reader, imu_connection, temperature_connection, pat
     raws = []
     temperature_raws = []
     connections = [imu_connection] + ([temperature_connection] if temperature_connection is not None else [])
+    check_recorded_types(path, [TopicInfo(c.topic, c.msgtype, 0) for c in connections], recorded_definitions(path))
     imu_id = imu_connection.id
     step = 0
     for connection, _, raw in reader.messages(connections=connections):
@@ -193,17 +394,22 @@ def read_imu_and_temperature(reader, imu_connection, temperature_connection, pat
                 step = 0
     if progress is not None:
         progress.update(step)
-    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize)
+    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize,
+                                                                     fixed_layout=_reader_is_standard(reader))
     imu = ImuData(imu_connection.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
     temperatures = None
     if temperature_connection is not None:
-        stamps, values = [], []
-        for raw in temperature_raws:
-            msg = reader.deserialize(raw, TEMPERATURE)
-            stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-            values.append(msg.temperature)
-        temperatures = (np.array(stamps, dtype=np.int64), np.array(values, dtype=float))
+        temperatures = decode_temperatures(temperature_raws, path, reader.deserialize)
     return imu, temperatures
+
+
+def _reader_is_standard(reader) -> bool:
+    """The reader's typestore (built from the bag's recorded definitions where it has them, checked
+    against their hashes) holds the standard Imu: only then do the fixed offsets apply."""
+    try:
+        return bool(reader.typestore.hash_rihs01(IMU) == standard_hash(IMU))
+    except Exception:  # noqa: BLE001 - no Imu type at all in a bag's definitions: not the standard one
+        return False
 
 
 def _scan_sqlite(path, topics, progress=None) -> dict[str, list] | None:
@@ -213,7 +419,7 @@ def _scan_sqlite(path, topics, progress=None) -> dict[str, list] | None:
 
     out = {topic: [] for topic in topics}
     try:
-        for file in sorted(Path(path).glob("*.db3")):
+        for file in [Path(path)] if Path(path).is_file() else sorted(Path(path).glob("*.db3")):
             connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
             try:
                 ids = dict(connection.execute("SELECT id, name FROM topics").fetchall())
@@ -253,7 +459,8 @@ def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarr
             for c in reader.connections:
                 out[c.id] = writer.add_connection(
                     c.topic, c.msgtype, typestore=reader.typestore,
-                    msgdef=c.msgdef.data if c.msgdef else None, rihs01=c.digest,
+                    # A single storage file read without metadata.yaml has no digest: the typestore gives both.
+                    msgdef=c.msgdef.data if c.msgdef else None, rihs01=c.digest or None,
                     serialization_format=c.ext.serialization_format, offered_qos_profiles=c.ext.offered_qos_profiles,
                 )
             k = 0
@@ -267,6 +474,14 @@ def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarr
                     k += 1
                 writer.write(out[c.id], timestamp, raw)
                 written += 1
+    except Exception as error:  # noqa: BLE001 - rosbags' reader and writer raise their own types
+        import shutil
+
+        shutil.rmtree(destination, ignore_errors=True)  # ours, half written: the bag did not exist before
+        if isinstance(error, BagError):
+            raise
+        first_line = str(error).splitlines()[0][:120] if str(error) else ""
+        raise BagError(f"{destination}: corrected bag not written ({type(error).__name__}: {first_line})") from None
     finally:
         reader.close()
     return written
@@ -280,14 +495,17 @@ def _patch_one(reader, raw, accel) -> bytes:
 
 def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3", frame_id: str = "imu_link",
                       temperature_period_s: float = 0.1, imu_topic: str = "/imu/data_raw",
-                      temperature_topic: str | None = "/imu/temperature", shuffle_seed: int | None = None) -> int:
+                      temperature_topic: str | None = "/imu/temperature", shuffle_seed: int | None = None,
+                      chunk_compression: str = "", typestore=None) -> int:
     """Record a SyntheticSamples session as a rosbag2 (what `ros2 bag record` of the synthetic publisher
     would give), serialized by rosbags itself. `shuffle_seed` swaps neighbouring IMU messages in the
-    file order, as recorders do when messages arrive out of order. Returns IMU messages written."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    file order, as recorders do when messages arrive out of order. `chunk_compression` ("zstd", "lz4"):
+    mcap chunks compressed as rosbag2's storage presets do. `typestore`: message definitions to record
+    (e.g. an Imu defined otherwise), by default ROS 2 Jazzy's. Returns IMU messages written."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    store = get_typestore(Stores.ROS2_JAZZY)
+    store = typestore if typestore is not None else get_typestore(Stores.ROS2_JAZZY)
     Imu, Temperature = store.types[IMU], store.types[TEMPERATURE]
     Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
     Vector3, Quaternion = store.types["geometry_msgs/msg/Vector3"], store.types["geometry_msgs/msg/Quaternion"]
@@ -314,7 +532,14 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
         for k in rng.choice(len(imu_positions) - 1, size=len(imu_positions) // 20, replace=False):
             a, b = imu_positions[k], imu_positions[k + 1]
             records[a], records[b] = records[b], records[a]
-    with Writer(path, version=9, storage_plugin=plugin) as writer:
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    if chunk_compression and storage == "mcap":
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)  # zstd chunks, metadata says none
+    with writer:
+        if chunk_compression == "lz4" and storage == "mcap":
+            from lz4.frame import compress
+
+            writer.storage.compression, writer.storage.compressor = "lz4", compress  # rosbags writes zstd only
         imu_connection = writer.add_connection(imu_topic, IMU, typestore=store)
         temperature_connection = (writer.add_connection(temperature_topic, TEMPERATURE, typestore=store)
                                   if temperature_topic else None)

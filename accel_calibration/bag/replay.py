@@ -1,6 +1,7 @@
-"""Recalibrate from a recorded rosbag2: the same detector, temperature filter, pose store, fit and
-quality gates as the live node, fed from the bag instead of the network, so a session gives the
-same calibration either way. An adapter: bag I/O lives in msg_tools.bag_io."""
+"""Recalibrate from a recording (a rosbag2, a .mcap/.db3 file, a PX4 ULog, a CSV stream: see
+recording.py): the same detector, temperature filter, pose store, fit and quality gates as the live
+node, fed from the recording instead of the network, so a session gives the same calibration either
+way. An adapter: bag I/O lives in bag_io, the other readers beside it."""
 from __future__ import annotations
 
 import dataclasses
@@ -27,6 +28,17 @@ class ReplaySettings:
     session: Settings = field(default_factory=Settings)
     imu_topic: str | None = None
     temperature_topic: str | None = None
+    # How to read a recording other than a bag directory (recording.open_recording); None = not given.
+    format: str | None = None  # rosbag2, mcap, sqlite3, ulog, csv; None = from the path and content
+    instance: int | None = None  # ULog: sensor_accel/sensor_gyro instance instead of sensor_combined
+    time_unit: str | None = None  # CSV: s, ms, us, ns (default: t in s, t_ns in ns)
+    units: str | None = None  # CSV: mps2, g, counts (default mps2)
+    counts_per_g: float | None = None  # CSV with units counts
+
+    def reader_options(self) -> dict:
+        return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
+                "instance": self.instance, "time_unit": self.time_unit, "units": self.units,
+                "counts_per_g": self.counts_per_g}
 
 
 @dataclass
@@ -44,10 +56,26 @@ class ReplayResult:
     frame_id: str = ""
     imu: object = None  # msg_tools.bag_io.ImuData, for writing a corrected copy
     temperature_at_samples: np.ndarray | None = None
+    recording: object = None  # recording.Recording that was replayed
+    # Per pose found (in `poses`): "used" or "outlier" by the fit, "dropped" (the store gave it up at
+    # capacity) or "not fitted" (no fit was run: too few poses, wrong units).
+    pose_status: list[str] = field(default_factory=list)
+    temperature_timeout_s: float = 5.0
 
     @property
     def calibration(self) -> Calibration | None:
         return self.result.calibration if self.problem is None and self.result is not None else None
+
+    def temperatures_at_samples(self) -> np.ndarray | None:
+        """The filtered temperature held at each sample (NaN where none or stale), as the correction uses it;
+        worked out on first use (a CSV may carry a reading on every row)."""
+        recording = self.recording
+        if self.temperature_at_samples is None and recording is not None and recording.temperature is not None:
+            stamps, values = recording.temperature
+            if len(stamps):
+                self.temperature_at_samples, _ = TemperatureFilter(timeout_s=self.temperature_timeout_s).series(
+                    stamps, values, recording.t_ns)
+        return self.temperature_at_samples
 
 
 class ReplayError(BagError):
@@ -56,50 +84,75 @@ class ReplayError(BagError):
 
 def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False,
                for_copy: bool = False) -> ReplayResult:
-    """`for_copy`: read in rosbags' message order, which write_corrected_bag needs."""
-
+    """Any recording (recording.open_recording: a bag directory, a .mcap/.db3 file, a ULog, a CSV stream)
+    through the session. `for_copy`: read a bag in rosbags' message order, which write_corrected_bag needs."""
+    from .recording import open_recording
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
     try:
-        loaded = None if for_copy else _read_fast(path, s, progress)
-        if loaded is None:
-            loaded = _read_with_rosbags(path, s, progress)
+        recording = open_recording(path, progress=progress, for_copy=for_copy, **s.reader_options())
     except BagError as error:
         raise ReplayError(str(error)) from None
-    imu, temperatures, temperature_topic = loaded
+    except (Exception, RecursionError) as error:  # noqa: BLE001 - the bag layer's boundary: a damaged
+        # recording makes the readers (sqlite3, zstd, lz4, rosbags, pyulog) raise their own types
+        first_line = str(error).splitlines()[0][:120] if str(error) else ""
+        raise ReplayError(f"{path}: unreadable, damaged recording ({type(error).__name__}: {first_line})") from None
+    return replay_recording(recording, s, started)
 
+
+def replay_recording(recording, settings: ReplaySettings | None = None, started: float | None = None) -> ReplayResult:
+    """A recording's sample arrays (recording.Recording) through a fresh session, as the node would take them."""
+    from ..core.models import parameter_count
+
+    s = settings or ReplaySettings()
+    started = time.perf_counter() if started is None else started
     # The recording's own order is the order the node received the messages: the session takes them
     # in that order, so a stamp going backwards is dropped here as it is live.
-    t = imu.t_ns
+    t = recording.t_ns
     session = CalibrationSession(s.session)
-    session.frame_id = imu.frame_id
-    temperature_stamps, temperature_values = temperatures if temperatures is not None else (None, None)
-    poses = session.add_recording(t, imu.accel, imu.gyro, temperature_stamps, temperature_values)
+    session.frame_id = recording.frame_id
+    temperature_stamps, temperature_values = (recording.temperature if recording.temperature is not None
+                                              else (None, None))
+    # No gyro (a CSV without gx,gy,gz): zeros, which never look like motion; taken out again below.
+    gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
+    poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values)
+    if recording.gyro_radps is None:
+        poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
+    slots = []  # per pose, its place in the store (None once the store gave that place to a newer pose)
     for pose in poses:
-        session.add_pose(pose)
+        event = session.add_pose(pose)
+        if event.replaced_oldest:
+            slots = [None if slot == event.index else slot for slot in slots]
+        slots.append(event.index)
     verdict = session.calibrate()
     counts = session.counters.as_dict()
     duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
     problem = None
     if not verdict.success:
         problem = verdict.message
-        if len(session.store) < session.settings.min_poses:
-            problem = "too few static poses for a calibration (no multi-pose session in this recording): " + problem
-        problem = (f"found {len(poses)} static poses ({len(session.store)} distinct) in {imu.topic} "
-                   f"({len(t)} messages, {duration:.1f} s): {problem}")
+        need = max(session.settings.min_poses, parameter_count(session.settings.model) + 1)
+        if len(session.store) < need:
+            problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
+                       f"{session.settings.model} needs {need} orientations): " + problem)
+        problem = (f"found {len(poses)} static pose{'' if len(poses) == 1 else 's'} ({len(session.store)} distinct) "
+                   f"in {recording.stream} ({len(t)} {recording.unit}, {duration:.1f} s): {problem}")
     result = verdict.result
     if verdict.success:
-        result = dataclasses.replace(verdict.result, calibration=verdict.calibration)
-    temps = None
-    if temperature_stamps is not None and len(temperature_stamps):
-        temps, _ = TemperatureFilter(timeout_s=s.session.temperature_timeout_s).series(
-            temperature_stamps, temperature_values, t)
-    temperature_at_samples = temps  # per message, for the corrected copy
+        calibration = verdict.calibration
+        if recording.gyro_radps is None:
+            calibration = calibration.replace(gyro_bias_radps=None)
+        if recording.sensor_id and not calibration.sensor_id:
+            calibration = calibration.replace(sensor_id=recording.sensor_id)
+        result = dataclasses.replace(verdict.result, calibration=calibration)
+    # Poses the fit left out (fit.FitResult.outliers: each with its index into the store's poses).
+    outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}
+    status = ["dropped" if slot is None else "not fitted" if result is None
+              else "outlier" if slot in outliers else "used" for slot in slots]
     return ReplayResult(
-        bag=str(path),
-        imu_topic=imu.topic,
-        temperature_topic=temperature_topic,
+        bag=str(recording.path),
+        imu_topic=recording.stream,
+        temperature_topic=recording.temperature_stream,
         messages=len(t),
         duration_s=duration,
         poses=poses,
@@ -107,9 +160,11 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
         problem=problem,
         counts=counts,
         elapsed_s=time.perf_counter() - started,
-        frame_id=imu.frame_id,
-        imu=imu,
-        temperature_at_samples=temperature_at_samples,
+        frame_id=recording.frame_id,
+        imu=recording.source,
+        recording=recording,
+        pose_status=status,
+        temperature_timeout_s=s.session.temperature_timeout_s,
     )
 
 
@@ -171,21 +226,28 @@ def _read_with_rosbags(path, s: ReplaySettings, progress):
     return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
+def corrected_accel(accel: np.ndarray, temps: np.ndarray | None, calibration: Calibration
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(corrected accelerations, which rows were corrected): each at its sample's temperature where known;
+    non-finite samples are passed on unchanged."""
+    corrected = accel.copy()
+    finite = np.all(np.isfinite(corrected), axis=1)
+    if temps is not None and calibration.temperature is not None:
+        known = finite & ~np.isnan(temps)
+        corrected[known] = calibration.apply(accel[known], temps[known])
+        rest = finite & np.isnan(temps)
+        corrected[rest] = calibration.apply(accel[rest])
+    else:
+        corrected[finite] = calibration.apply(accel[finite])
+    return corrected, finite
+
+
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination) -> int:
     """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature)."""
     from .bag_io import BagError, write_corrected
 
     imu = replay.imu
-    temps = replay.temperature_at_samples
-    corrected = imu.accel.copy()
-    finite = np.all(np.isfinite(corrected), axis=1)
-    if temps is not None and calibration.temperature is not None:
-        known = finite & ~np.isnan(temps)
-        corrected[known] = calibration.apply(imu.accel[known], temps[known])
-        rest = finite & np.isnan(temps)
-        corrected[rest] = calibration.apply(imu.accel[rest])
-    else:
-        corrected[finite] = calibration.apply(imu.accel[finite])
+    corrected, _ = corrected_accel(imu.accel, replay.temperatures_at_samples(), calibration)
     try:
         return write_corrected(replay.bag, destination, imu, corrected)
     except BagError as error:

@@ -7,7 +7,10 @@ only ever replaced whole, by an atomic rename, after everything succeeded.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -15,9 +18,20 @@ from ..core.calibration import MG, STANDARD_GRAVITY
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.fit import fit
 from ..core.models import MODELS, REFERENCE_MODELS
+from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC, plausibility_problem
+from ..core.settings import Settings
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
-from ..io.calibration_file import load_calibration, save_calibration, write_text_atomically
+from ..io.calibration_file import (
+    load_calibration,
+    read_regular_file,
+    safe_yaml_load,
+    save_calibration,
+    write_text_atomically,
+)
+from ..io.output_paths import check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
+from . import fleet as fleet_command
+from . import history as history_command
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -47,21 +61,43 @@ def _parser() -> argparse.ArgumentParser:
                          help="polynomial: order of the scale drift, 0..2 (default 1)")
     fit_cmd.add_argument("--segment-width", type=float, default=10.0,
                          help="segmented: segment width, degC (default 10)")
+    fit_cmd.add_argument("--segment-blend", action=argparse.BooleanOptionalAction, default=True,
+                         help="segmented: interpolate between the temperatures segments were learned at "
+                              "(default); --no-segment-blend: the seed paper's pick of the segment holding it")
     fit_cmd.add_argument("--reference-temperature", type=float, default=None,
                          help="T_ref, degC (default: the poses' median temperature)")
     fit_cmd.add_argument("--min-span", type=float, default=10.0, help="smallest temperature span to fit a model, degC")
     fit_cmd.add_argument("--output", "-o", required=True, help="calibration YAML to write")
 
-    replay_cmd = commands.add_parser("replay", help="recalibrate from rosbag2 recordings (sqlite3 or mcap)")
-    replay_cmd.add_argument("bags", nargs="+", help="rosbag2 directories")
+    replay_cmd = commands.add_parser(
+        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, CSV stream")
+    replay_cmd.add_argument("bags", nargs="+", metavar="RECORDING",
+                            help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
+                                 "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
+    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "csv"), default=None,
+                            help="the recordings' format (default: found from the path and content)")
+    replay_cmd.add_argument("--instance", type=int, default=None, metavar="N",
+                            help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
+                                 "(default: sensor_combined)")
+    replay_cmd.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                            help="CSV: unit of the time column (default: s for t, ns for t_ns)")
+    replay_cmd.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
+                            help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
+    replay_cmd.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
+                            help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
+    replay_cmd.add_argument("--poses-out", default=None, metavar="POSES.csv",
+                            help="write the still intervals found as a CSV pose table (also when the fit is refused; "
+                                 "readable by 'fit' and 'report --poses'; several recordings: a directory)")
     replay_cmd.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
     replay_cmd.add_argument("--temperature-topic", default=None,
                             help="sensor_msgs/Temperature topic (default: the only one)")
     replay_cmd.add_argument("--output", "-o", default=None,
                             help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
-    replay_cmd.add_argument("--corrected-bag", default=None,
-                            help="write a copy of the bag with the IMU accelerations corrected "
-                                 "(several bags: a directory)")
+    replay_cmd.add_argument("--corrected", "--corrected-bag", dest="corrected_bag", default=None, metavar="OUT",
+                            help="write a corrected copy in the recording's own format: a bag (directory or "
+                                 "file) with the IMU accelerations corrected, a CSV with ax,ay,az corrected; a ULog "
+                                 "gets a CSV of corrected samples (t_ns,ax,ay,az,gx,gy,gz,temperature) "
+                                 "(several recordings: a directory)")
     replay_cmd.add_argument("--report", default=None,
                             help="also write a report figure (PNG; several bags: a directory)")
     replay_cmd.add_argument("--params-file", default=None,
@@ -79,13 +115,16 @@ def _parser() -> argparse.ArgumentParser:
                             help="shortest still interval, s (-p static.min_hold_s:=...)")
     replay_cmd.add_argument("--k-sigma", type=float, default=None,
                             help="detector threshold over the noise floor (-p static.k_sigma:=...)")
-    replay_cmd.add_argument("--jobs", "-j", type=int, default=1, help="bags processed in parallel")
+    replay_cmd.add_argument("--jobs", "-j", type=int, default=1,
+                            help="bags processed in parallel, on a local Dask cluster of N worker processes")
 
     report_cmd = commands.add_parser("report", help="a figure of a calibration against its poses")
-    report_cmd.add_argument("calibration", help="calibration YAML")
+    report_cmd.add_argument("calibration", nargs="?", help="calibration YAML (not with --history)")
     source = report_cmd.add_mutually_exclusive_group(required=True)
     source.add_argument("--bag", help="rosbag2 whose static poses to show")
     source.add_argument("--poses", help="CSV of pose means (ax,ay,az[,temperature])")
+    source.add_argument("--history", help="calibration history (accel-calib fleet): one panel per sensor")
+    history_command.add_drift_options(report_cmd)
     report_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of the poses CSV")
     report_cmd.add_argument("--output", "-o", required=True, help="PNG to write")
 
@@ -94,12 +133,51 @@ def _parser() -> argparse.ArgumentParser:
     apply_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az in and out")
     apply_cmd.add_argument("input", help="CSV with ax,ay,az (other columns copied unchanged)")
     apply_cmd.add_argument("output", help="CSV to write")
+    fleet_command.add_parser(commands)
+    history_command.add_parser(commands)
     return parser
+
+
+def _check_finite(args) -> None:
+    """argparse's float() takes 'nan', 'inf' and '1e999': no number option may be one."""
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise CalibrationError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
+
+
+def _in_force(path) -> object:
+    """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
+    plausible under the default gates, else one line naming the problem."""
+    calibration = load_calibration(path)
+    defaults = Settings()
+    problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
+                                   scale_band=(defaults.scale_min, defaults.scale_max))
+    if problem is not None:
+        raise CalibrationError(f"{path}: implausible, not used ({problem})")
+    return calibration
+
+
+def _write_report(calibration, accel, temperatures, output, title: str) -> None:
+    """The report figure, rendered aside and then written like every output (whole, through symlinks,
+    keeping the old file's mode)."""
+    import tempfile
+
+    from ..io.report import write_report
+
+    with tempfile.TemporaryDirectory(prefix="accel-calib-report-") as scratch:
+        rendered = Path(scratch) / "report.png"
+        write_report(calibration, accel, temperatures, rendered, title=title)
+        write_bytes_atomically(output, rendered.read_bytes())
 
 
 def _fit(args) -> int:
     if not (args.gravity > 0 and args.gravity < 1e3):
         raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {args.gravity}")
+    low, high = PLAUSIBLE_TEMPERATURE_DEGC
+    if args.reference_temperature is not None and not low <= args.reference_temperature <= high:
+        raise CalibrationError(f"--reference-temperature must be a sensor temperature within {low:g}..{high:g} degC, "
+                               f"got {args.reference_temperature:g}")
+    check_outputs([("--output", args.output)], [args.poses])
     table = read_table(args.poses)
     if args.model in REFERENCE_MODELS and table.reference is None:
         raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
@@ -112,7 +190,7 @@ def _fit(args) -> int:
         options = TemperatureOptions(model=args.temperature_model, bias_order=args.bias_order,
                                      scale_order=args.scale_order,
                                      segment_width_degc=args.segment_width, min_span_degc=args.min_span,
-                                     reference_degc=args.reference_temperature)
+                                     reference_degc=args.reference_temperature, segment_blend=args.segment_blend)
     result = fit(
         accel,
         model=args.model,
@@ -132,7 +210,8 @@ def _fit(args) -> int:
 
 
 def _apply(args) -> int:
-    calibration = load_calibration(args.calibration)
+    check_outputs([("output", args.output)], [args.calibration, args.input])
+    calibration = _in_force(args.calibration)
     table = read_table(args.input)
     scale = UNIT_SCALE[args.units]
     if calibration.temperature is not None and table.temperature_degc is None:
@@ -155,8 +234,6 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
 
 def _replay_settings(args):
     """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
-    import yaml
-
     from ..bag.replay import ReplaySettings
     from ..core.settings import Settings, params_file_values
 
@@ -164,14 +241,12 @@ def _replay_settings(args):
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     values = {}
     if args.params_file:
+        raw = read_regular_file(args.params_file, 1 << 20, "--params-file", error=CalibrationError)
         try:
-            with open(args.params_file, encoding="utf-8") as stream:
-                document = yaml.safe_load(stream)
-        except OSError as error:
-            raise CalibrationError(f"cannot read --params-file {args.params_file}: {error.strerror}") from None
-        except yaml.YAMLError as error:
-            raise CalibrationError(f"--params-file {args.params_file}: not valid YAML "
-                                   f"({str(error).splitlines()[0]})") from None
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise CalibrationError(f"--params-file {args.params_file}: not a text file") from None
+        document = safe_yaml_load(text, f"--params-file {args.params_file}", error=CalibrationError)
         values.update(params_file_values(document, source=args.params_file))
         values.pop("calibration_file", None)  # the node's file; replay writes --output
         values.pop("output_reliability", None)
@@ -179,10 +254,7 @@ def _replay_settings(args):
         name, sep, text = item.partition(":=")
         if not sep:
             raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
-        try:
-            values[name.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise CalibrationError(f"-p {item}: value is not valid YAML") from None
+        values[name.strip()] = safe_yaml_load(text, f"-p {item}: value", error=CalibrationError)
     for flag, name in FLAG_PARAMETERS.items():
         value = getattr(args, flag)
         if value is not None:
@@ -191,20 +263,26 @@ def _replay_settings(args):
                           temperature_topic=args.temperature_topic)
 
 
-def _replay_one(bag, settings, output, corrected_bag, report, progress):
-    """Replay one bag and write what was asked; returns (summary text, calibration or None, error or None)."""
+def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
+    """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
+    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found."""
     from pathlib import Path
 
-    from ..bag.replay import replay_bag, write_corrected_bag
+    from ..bag.recording import write_corrected_copy
+    from ..bag.replay import replay_bag
+    from ..io.poses_out import poses_table_text
 
     try:
         replay = replay_bag(bag, settings, progress=progress, for_copy=corrected_bag is not None)
+        if poses_out:
+            write_text_atomically(poses_out, poses_table_text(replay.poses, replay.pose_status))
     except AccelCalibrationError as error:
         return None, None, str(error)
     if replay.calibration is None:
-        return None, None, f"{bag}: {replay.problem}"
+        return None, None, f"{bag}: {replay.problem}" + (f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
-    lines = [f"{bag}: {replay.messages} messages on {replay.imu_topic} over {replay.duration_s:.1f} s, "
+    unit = replay.recording.unit if replay.recording is not None else "messages"
+    lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
              replay.result.summary()]
     bad = {k: v for k, v in replay.counts.items() if v}
@@ -214,40 +292,74 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress):
         if output:
             save_calibration(calibration, output)
             lines.append(f"written {output}")
+        if poses_out:
+            lines.append(f"poses {poses_out}")
         if corrected_bag:
-            written = write_corrected_bag(replay, calibration, corrected_bag)
-            lines.append(f"corrected bag {corrected_bag} ({written} messages; {replay.imu_topic} corrected)")
+            lines.append(write_corrected_copy(replay, calibration, corrected_bag))
         if report:
-            from ..io.report import write_report
-
-            write_report(calibration, [p.accel_mps2 for p in replay.poses],
-                         [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
+            _write_report(calibration, [p.accel_mps2 for p in replay.poses],
+                          [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
             lines.append(f"report {report}")
-    except CalibrationError as error:
+    except AccelCalibrationError as error:
         return None, None, str(error)
     return "\n".join(lines), calibration, None
 
 
+def _bag_labels(bags) -> list[str]:
+    """A distinct name per bag for its outputs and its row: the bag's own name, or, where two bags share
+    it (a/flight, b/flight), as many parent directories as tell them apart (a_flight, b_flight)."""
+    parts = [Path(os.path.realpath(bag)).parts[::-1] for bag in bags]
+    labels = []
+    for own in parts:
+        depth = 1
+        while depth < len(own) and sum(other[:depth] == own[:depth] for other in parts) > 1:
+            depth += 1
+        labels.append("_".join(part.strip("/") or "root" for part in own[:depth][::-1]))
+    return labels
+
+
 def _replay(args) -> int:
-    from concurrent.futures import ProcessPoolExecutor
-    from pathlib import Path
+    import dataclasses
 
-    settings = _replay_settings(args)
+    settings = dataclasses.replace(_replay_settings(args), format=args.format, instance=args.instance,
+                                   time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
     several = len(args.bags) > 1
+    first_seen: dict[str, str] = {}
+    for bag in args.bags:
+        real = os.path.realpath(bag)
+        if real in first_seen:
+            raise CalibrationError(f"bag {bag} given twice (also as {first_seen[real]}): give each bag once")
+        first_seen[real] = bag
+    labels = _bag_labels(args.bags) if several else [Path(bag).name for bag in args.bags]
 
-    def target(option, bag, suffix):
+    def target(option, label, suffix):
         if option is None:
             return None
         if not several:
             return option
-        Path(option).mkdir(parents=True, exist_ok=True)
-        return str(Path(option) / (Path(bag).name + suffix))
+        return str(Path(option) / (label + suffix))
 
-    jobs = [(bag, settings, target(args.output, bag, ".yaml"), target(args.corrected_bag, bag, ""),
-             target(args.report, bag, ".png"), not several) for bag in args.bags]
-    if args.jobs > 1 and several:
-        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            outcomes = list(pool.map(_replay_one, *zip(*jobs)))
+    jobs = [(bag, settings, target(args.output, label, ".yaml"), target(args.corrected_bag, label, ""),
+             target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
+            for bag, label in zip(args.bags, labels)]
+    # Before any work: no output may be an input (a bag, a file inside one, the params file) or another output.
+    inputs = [*args.bags, args.params_file]
+    check_outputs([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected-bag", 3),
+                                                                    ("--report", 4), ("--poses-out", 6))],
+                  inputs, directories=("--corrected-bag",))
+    if several:  # the directories holding one output per bag
+        for flag, option in (("--output", args.output), ("--corrected-bag", args.corrected_bag),
+                             ("--report", args.report), ("--poses-out", args.poses_out)):
+            if option is not None:
+                check_outputs([(flag, option)], inputs, directories=(flag,))
+                try:
+                    Path(option).mkdir(parents=True, exist_ok=True)
+                except OSError as error:
+                    raise CalibrationError(f"cannot make output directory {option}: {error.strerror}") from None
+    if args.jobs > 1 and several:  # one way to run many: the fleet's local Dask cluster of --jobs processes
+        outcomes = fleet_command.map_on_local_cluster(
+            _replay_one, jobs, workers=args.jobs,  # a lost worker (out of memory, a signal): that bag only
+            failed=lambda job, reason: (None, None, f"{job[0]}: its replay process died ({reason})"))
     else:
         outcomes = [_replay_one(*job) for job in jobs]
     errors = [error for _, _, error in outcomes if error]
@@ -255,7 +367,7 @@ def _replay(args) -> int:
         if summary:
             print(summary)
     if several:
-        print(_comparison_table(args.bags, outcomes))
+        print(_comparison_table(labels, outcomes))
     for error in errors:
         print(f"{PROG}: error: {error}", file=sys.stderr)
     return 1 if errors else 0
@@ -287,10 +399,13 @@ def _comparison_table(bags, outcomes) -> str:
 
 
 def _report(args) -> int:
-    from ..io.calibration_file import load_calibration
-    from ..io.report import write_report
-
-    calibration = load_calibration(args.calibration)
+    if args.history:
+        check_outputs([("--output", args.output)], [args.history if "://" not in args.history else None])
+        return history_command.report_history(args)
+    if args.calibration is None:
+        raise CalibrationError("report needs a calibration YAML (or --history DB)")
+    check_outputs([("--output", args.output)], [args.calibration, args.bag, args.poses])
+    calibration = _in_force(args.calibration)
     if args.bag:
         from ..bag.replay import ReplayError, replay_bag
 
@@ -306,7 +421,7 @@ def _report(args) -> int:
         temps = None if table.temperature_degc is None else list(table.temperature_degc)
     if len(accel) == 0:
         raise CalibrationError("no poses to show")
-    write_report(calibration, accel, temps, args.output, title=str(args.calibration))
+    _write_report(calibration, accel, temps, args.output, title=str(args.calibration))
     print(f"report {args.output}")
     return 0
 
@@ -314,7 +429,9 @@ def _report(args) -> int:
 def main(argv=None) -> int:
     try:
         args = _parser().parse_args(argv)
-        return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report}[args.command](args)
+        _check_finite(args)
+        return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report,
+                "fleet": fleet_command.run, "history": history_command.run}[args.command](args)
     except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1

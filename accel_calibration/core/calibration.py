@@ -70,14 +70,19 @@ class Calibration:
         if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
             raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
         set_(self, "gravity", float(self.gravity))
-        if abs(np.linalg.det(self.matrix)) < 1e-12 * max(1.0, float(np.abs(self.matrix).max()) ** 3):
+        # Relative to each row's size, never absolute: raw counts at 256 000 LSB/g give M ~ 4e-5.
+        row_size = np.abs(self.matrix).max(axis=1)
+        if not np.all(row_size > 0) or abs(np.linalg.det(self.matrix / row_size[:, None])) < 1e-12:
             raise CalibrationError("matrix is singular: it would collapse the measurement")
         if self.quadratic is not None:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
         if self.temperature is not None and not isinstance(self.temperature, TemperatureModel):
             raise CalibrationError("temperature must be a TemperatureModel or None")
-        if self.temperature is not None and self.quadratic is not None:
-            raise CalibrationError("a temperature model cannot be combined with the quadratic (reference15) term")
+        if self.temperature is not None and self.temperature.kind == "polynomial" and self.quadratic is not None:
+            # The segmented drift is added after the whole room-temperature correction, the polynomial
+            # one is folded into M and b, which the quadratic's inversion does not allow.
+            raise CalibrationError("a polynomial temperature model cannot be combined with the quadratic "
+                                   "(reference15) term")
         if self.gyro_bias_radps is not None:
             set_(self, "gyro_bias_radps", _frozen(self.gyro_bias_radps, (3,), "gyro_bias_radps"))
         if self.bias_sigma is not None:
@@ -99,12 +104,19 @@ class Calibration:
         array = np.asarray(raw, dtype=float)
         if array.shape[-1:] != (3,) or array.ndim > 2:
             raise CalibrationError(f"raw accelerations must have shape (3,) or (N, 3), got {array.shape}")
-        if self.temperature is None or temperature is None:
+        if self.temperature is None:
             return apply_forward_inverse(array, self.bias, self.matrix, self.quadratic)
+        if temperature is None:
+            temperature = self.temperature.reference_degc
         rows = np.atleast_2d(array)
         temps = np.broadcast_to(np.asarray(temperature, dtype=float), (len(rows),))
         if not np.all(np.isfinite(temps)):
             raise CalibrationError("temperature must be finite")
+        if self.temperature.kind == "segmented":
+            # The paper's eq. 5: the room-temperature correction plus the segment's drift of the raw output.
+            room = apply_forward_inverse(rows, self.bias, self.matrix, self.quadratic)
+            segmented: np.ndarray = room + self.temperature.segment_drift(rows, temps)
+            return segmented.reshape(array.shape)
         drift, scale = self.temperature.bias_and_scale(temps)
         corrected: np.ndarray = ((rows - self.bias - drift) / scale) @ self.matrix.T
         return corrected.reshape(array.shape)
@@ -117,14 +129,24 @@ class Calibration:
 
     def terms_at(self, temperature_degc: float | None) -> tuple[float, ...]:
         """M_eff row-major and b_eff as 12 plain floats with a_true = M_eff (a_raw - b_eff) at this
-        temperature: what per-message code applies, recomputed only when the temperature moves."""
-        if self.temperature is None or temperature_degc is None:
+        temperature: what per-message code applies, recomputed only when the temperature moves.
+        Segmented: the room-temperature M and b (its drift is `drift_terms_at`)."""
+        if self.temperature is None or temperature_degc is None or self.temperature.kind == "segmented":
             m, b = self.correction_terms()
             return m + b
         drift, scale = self.temperature.bias_and_scale(np.array([float(temperature_degc)]))
         matrix = self.matrix / scale[0]  # M diag(1/scale)
         bias = self.bias + drift[0]
         return tuple(float(v) for v in matrix.ravel()) + tuple(float(v) for v in bias)
+
+    def drift_terms_at(self, temperature_degc: float | None) -> tuple[float, ...] | None:
+        """Segmented model: its (l, m, n) rows per axis at this temperature (the reference temperature when
+        None) as 9 plain floats, sigma_i = l_i a_raw_i^2 + m_i a_raw_i + n_i added after M (a_raw - b).
+        None for the other models."""
+        if self.temperature is None or self.temperature.kind != "segmented":
+            return None
+        at = self.temperature.reference_degc if temperature_degc is None else float(temperature_degc)
+        return tuple(float(v) for v in self.temperature.segment_terms(np.array([at]))[0].ravel())
 
     def correction_terms(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """M row-major and b as plain floats, for per-message code where numpy costs more than it saves."""
@@ -166,8 +188,11 @@ def _same_temperature(a: TemperatureModel | None, b: TemperatureModel | None) ->
         a.kind == b.kind
         and a.reference_degc == b.reference_degc
         and a.range_degc == b.range_degc
+        and a.segment_poses == b.segment_poses
+        and a.segment_blend == b.segment_blend
         and all(
             np.array_equal(getattr(a, name), getattr(b, name))
-            for name in ("bias_coefficients", "scale_coefficients", "segment_edges_degc", "segment_coefficients")
+            for name in ("bias_coefficients", "scale_coefficients", "segment_bounds_degc",
+                         "segment_temperatures_degc", "segment_coefficients")
         )
     )

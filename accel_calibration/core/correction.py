@@ -1,6 +1,7 @@
 """The correction in force, as one immutable value of plain floats: what per-message code applies.
 
-Built from a Calibration at one temperature (bias and scale drift folded into M and b), with the
+Built from a Calibration at one temperature (polynomial bias and scale drift folded into M and b; the
+segmented model's drift of the raw output as its (l, m, n) per axis at that temperature), with the
 reference15 quadratic term, the gyro bias and the REP-145 covariance; rebuilt when the calibration
 or the temperature changes and swapped whole, so a message is corrected by one consistent set.
 """
@@ -34,7 +35,8 @@ def rep145_covariance(matrix: np.ndarray, noise_var_per_axis: float | None, bias
 
 @dataclass(frozen=True)
 class Correction:
-    """a_true = M (a_raw - b), then the reference15 quadratic inverted by fixed-point iteration."""
+    """a_true = M (a_raw - b), then the reference15 quadratic inverted by fixed-point iteration, then the
+    segmented model's drift l a_raw^2 + m a_raw + n per axis added (the paper's eq. 5)."""
 
     matrix: Floats9  # row-major M at `temperature_degc`
     bias: Floats3
@@ -43,6 +45,7 @@ class Correction:
     covariance: Floats9 | None = None
     temperature_degc: float | None = None  # where the temperature terms were evaluated
     temperature_clamped: bool = False  # outside the calibrated range: evaluated at its edge
+    drift: Floats9 | None = None  # segmented: l_x, l_y, l_z (s^2/m), m_x, m_y, m_z (1), n_x, n_y, n_z (m/s^2)
 
     @classmethod
     def build(cls, calibration: Calibration | None, temperature_degc: float | None = None,
@@ -67,6 +70,7 @@ class Correction:
             covariance=None if cov is None else _floats9(cov),
             temperature_degc=temperature_degc if calibration.temperature is not None else None,
             temperature_clamped=clamped,
+            drift=_floats9_or_none(calibration.drift_terms_at(temperature_degc)),
         )
 
     def apply(self, ax: float, ay: float, az: float) -> Floats3:
@@ -77,22 +81,29 @@ class Correction:
         lx = m00 * x + m01 * y + m02 * z
         ly = m10 * x + m11 * y + m12 * z
         lz = m20 * x + m21 * y + m22 * z
-        if self.quadratic is None:
+        if self.quadratic is not None:
+            # a_raw = b + M^-1 a + q a^2: a = M (a_raw - b) - M (q a^2); q a ~ 1e-3, four steps reach 1e-12.
+            q0, q1, q2 = self.quadratic
+            cx, cy, cz = lx, ly, lz
+            for _ in range(4):
+                px, py, pz = q0 * cx * cx, q1 * cy * cy, q2 * cz * cz
+                cx = lx - (m00 * px + m01 * py + m02 * pz)
+                cy = ly - (m10 * px + m11 * py + m12 * pz)
+                cz = lz - (m20 * px + m21 * py + m22 * pz)
+            lx, ly, lz = cx, cy, cz
+        if self.drift is None:
             return lx, ly, lz
-        # a_raw = b + M^-1 a + q a^2: a = M (a_raw - b) - M (q a^2); q a ~ 1e-3, four steps reach 1e-12.
-        q0, q1, q2 = self.quadratic
-        cx, cy, cz = lx, ly, lz
-        for _ in range(4):
-            px, py, pz = q0 * cx * cx, q1 * cy * cy, q2 * cz * cz
-            cx = lx - (m00 * px + m01 * py + m02 * pz)
-            cy = ly - (m10 * px + m11 * py + m12 * pz)
-            cz = lz - (m20 * px + m21 * py + m22 * pz)
-        return cx, cy, cz
+        l0, l1, l2, s0, s1, s2, n0, n1, n2 = self.drift
+        return (lx + (l0 * ax + s0) * ax + n0, ly + (l1 * ay + s1) * ay + n1, lz + (l2 * az + s2) * az + n2)
 
 
 def _floats3(values: object) -> Floats3:
     a, b, c = (float(v) for v in np.asarray(values, dtype=float).ravel())
     return a, b, c
+
+
+def _floats9_or_none(values: object) -> Floats9 | None:
+    return None if values is None else _floats9(values)
 
 
 def _floats9(values: object) -> Floats9:

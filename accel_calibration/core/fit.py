@@ -7,20 +7,27 @@ False, message saying what is missing), never raised: finite poses of the right 
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+import functools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.special import erfc
+from scipy.stats import f as f_distribution
 
 from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
 from .coverage import (
     CONDITION_LIMIT,
     SAME_DIRECTION_DEG,
+    SigmaBounds,
+    Uncertainty,
     angular_spread_deg,
     describe_missing,
+    inverse_normal,
     missing_directions,
+    next_orientation,
     scaled_condition_number,
 )
 from .errors import CalibrationError
@@ -32,7 +39,16 @@ from .temperature_models import (
     TemperatureModel,
     TemperatureOptions,
     ThermalSphereModel,
-    fit_segmented_drift,
+    blend_weights,
+    describe_needs,
+    known_blended_drift,
+    known_segment_drift,
+    room_temperature_poses,
+    segment_bounds,
+    segment_keys,
+    segment_needs,
+    sphere_blended_drift,
+    sphere_segment_drift,
     temperature_span_problem,
 )
 
@@ -49,6 +65,43 @@ class Sigma:
 
 
 @dataclass(frozen=True)
+class OutlierOptions:
+    """When fit() leaves a pose out as an outlier: its residual against the fit of the other poses (its
+    deleted residual) exceeds `threshold_mg` and is as improbable as `k_sigma` Gaussian sigmas given
+    the spread those poses predict for it (their residual scatter, floored at the poses' own noise,
+    with their degrees of freedom and the pose's leverage). At most `max_fraction` of the poses are
+    left out, one at a time, and a pose only when the others still determine the model with a degree
+    of freedom. threshold_mg 0 turns it off."""
+
+    threshold_mg: float = 5.0  # well above the few-mg residuals of a clean MEMS session
+    k_sigma: float = 5.0
+    max_fraction: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name, low in (("threshold_mg", 0.0), ("k_sigma", 1.0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < low:
+                raise CalibrationError(f"outlier {name} must be a number >= {low:g}, got {value!r}")
+        if not (isinstance(self.max_fraction, (int, float)) and 0.0 <= self.max_fraction <= 0.5):
+            raise CalibrationError(f"outlier max_fraction must be within 0..0.5, got {self.max_fraction!r}")
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A pose fit() left out: it does not lie on the sphere (or its reference direction) with the rest."""
+
+    index: int  # into the poses given to fit()
+    residual_mg: float  # against the fit of the other poses: |a| - g (sphere), |a - g ref| (reference)
+    orientation: str  # the face it is nearest, e.g. "x down"
+    off: str = "the sphere"
+
+    def describe(self, number: int | None = None) -> str:
+        """`number`: how the caller counts its poses (default: the index into fit()'s input)."""
+        return (f"pose {self.index if number is None else number} ({self.orientation}, "
+                f"{abs(self.residual_mg):.1f} mg off {self.off}) left out as an outlier")
+
+
+@dataclass(frozen=True)
 class FitResult:
     success: bool
     message: str
@@ -56,21 +109,30 @@ class FitResult:
     iterations: int = 0
     calibration: Calibration | None = None
     sigma: Sigma | None = None
-    residuals_mg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residuals_mg: np.ndarray = field(default_factory=lambda: np.zeros(0))  # of the poses fitted
     cost: float = float("nan")
     condition_number: float = float("nan")
     missing_directions: tuple[str, ...] = ()
-    poses: int = 0
+    poses: int = 0  # fitted (outliers not counted)
+    outliers: tuple[Outlier, ...] = ()  # poses left out, by their index into the input
+    uncertainty: Uncertainty | None = None  # sphere models: what the sigma gate and its advice use
+
+    @property
+    def outlier_indices(self) -> tuple[int, ...]:
+        return tuple(o.index for o in self.outliers)
 
     def summary(self) -> str:
         """A readable multi-line summary: parameters with +-sigma and residuals in mg."""
         lines = [f"model {self.model}: {'OK' if self.success else 'FAILED'} - {self.message}"]
+        lines += [o.describe() for o in self.outliers]
         if self.calibration is None:
             return "\n".join(lines)
         c, s = self.calibration, self.sigma
         # fit() builds every result that has a calibration with its sigma and quality.
         assert s is not None and c.quality is not None
-        lines.append(f"poses {self.poses}, iterations {self.iterations}, condition number {self.condition_number:.3g}")
+        left_out = f" (and {len(self.outliers)} left out)" if self.outliers else ""
+        lines.append(f"poses {self.poses}{left_out}, iterations {self.iterations}, "
+                     f"condition number {self.condition_number:.3g}")
         lines.append(
             "bias b (raw units; m/s^2 for SI input):  "
             + "  ".join(f"{AXES[i]} {c.bias[i]:+.6g} ± {s.bias[i]:.2g}" for i in range(3))
@@ -100,8 +162,16 @@ class FitResult:
                 for k, row in enumerate(t.scale_coefficients, start=1):
                     lines.append(f"  scale drift dT^{k}: " + "  ".join(f"{v:+.3g}" for v in row) + f" /degC^{k}")
             else:
-                width = t.segment_edges_degc[1] - t.segment_edges_degc[0]
-                lines.append(f"  {len(t.segment_coefficients)} segments of {width:g} degC")
+                lines.append(f"  {len(t.segment_coefficients)} segments, "
+                             + ("blended between the temperatures they were learned at" if t.segment_blend
+                                else "the one holding the temperature picked")
+                             + "; drift l a^2 + m a + n per axis (a raw m/s^2): l mg/g^2, m ppm, n mg")
+                for (lo, hi), at, poses, (quad, lin, offset) in zip(
+                        t.segment_bounds_degc, t.segment_temperatures_degc, t.segment_poses, t.segment_coefficients):
+                    lines.append(f"  {lo:g}..{hi:g} degC (at {at:.1f}, {poses} poses): l "
+                                 + " ".join(f"{v * STANDARD_GRAVITY**2 / MG:+.3g}" for v in quad) + "  m "
+                                 + " ".join(f"{v * 1e6:+.0f}" for v in lin) + "  n "
+                                 + " ".join(f"{v / MG:+.2f}" for v in offset))
         if self.missing_directions:
             lines.append("not covered (fit still observable): " + ", ".join(self.missing_directions))
         return "\n".join(lines)
@@ -176,6 +246,8 @@ def fit(
     frame_id: str = "",
     temperature_model: str = "none",
     temperature_options: TemperatureOptions | None = None,
+    outlier_options: OutlierOptions | None = None,
+    pose_sigma_mps2: ArrayLike | None = None,
 ) -> FitResult:
     """Fit a calibration to static pose means.
 
@@ -183,18 +255,38 @@ def fit(
     unit works (counts too); the corrected output is in m/s^2 scaled to `gravity`.
     reference: N x 3 directions of the gravity reaction in the sensor frame (reference models only).
     initial: warm start for the sphere models (e.g. the calibration in force).
-    temperature_model: "none", "polynomial" or "segmented" (sphere models; needs temperature_degc);
-    temperature_options: orders, segment width, minimum span, T_ref (TemperatureOptions).
+    temperature_model: "none", "polynomial" (sphere models) or "segmented" (any model; with the reference
+    models each segment's drift is observed directly); needs temperature_degc;
+    temperature_options: orders, segment width, minimum span, T_ref, blend (TemperatureOptions).
+    outlier_options: when a pose off the sphere is left out (OutlierOptions; default on, threshold 5 mg);
+    the result names it (`outliers`) and is then the fit of the other poses.
+    pose_sigma_mps2: 1-sigma noise of each pose mean (N, raw units), the floor under the outlier test's
+    scale; taken from the poses' covariance and sample count when Pose objects are given.
     """
+    if pose_sigma_mps2 is None and isinstance(accel_mps2, (list, tuple)) and accel_mps2 \
+            and all(isinstance(p, Pose) for p in accel_mps2):
+        pose_sigma_mps2 = pose_mean_sigma(accel_mps2)
     accel, gravity, temps, ref = _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial)
+    outlier_options = OutlierOptions() if outlier_options is None else outlier_options
+    if not isinstance(outlier_options, OutlierOptions):
+        raise CalibrationError("outlier_options must be an OutlierOptions or None")
+    pose_sigma = None
+    if pose_sigma_mps2 is not None:
+        try:
+            pose_sigma = np.array(pose_sigma_mps2, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            pose_sigma = np.zeros(0)
+        if pose_sigma.shape != (len(accel),) or not np.all(np.isfinite(pose_sigma)) or np.any(pose_sigma < 0):
+            raise CalibrationError(f"pose_sigma_mps2 must be {len(accel)} finite numbers >= 0 (one per pose)")
     if temperature_model not in TEMPERATURE_MODELS:
         raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
                                f"got {temperature_model!r}")
     if temperature_model != "none":
         if temps is None:
             raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
-        if model in REFERENCE_MODELS:
-            raise CalibrationError("temperature models fit with the sphere models (six, sphere9)")
+        if model in REFERENCE_MODELS and temperature_model == "polynomial":
+            raise CalibrationError("the polynomial temperature model fits with the sphere models (six, sphere9); "
+                                   "with reference directions use the segmented one")
         options = temperature_options or TemperatureOptions(model=temperature_model)
         if options.model != temperature_model:
             options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
@@ -202,16 +294,214 @@ def fit(
         options = None
     # The arguments are good: from here on every problem is the data's, reported in the result. Overflow
     # and the like are expected on wild data (and checked for), so numpy is not to warn about them.
+    def fit_poses(keep: np.ndarray | None) -> FitResult:
+        """The fit of the poses kept (all when None): what the outlier test compares against."""
+        a = accel if keep is None else accel[keep]
+        t = temps if temps is None or keep is None else temps[keep]
+        r = ref if ref is None or keep is None else ref[keep]
+        if options is not None:
+            assert t is not None  # checked above: a temperature model needs temperature_degc
+            result = _fit_with_temperature(a, t, model, gravity, options, initial, frame_id, r)
+        else:
+            result = _fit_without_temperature(a, model, gravity, t, r, initial, frame_id)
+        return _with_uncertainty(result, a, t, gravity)
+
     try:
         with np.errstate(all="ignore"):
-            if options is not None:
-                assert temps is not None  # checked above: a temperature model needs temperature_degc
-                return _fit_with_temperature(accel, temps, model, gravity, options, initial, frame_id)
-            return _fit_without_temperature(accel, model, gravity, temps, ref, initial, frame_id)
+            return _leave_out_outliers(fit_poses, accel, temps, ref, gravity, outlier_options, pose_sigma)
     except (ArithmeticError, np.linalg.LinAlgError, CalibrationError, ValueError) as error:
         text = error.args[-1] if error.args and isinstance(error.args[-1], str) else str(error)
         reason = text if isinstance(error, CalibrationError) else f"{type(error).__name__}: {text}"
         return _numerical_failure(accel, temps, reason, model=model)
+
+
+def pose_mean_sigma(poses: Sequence[Pose]) -> np.ndarray:
+    """1-sigma noise of each pose's mean (raw units): the rms over axes of its samples' spread over
+    sqrt(samples); 0 where a pose carries no usable covariance."""
+    out = np.zeros(len(poses))
+    for i, pose in enumerate(poses):
+        with np.errstate(all="ignore"):
+            value = float(np.sqrt(np.trace(np.asarray(pose.accel_cov, dtype=float)) / 3.0 / max(int(pose.samples), 1)))
+        out[i] = value if np.isfinite(value) else 0.0
+    return out
+
+
+# The outlier test refits without at most this many candidates (largest first) per pose left out: a
+# pose the model cannot do without (leverage near 1) looks like one until the refit without it fails.
+OUTLIER_CANDIDATES = 3
+
+
+def _leave_out_outliers(fit_poses: Callable[[np.ndarray | None], FitResult], accel: np.ndarray,
+                        temps: np.ndarray | None, ref: np.ndarray | None, gravity: float, options: OutlierOptions,
+                        pose_sigma: np.ndarray | None) -> FitResult:
+    """The fit of all poses, or, when a pose does not lie on the sphere (reference) with the rest, the fit
+    without it, naming it. One pose at a time: candidates are poses whose linearised deleted residual
+    r / (1 - h) exceeds the threshold, the largest standardised residual first; a candidate is left out
+    only if the refit without it succeeds and the pose stands out against that refit (its deleted
+    residual is beyond k_sigma in probability, judged with the refit's residual scale and degrees of
+    freedom; see _stands_out). Two candidates that hide each other are tried together. Clean data:
+    the first fit, untouched."""
+    first = fit_poses(None)
+    n = len(accel)
+    budget = int(options.max_fraction * n)
+    if options.threshold_mg <= 0 or budget < 1 or not first.success or first.calibration is None:
+        return first
+    keep = np.ones(n, dtype=bool)
+    current = first
+
+    def without(indices: list[int]) -> tuple[FitResult, np.ndarray] | None:
+        trial_keep = keep.copy()
+        trial_keep[indices] = False
+        trial = fit_poses(trial_keep)
+        if not trial.success or trial.calibration is None:
+            return None  # the others alone do not determine the model: the poses stay
+        if _stands_out(trial.calibration, trial_keep, indices, accel, temps, ref, options, pose_sigma):
+            return trial, trial_keep
+        return None
+
+    try:
+        while n - int(keep.sum()) < budget:
+            assert current.calibration is not None  # only successful fits are kept
+            residuals, leverage = _residuals_and_leverage(current.calibration, keep, accel, temps, ref)
+            kept = np.flatnonzero(keep)
+            h = np.clip(leverage[kept], 0.0, 1.0 - 1e-9)
+            estimate = np.abs(residuals[kept]) / (1.0 - h)
+            standardised = np.abs(residuals[kept]) / np.sqrt(1.0 - h)
+            order = [int(kept[i]) for i in np.argsort(-standardised)
+                     if estimate[i] > options.threshold_mg][:OUTLIER_CANDIDATES]
+            accepted = None
+            for index in order:
+                accepted = without([index])
+                if accepted is not None:
+                    break
+            if accepted is None and len(order) >= 2 and n - int(keep.sum()) + 2 <= budget:
+                accepted = without(order[:2])
+            if accepted is None:
+                break
+            current, keep = accepted
+    except (ArithmeticError, np.linalg.LinAlgError, CalibrationError, ValueError):
+        pass  # wild numbers: keep what was established so far
+    if keep.all():
+        return first
+    calibration = current.calibration
+    assert calibration is not None
+    left_out = np.flatnonzero(~keep)
+    residuals = _pose_residuals_mg(calibration, accel, temps, ref)
+    corrected = calibration.apply(accel[left_out], None if temps is None else temps[left_out])
+    off = "the sphere" if ref is None else "its reference direction"
+    outliers = tuple(Outlier(int(i), float(residuals[i]), _nearest_face(v), off) for i, v in zip(left_out, corrected))
+    return replace(current, outliers=outliers)
+
+
+def _stands_out(calibration: Calibration, keep: np.ndarray, indices: list[int], accel: np.ndarray,
+                temps: np.ndarray | None, ref: np.ndarray | None, options: OutlierOptions,
+                pose_sigma: np.ndarray | None) -> bool:
+    """Whether each pose left out (`indices`) is an outlier against the fit of the poses `keep`: its
+    residual d exceeds threshold_mg, and d^2 / (m s^2 (1 + h)) exceeds the F(m, dof) quantile with the
+    tail probability of k_sigma Gaussian sigmas. s^2: the fit's residual variance over its degrees of
+    freedom (floored at the poses' own noise), h: the growth of the pose's prediction variance, m: 1 on
+    the sphere, 3 with a reference direction (a residual vector). With few degrees of freedom s is
+    poorly known and the quantile is correspondingly large."""
+    residuals, leverage = _residuals_and_leverage(calibration, keep, accel, temps, ref)
+    components = 1 if ref is None else 3
+    temperature = calibration.temperature
+    extra = 0 if temperature is None else (temperature.bias_coefficients.size + temperature.scale_coefficients.size
+                                           + temperature.segment_coefficients.size)
+    if ref is None:
+        unknowns = parameter_count(calibration.model) + extra
+    else:  # per axis: bias, a row of S (and q), and the axis' share of the temperature terms
+        unknowns = (5 if calibration.quadratic is not None else 4) + extra // 3
+    dof = int(keep.sum()) - unknowns
+    if dof < 1:
+        return False
+    variance = float(residuals[keep] @ residuals[keep]) / (components * dof)
+    if pose_sigma is not None:
+        gain = float(np.mean(np.linalg.norm(calibration.matrix, axis=1)))
+        variance = max(variance, (float(np.median(pose_sigma[keep])) * gain / MG) ** 2)
+    critical = _critical_ratio(options.k_sigma, components, components * dof)
+    for index in indices:
+        d = abs(float(residuals[index]))
+        spread = components * variance * (1.0 + max(float(leverage[index]), 0.0))
+        if not (d > options.threshold_mg and d * d > critical * spread):
+            return False
+    return True
+
+
+@functools.lru_cache(maxsize=256)
+def _critical_ratio(k_sigma: float, components: int, dof: int) -> float:
+    """F(components, dof) quantile with the upper tail probability of k_sigma Gaussian sigmas (two-sided)."""
+    return float(f_distribution.ppf(1.0 - erfc(k_sigma / np.sqrt(2.0)), components, dof))
+
+
+def _residuals_and_leverage(calibration: Calibration, keep: np.ndarray, accel: np.ndarray,
+                            temps: np.ndarray | None, ref: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Against one fit (of the poses `keep`): every pose's residual (mg) and leverage x (X_k^T X_k)^-1 x^T
+    with X_k the design (Jacobian) rows of the poses kept: for a pose kept its leverage, for a pose
+    left out how much its prediction's variance exceeds one pose's. The reference models' per-axis
+    designs differ (reference15): the largest."""
+    residuals = _pose_residuals_mg(calibration, accel, temps, ref)
+    if ref is None:
+        designs = [_sphere_rows(calibration, accel, temps)]
+    else:
+        true = calibration.gravity * ref
+        base = np.column_stack([np.ones(len(ref)), true])
+        designs = [np.column_stack([base, true[:, j] ** 2]) for j in range(3)] \
+            if calibration.quadratic is not None else [base]
+    leverage = np.zeros(len(accel))
+    for design in designs:
+        inverse = inverse_normal(design[keep].T @ design[keep])
+        leverage = np.maximum(leverage, np.einsum("ij,jk,ik->i", design, inverse, design))
+    return residuals, leverage
+
+
+def _pose_residuals_mg(calibration: Calibration, accel: np.ndarray, temps: np.ndarray | None,
+                       ref: np.ndarray | None) -> np.ndarray:
+    """Each pose's residual against a calibration: |a| - g on the sphere, |a - g ref| with a reference."""
+    corrected = calibration.apply(accel, temps)
+    if ref is None:
+        result: np.ndarray = (np.linalg.norm(corrected, axis=1) - calibration.gravity) / MG
+    else:
+        result = np.linalg.norm(corrected - calibration.gravity * ref, axis=1) / MG
+    return result
+
+
+def _sphere_rows(calibration: Calibration, accel: np.ndarray, temps: np.ndarray | None) -> np.ndarray:
+    """Jacobian rows of the sphere residuals at a calibration's b and M, one per pose. With a temperature
+    model, of the poses corrected to the reference temperature (the temperature terms left out)."""
+    model = SphereModel(calibration.model)
+    c = calibration
+    if c.temperature is not None and temps is not None:
+        accel = c.bias + np.linalg.solve(c.matrix, c.apply(accel, temps).T).T
+    _, rows = model.residual_and_jacobian(model.pack(c.bias, c.matrix), accel, c.gravity)
+    return rows
+
+
+def _nearest_face(corrected: np.ndarray) -> str:
+    axis = int(np.argmax(np.abs(corrected)))
+    return f"{AXES[axis]} {'up' if corrected[axis] > 0 else 'down'}"
+
+
+def _with_uncertainty(result: FitResult, accel: np.ndarray, temps: np.ndarray | None, gravity: float) -> FitResult:
+    """A sphere fit with its Uncertainty (normal matrix at the solution, residual variance): what the
+    sigma gate's advice adds a candidate pose to."""
+    c = result.calibration
+    if result.uncertainty is not None or c is None or c.model not in SPHERE_MODELS:
+        return result
+    rows = _sphere_rows(c, accel, temps)
+    extra = 0 if c.temperature is None else 3 * (len(c.temperature.bias_coefficients)
+                                                   + len(c.temperature.scale_coefficients))
+    return replace(result, uncertainty=_uncertainty(c.model, c.bias, c.matrix, gravity, rows,
+                                                    result.residuals_mg * MG, rows.shape[1] + extra))
+
+
+def _uncertainty(model: str, bias: np.ndarray, matrix: np.ndarray, gravity: float, rows: np.ndarray,
+                 residuals: np.ndarray, size: int) -> Uncertainty | None:
+    dof = len(residuals) - size
+    variance = float(residuals @ residuals) / dof if dof > 0 else float("nan")
+    normal = rows.T @ rows
+    if not np.all(np.isfinite(normal)):
+        return None
+    return Uncertainty(model, bias, matrix, gravity, normal, variance)
 
 
 # Beyond this, sums of squares of the poses (cost, normal matrix) overflow double precision.
@@ -344,10 +634,16 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     # Observability first: a fit that wanders along an unobservable direction also fails to converge,
     # and "turn x down" helps the person more than "did not converge".
     if condition > CONDITION_LIMIT:
+        # The normal matrix still says which orientation would pin down what is loose.
+        bias_now, matrix_now = model.unpack(solution.x)
+        uncertainty = _uncertainty(name, bias_now, matrix_now, gravity, solution.jacobian, solution.residuals,
+                                   model.size)
+        advice = None if uncertainty is None else next_orientation(uncertainty, SigmaBounds())
         return FitResult(
             False,
             f"poses do not constrain model {name} (condition number {condition:.3g} > {CONDITION_LIMIT:.0g}): "
-            + describe_missing(list(missing)),
+            + describe_missing(list(missing)) + ("" if advice is None else f"; {advice.text} would help most"),
+            uncertainty=uncertainty,
             **common,
         )
     if n <= model.size:
@@ -419,7 +715,9 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
     if broken:
         return _numerical_failure(accel, None, f"{broken} not finite", model=name, condition_number=condition,
                                   missing_directions=missing)
-    if not abs(np.linalg.det(forward)) >= 1e-12 * np.power(max(1.0, float(np.abs(forward).max())), 3.0):
+    # Singular relative to its own rows (as Calibration checks): data in any units (counts, 1e-6 g) fit.
+    row_size = np.linalg.norm(forward, axis=1)
+    if not (np.all(row_size > 0) and abs(np.linalg.det(forward / row_size[:, None])) >= 1e-12):
         return _numerical_failure(accel, None, "the fitted scale matrix is singular", model=name,
                                   condition_number=condition, missing_directions=missing)
     matrix = np.linalg.inv(forward)
@@ -469,51 +767,132 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
     )
 
 
-def _fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravity: float,
-                          options: TemperatureOptions, initial: Calibration | None, frame_id: str) -> FitResult:
+def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None, name: str, gravity: float,
+                   options: TemperatureOptions, initial: Calibration | None, frame_id: str) -> FitResult:
+    """The seed paper's segmented model: the room-temperature calibration from the poses near T_ref (else
+    near the temperature most poses share), then per segment the drift (l, m, n) of each axis against it:
+    observed directly with known orientations (a linear fit per axis), on the sphere without."""
     n = len(accel)
-    if n < parameter_count(name):
-        return FitResult(False, f"model {name} needs at least {parameter_count(name)} poses, got {n}", name, poses=n)
+    width = options.segment_width_degc
+    low_degc, high_degc = float(temps.min()), float(temps.max())
+    # Each segment needs several poses: more segments than poses means a corrupt temperature, and
+    # would have the loop below lay out that many segments.
+    spanned = segment_keys(np.array([high_degc]), width)[0] - segment_keys(np.array([low_degc]), width)[0] + 1
+    if not spanned <= n:
+        return FitResult(False, f"temperatures {low_degc:.4g}..{high_degc:.4g} degC span {spanned:.3g} segments of "
+                         f"{width:g} degC, more than the {n} poses can fill: check the temperatures for a corrupt "
+                         "value", name, poses=n)
+    keys = segment_keys(temps, width)
+    occupied = np.unique(keys)
+    in_base = room_temperature_poses(temps, options)
+    band = f"within {width / 4:g} degC of " + (f"{options.reference_degc:g} degC" if options.reference_degc is not None
+                                                 else "the room temperature")
+    if not in_base.any():
+        return FitResult(False, f"no poses {band}: hold the room-temperature poses there, or give another "
+                         "reference temperature", name, poses=n)
+    reference_degc = float(temps[in_base].mean())
+    base_key = float(segment_keys(np.array([reference_degc]), width)[0])
+    base = fit(accel[in_base], model=name, gravity=gravity, reference=None if ref is None else ref[in_base],
+               initial=initial, frame_id=frame_id)
+    if not base.success or base.calibration is None:  # a successful fit always carries its calibration
+        return FitResult(False, f"room-temperature calibration from the {int(in_base.sum())} poses at "
+                         f"{reference_degc:.1f} degC: {base.message}", name, poses=n,
+                         missing_directions=base.missing_directions)
+    room = base.calibration
+    corrected = room.apply(accel)
+    known = ref is not None
+    if known:
+        assert ref is not None
+        directions, true = ref, gravity * ref
+    else:
+        directions, true = corrected / np.linalg.norm(corrected, axis=1)[:, None], None
+    bounds, anchors, coefficients, learned_poses, refused = [], [], [], [], []
+    learned = np.zeros(n, dtype=bool)
+    for key in occupied:
+        inside = keys == key
+        lo, hi = segment_bounds(float(key), width)
+        here = f"segment {lo:g}..{hi:g} degC ({int(inside.sum())} poses at {float(temps[inside].mean()):.1f} degC)"
+        needs = segment_needs(directions[inside], known, options.min_poses_per_segment)
+        if key == base_key and (needs or (not known and in_base[inside].all())):
+            # The room-temperature calibration stands for its own segment: no drift against itself (on the
+            # sphere, poses spent on the calibration have none left to show; with known orientations the
+            # quadratic is kept when determined).
+            q = np.zeros((3, 3))
+        elif needs:
+            refused.append(f"{here} cannot be determined: hold {describe_needs(needs)}")
+            continue
+        elif true is not None:
+            q, _ = known_segment_drift(accel[inside], true[inside] - corrected[inside])
+        else:
+            solution = sphere_segment_drift(accel[inside], corrected[inside], gravity)
+            if not solution.success or _not_finite(drift=solution.x):
+                refused.append(f"{here}: its drift fit failed ({solution.message})")
+                continue
+            q = solution.x.reshape(3, 3)
+        bounds.append((lo, hi))
+        anchors.append(float(temps[inside].mean()))
+        coefficients.append(q)
+        learned_poses.append(int(inside.sum()))
+        learned |= inside
+    if refused and options.every_segment:
+        return FitResult(False, "; ".join(refused), name, poses=n, missing_directions=base.missing_directions)
+    if options.segment_blend and len(bounds) > 1:
+        # Each segment alone is the paper's fit, and the least squares of the picked model. The blended one
+        # is fitted as applied: every pose at its own temperature, between its neighbouring segments (the
+        # same answer when each segment's poses share one temperature).
+        weights = blend_weights(temps[learned], np.array(anchors))
+        if true is not None:
+            coefficients = list(known_blended_drift(accel[learned], (true - corrected)[learned], weights))
+        else:
+            free = np.array([not (q == 0).all() for q in coefficients])  # the room segment's drift stays zero
+            solution = sphere_blended_drift(accel[learned], corrected[learned], gravity, weights,
+                                            np.array(coefficients), free)
+            if not solution.success or _not_finite(drift=solution.x):
+                return FitResult(False, f"the blended segment fit failed ({solution.message}); "
+                                 "fit with segment_blend off", name, poses=n)
+            joint = np.array(coefficients)
+            joint[free] = solution.x.reshape(-1, 3, 3)
+            coefficients = list(joint)
+    if _not_finite(segment_coefficients=np.array(coefficients)):
+        return _numerical_failure(accel, temps, "segment drift coefficients not finite", model=name)
+    temperature = TemperatureModel(
+        "segmented", reference_degc, (float(temps[learned].min()), float(temps[learned].max())),
+        segment_bounds_degc=np.array(bounds), segment_temperatures_degc=np.array(anchors),
+        segment_coefficients=np.array(coefficients),
+        segment_poses=tuple(learned_poses), segment_blend=options.segment_blend)
+    calibration = room.replace(temperature=temperature, reference_temperature_degc=temperature.reference_degc)
+    # Judged on the poses the model describes; those of a segment not learned yet are reported, not fitted.
+    fitted = calibration.apply(accel[learned], temps[learned])
+    if true is not None:
+        residuals_mg = np.linalg.norm(fitted - true[learned], axis=1) / MG
+    else:
+        residuals_mg = (np.linalg.norm(fitted, axis=1) - gravity) / MG
+    if _not_finite(residuals=residuals_mg):
+        return _numerical_failure(accel, temps, "residuals not finite", model=name)
+    calibration = calibration.replace(quality=_quality(residuals_mg, base.condition_number))
+    message = (f"segmented temperature model: {len(bounds)} segment{'s' if len(bounds) > 1 else ''} learned "
+               f"({', '.join(temperature.segment_names())}; room temperature {reference_degc:.1f} degC)")
+    if refused:
+        message += "; not yet: " + "; ".join(refused)
+    return FitResult(True, message, name, iterations=base.iterations, calibration=calibration, sigma=base.sigma,
+                     residuals_mg=residuals_mg, cost=0.5 * float(np.sum((residuals_mg * MG) ** 2)),
+                     condition_number=base.condition_number, missing_directions=base.missing_directions, poses=n)
+
+
+def _fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravity: float,
+                          options: TemperatureOptions, initial: Calibration | None, frame_id: str,
+                          ref: np.ndarray | None = None) -> FitResult:
+    n = len(accel)
+    size = {"reference12": 4, "reference15": 5}.get(name, parameter_count(name))
+    if n < size:
+        return FitResult(False, f"model {name} needs at least {size} poses, got {n}", name, poses=n)
     problem = temperature_span_problem(temps, options)
     if problem is not None:
         return FitResult(False, problem, name, poses=n)
+    if options.model == "segmented":
+        return _fit_segmented(accel, temps, ref, name, gravity, options, initial, frame_id)
     reference_degc = options.reference_degc if options.reference_degc is not None else float(np.median(temps))
     span = (float(temps.min()), float(temps.max()))
-    if options.model == "segmented":
-        # Each segment needs several poses: more segments than poses means a corrupt temperature, and
-        # would have fit_segmented_drift lay out (and loop over) that many segments.
-        width = options.segment_width_degc
-        segments = np.ceil(span[1] / width) - np.floor(span[0] / width)
-        if not segments <= n:
-            return FitResult(False, f"temperatures {span[0]:.4g}..{span[1]:.4g} degC span {segments:.3g} segments of "
-                             f"{width:g} degC, more than the {n} poses can fill: check the temperatures for a corrupt "
-                             "value", name, poses=n)
-        # The seed's scheme: a room-temperature calibration from the poses near T_ref, then each
-        # segment's drift against it.
-        near = np.abs(temps - reference_degc) <= options.segment_width_degc / 2
-        base = fit(accel[near], model=name, gravity=gravity, initial=initial, frame_id=frame_id)
-        if not base.success or base.calibration is None:  # a successful fit always carries its calibration
-            return FitResult(False, f"room-temperature calibration from the {int(near.sum())} poses within "
-                             f"{options.segment_width_degc / 2:g} degC of {reference_degc:.1f} degC: {base.message}",
-                             name, poses=n)
-        try:
-            edges, coefficients = fit_segmented_drift(accel, temps, base.calibration.bias,
-                                                      base.calibration.matrix, gravity, options)
-        except CalibrationError as error:
-            return FitResult(False, str(error), name, poses=n)
-        if _not_finite(segment_coefficients=coefficients):
-            return _numerical_failure(accel, temps, "segment drift coefficients not finite", model=name)
-        temperature = TemperatureModel("segmented", reference_degc, span, segment_edges_degc=edges,
-                                       segment_coefficients=coefficients)
-        calibration = base.calibration.replace(temperature=temperature, reference_temperature_degc=reference_degc)
-        residuals_mg = (np.linalg.norm(calibration.apply(accel, temps), axis=1) - gravity) / MG
-        if _not_finite(residuals=residuals_mg):
-            return _numerical_failure(accel, temps, "residuals not finite", model=name)
-        calibration = calibration.replace(quality=_quality(residuals_mg, base.condition_number))
-        return FitResult(True, "segmented temperature model", name, iterations=base.iterations,
-                         calibration=calibration, sigma=base.sigma, residuals_mg=residuals_mg,
-                         cost=0.5 * float(np.sum((residuals_mg * MG) ** 2)), condition_number=base.condition_number,
-                         missing_directions=base.missing_directions, poses=n)
 
     # Polynomial: bias and scale drift jointly with M and b, started from the temperature-blind fit.
     model = ThermalSphereModel(SphereModel(name), options.bias_order, options.scale_order, reference_degc)

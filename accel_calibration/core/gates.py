@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .calibration import MG, Calibration
+from .calibration import Calibration
+from .coverage import NextOrientation, ParameterSigma, SigmaBounds, next_orientation, parameter_sigmas, worst
 from .errors import CalibrationError
 from .fit import FitResult
 from .settings import Settings
@@ -16,19 +17,23 @@ from .settings import Settings
 @dataclass(frozen=True)
 class QualityGates:
     """What a fit must meet before it is applied (by /calibrate, automatically, or by replay). Each
-    refusal names the gate: `poses`, `fit`, `residual`, `sigma`, `coverage`, `bias`, `scale`."""
+    refusal names the gate: `poses`, `fit`, `residual`, `sigma`, `bias`, `scale`. Which faces were
+    seen does not matter, only how well the poses pin every parameter down (`sigma`): the refusal
+    names the loosest parameter and the orientation that would pin it down most."""
 
     min_poses: int = 12
     max_residual_rms_mg: float = 15.0  # a MEMS part's pose means fit the sphere to a few mg
     max_bias_sigma_mg: float = 5.0  # the bias must be known this well
-    require_all_faces: bool = True  # every axis seen pointing up and down (within ~45 deg)
+    max_scale_sigma_ppm: float = 5000.0  # ~5 mg at 1 g, like the bias bound
+    max_misalignment_sigma_mrad: float = 5.0  # ~5 mg at 1 g
     max_bias_mps2: float = 2.0  # plausibility: MEMS zero-g offsets are below ~150 mg
     scale_band: tuple[float, float] = (0.9, 1.1)  # plausibility: gain of each axis (row norm of M)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.min_poses, int) and self.min_poses >= 6):
             raise CalibrationError(f"min_poses must be an integer >= 6, got {self.min_poses!r}")
-        for name in ("max_residual_rms_mg", "max_bias_sigma_mg", "max_bias_mps2"):
+        for name in ("max_residual_rms_mg", "max_bias_sigma_mg", "max_scale_sigma_ppm",
+                     "max_misalignment_sigma_mrad", "max_bias_mps2"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise CalibrationError(f"{name} must be a positive number, got {value!r}")
@@ -39,13 +44,19 @@ class QualityGates:
     @classmethod
     def from_settings(cls, settings: Settings) -> QualityGates:
         return cls(min_poses=settings.min_poses, max_residual_rms_mg=settings.max_residual_rms_mg,
-                   max_bias_sigma_mg=settings.max_bias_sigma_mg, max_bias_mps2=settings.max_bias_mps2,
-                   scale_band=(settings.scale_min, settings.scale_max))
+                   max_bias_sigma_mg=settings.max_bias_sigma_mg, max_scale_sigma_ppm=settings.max_scale_sigma_ppm,
+                   max_misalignment_sigma_mrad=settings.max_misalignment_sigma_mrad,
+                   max_bias_mps2=settings.max_bias_mps2, scale_band=(settings.scale_min, settings.scale_max))
+
+    @property
+    def sigma_bounds(self) -> SigmaBounds:
+        return SigmaBounds(self.max_bias_sigma_mg, self.max_scale_sigma_ppm, self.max_misalignment_sigma_mrad)
 
     def check(self, result: FitResult) -> str | None:
         """None when the result passes, else the first gate it fails, said plainly."""
         if result.poses < self.min_poses:
-            return f"gate poses: have {result.poses} poses, need min_poses={self.min_poses}"
+            left_out = f" ({len(result.outliers)} more left out as outliers)" if result.outliers else ""
+            return f"gate poses: have {result.poses} poses{left_out}, need min_poses={self.min_poses}"
         if not result.success:
             return f"gate fit: {result.message}"
         calibration = result.calibration
@@ -54,12 +65,32 @@ class QualityGates:
         rms = calibration.quality.residual_rms_mg
         if rms > self.max_residual_rms_mg:
             return f"gate residual: rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)"
-        sigma_mg = float(np.max(result.sigma.bias)) / MG if result.sigma is not None else float("nan")
-        if not sigma_mg <= self.max_bias_sigma_mg:
-            return f"gate sigma: bias uncertainty {sigma_mg:.2f} mg above {self.max_bias_sigma_mg:g} mg (add poses)"
-        if self.require_all_faces and result.missing_directions:
-            return "gate coverage: no pose with " + ", no pose with ".join(result.missing_directions)
+        loosest = self.worst_sigma(result)
+        if loosest is None or not loosest.ratio <= 1.0:
+            advice = self.next_orientation(result)
+            what = "no uncertainty from the fit" if loosest is None else str(loosest)
+            return f"gate sigma: {what}; " + (f"{advice.text} would lower it most" if advice else "add poses")
         return self.plausibility(calibration)
+
+    def worst_sigma(self, result: FitResult) -> ParameterSigma | None:
+        """The parameter whose sigma is largest against its bound: from the fit's sigma, or for a fit
+        that failed for want of observability, from its normal matrix. None when there is neither."""
+        if result.sigma is not None and result.calibration is not None:
+            bias_sigma, matrix_sigma = result.sigma.bias, result.sigma.matrix
+            matrix = result.calibration.matrix
+        elif result.uncertainty is not None:
+            bias_sigma, matrix_sigma = result.uncertainty.sigma()
+            matrix = result.uncertainty.matrix
+        else:
+            return None
+        return worst(parameter_sigmas(result.model, bias_sigma, matrix_sigma, matrix, self.sigma_bounds))
+
+    def next_orientation(self, result: FitResult) -> NextOrientation | None:
+        """The orientation whose pose would lower the largest sigma (against these bounds) most; None
+        for the fits that carry no normal matrix (reference models)."""
+        if result.uncertainty is None:
+            return None
+        return next_orientation(result.uncertainty, self.sigma_bounds)
 
     def plausibility(self, calibration: Calibration) -> str | None:
         """The bias-range and scale-band gates alone: also what a calibration file must meet before the

@@ -1,11 +1,15 @@
 """The poses the online calibration holds: a new pose at an orientation already held is merged
-into it (its mean gets better, the geometry does not change), one at a new orientation is added.
-Bounded: at capacity the oldest pose gives way, so a node that runs for days keeps a fixed size."""
+into it (its mean gets better, the geometry does not change) when the two means agree within their
+noise; one at a new orientation, or one that disagrees (another tilt, or not still at all: a hover
+that passed as still must not pull a ground pose towards it), is added and the disagreement counted.
+Bounded: at capacity a pose gives way, the oldest of those whose orientation is held more than once
+(so coverage is kept), else the oldest; a node that runs for days keeps a fixed size."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from .errors import CalibrationError
 from .pose import Pose
@@ -16,6 +20,12 @@ class StoreEvent:
     index: int  # position of the pose in the store
     merged: bool  # True when merged into a pose already held
     replaced_oldest: bool = False
+    disagreed: bool = False  # a held pose at this orientation (and temperature bin) disagreed: kept apart
+
+
+# Two means agree when the Mahalanobis distance of their difference is within this (chi-square, 3
+# degrees of freedom, 99.9 %): a false split of one still orientation once in a thousand.
+AGREEMENT_CHI2 = float(chi2.ppf(0.999, 3))
 
 
 def merge_poses(a: Pose, b: Pose) -> Pose:
@@ -49,15 +59,33 @@ def merge_poses(a: Pose, b: Pose) -> Pose:
     )
 
 
+def means_agree(a: Pose, b: Pose, tolerance_mps2: float) -> bool:
+    """The two poses' mean accelerations differ by no more than their standard errors (covariance / samples)
+    plus `tolerance_mps2` per axis (what the standard errors do not hold: correlated noise, slow drift)
+    allow, at 99.9 %."""
+    difference = a.accel_mps2 - b.accel_mps2
+    covariance = (a.accel_cov / max(a.samples, 1) + b.accel_cov / max(b.samples, 1)
+                  + np.eye(3) * tolerance_mps2 ** 2)
+    try:
+        distance = float(difference @ np.linalg.solve(covariance, difference))
+    except np.linalg.LinAlgError:  # no noise and no tolerance: only identical means agree
+        return bool(np.all(difference == 0.0))
+    return distance <= AGREEMENT_CHI2 if np.isfinite(distance) else False
+
+
 class PoseStore:
-    def __init__(self, *, merge_angle_deg: float = 5.0, capacity: int = 100, temperature_bin_degc: float | None = None):
+    def __init__(self, *, merge_angle_deg: float = 5.0, capacity: int = 100, temperature_bin_degc: float | None = None,
+                 merge_tolerance_mps2: float = 0.02):
         if not (0.0 < merge_angle_deg < 90.0):
             raise CalibrationError(f"merge_angle_deg must be in (0, 90), got {merge_angle_deg}")
+        if not (isinstance(merge_tolerance_mps2, (int, float)) and 0.0 <= merge_tolerance_mps2 < np.inf):
+            raise CalibrationError(f"merge_tolerance_mps2 must be a finite number >= 0, got {merge_tolerance_mps2!r}")
         if not (isinstance(capacity, int) and capacity >= 6):
             raise CalibrationError(f"capacity must be an integer >= 6, got {capacity!r}")
         if temperature_bin_degc is not None and not temperature_bin_degc > 0:
             raise CalibrationError(f"temperature_bin_degc must be positive, got {temperature_bin_degc}")
         self._cos_merge = float(np.cos(np.radians(merge_angle_deg)))
+        self.merge_tolerance_mps2 = float(merge_tolerance_mps2)
         self.capacity = capacity
         self.temperature_bin_degc = temperature_bin_degc
         self._poses: list[Pose] = []
@@ -83,15 +111,34 @@ class PoseStore:
             return True
         return abs(a.temperature_degc - b.temperature_degc) < self.temperature_bin_degc
 
-    def add(self, pose: Pose) -> StoreEvent:
+    def _neighbours(self, pose: Pose) -> list[int]:
+        """Held poses at the same orientation (within the merge angle) and temperature bin."""
         direction = pose.direction
-        for index, held in enumerate(self._poses):
-            if float(direction @ held.direction) >= self._cos_merge and self._same_bin(held, pose):
+        return [index for index, held in enumerate(self._poses)
+                if float(direction @ held.direction) >= self._cos_merge and self._same_bin(held, pose)]
+
+    def add(self, pose: Pose) -> StoreEvent:
+        neighbours = self._neighbours(pose)
+        for index in neighbours:
+            held = self._poses[index]
+            if means_agree(held, pose, self.merge_tolerance_mps2):
                 self._poses[index] = merge_poses(held, pose)
                 return StoreEvent(index, merged=True)
+        disagreed = bool(neighbours)
         if len(self._poses) < self.capacity:
             self._poses.append(pose)
-            return StoreEvent(len(self._poses) - 1, merged=False)
-        oldest = min(range(len(self._poses)), key=lambda i: self._poses[i].end_ns)
+            return StoreEvent(len(self._poses) - 1, merged=False, disagreed=disagreed)
+        # The oldest pose whose orientation is held at least twice (itself excluded) gives way: dropping it
+        # loses no coverage. Only when every orientation is held once does the oldest overall.
+        directions = np.array([held.direction for held in self._poses])
+        close = directions @ directions.T >= self._cos_merge
+        if self.temperature_bin_degc is not None:
+            temperatures = np.array([np.nan if held.temperature_degc is None else held.temperature_degc
+                                     for held in self._poses])
+            apart = np.abs(temperatures[:, None] - temperatures[None, :]) >= self.temperature_bin_degc
+            close &= ~apart  # NaN (no temperature) compares False: the same bin, as _same_bin says
+        redundant = np.flatnonzero(close.sum(axis=1) > 1).tolist()
+        candidates = redundant or list(range(len(self._poses)))
+        oldest = min(candidates, key=lambda i: self._poses[i].end_ns)
         self._poses[oldest] = pose
-        return StoreEvent(oldest, merged=False, replaced_oldest=True)
+        return StoreEvent(oldest, merged=False, replaced_oldest=True, disagreed=disagreed)

@@ -3,9 +3,10 @@ fit -> gates -> calibration, and keeps the counters. The live node feeds it mess
 on its executor, pose side on its worker), replay feeds it arrays, tests feed it either: a session
 gives the same calibration whichever door the samples came through. No ROS here.
 
-Threads (the node): `add_temperature`, `add_sample`, `holding` touch the screen, temperature filter
-and detector; `add_pose`, `refit`, `calibrate`, `reset`, `progress` touch the store and the fit.
-Each half is used from one thread; they share nothing mutable but the counters (ints).
+Threads (the node): `add_temperature`, `add_sample`, `holding`, `set_collecting` touch the screen,
+temperature filter and detector; `add_pose`, `refit`, `calibrate`, `reset`, `progress` touch the store
+and the fit. Each half is used from one thread; they share nothing mutable but the counters (ints)
+and `implausible_means` (a tuple replaced whole).
 """
 from __future__ import annotations
 
@@ -17,18 +18,21 @@ import numpy as np
 from .calibration import MG, Calibration
 from .coverage import missing_directions
 from .errors import SettingsError
-from .fit import FitResult, fit
+from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
 from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .screening import Counters, SampleScreen
 from .settings import BY_NAME, DYNAMIC, Settings
-from .static_detector import StaticDetector
+from .static_detector import DISCARD, RESTART, StaticDetector
 from .temperature_filter import TemperatureFilter
-from .temperature_models import temperature_span_problem
+from .temperature_models import segment_status, temperature_span_problem
 from .units import units_problem
 
+# |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
+# m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
+PLAUSIBLE_GRAVITY = (0.5, 1.5)
 ALL_FACES = ("x pointing up", "x pointing down", "y pointing up", "y pointing down", "z pointing up", "z pointing down")
 
 
@@ -75,11 +79,20 @@ class CalibrationSession:
             accel_var_threshold=settings.static_accel_var_threshold or None,
             gyro_var_threshold=settings.static_gyro_var_threshold or None,
             k_sigma=settings.static_k_sigma,
+            max_floor_rise=settings.static_max_floor_rise,
+            accel_noise_ceiling=settings.static_max_noise_mg * MG,
+            gyro_noise_ceiling=settings.static_max_gyro_noise_mradps * 1e-3,
+            floor_min_magnitude=0.05 * settings.gravity,  # not a dead sensor's zeros (a stream in g is 0.1 g)
         )
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
-                               temperature_bin_degc=settings.temperature_bin_degc)
+                               temperature_bin_degc=settings.temperature_bin_degc,
+                               merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
+        self._pause_reasons: frozenset[str] = frozenset()  # why collection is paused (armed, calibration/pause)
+        # Means of the latest still intervals dropped as implausible for gravity (the stream side writes,
+        # /calibrate reads: a tuple replaced whole): a stream in g says so instead of "0 poses".
+        self.implausible_means: tuple[np.ndarray, ...] = ()
 
     @property
     def model(self) -> str:
@@ -103,19 +116,48 @@ class CalibrationSession:
         self.counters.temperature_bad += 1
         return False
 
+    @property
+    def collecting(self) -> bool:
+        """False while collection is paused for any reason (the stream is still screened and corrected)."""
+        return not self._pause_reasons
+
+    @property
+    def pause_reasons(self) -> tuple[str, ...]:
+        return tuple(sorted(self._pause_reasons))
+
+    def set_collecting(self, collecting: bool, reason: str) -> None:
+        """Pause (False) or resume (True) collection for `reason` ("armed", "calibration/pause", ...);
+        collection resumes when no reason is left. Pausing drops the still interval in progress (it
+        may hold the take-off), so nothing of a flight is ever a pose, and the noise floor never sees it."""
+        was_collecting = not self._pause_reasons
+        reasons = self._pause_reasons - {reason} if collecting else self._pause_reasons | {reason}
+        self._pause_reasons = frozenset(reasons)
+        if was_collecting and reasons:
+            self.detector.discard()
+
     def add_sample(self, t_ns: int, ax: float, ay: float, az: float,
                    gx: float = 0.0, gy: float = 0.0, gz: float = 0.0) -> Pose | None:
         """One IMU sample (SI, header stamp in ns). Returns a pose when a still interval ends."""
-        if not self.screen.check(t_ns, ax, ay, az, gx, gy, gz):
+        screen = self.screen
+        if not screen.check(t_ns, ax, ay, az, gx, gy, gz):
             return None
+        ended = None
+        if screen.restarted:  # the clock jumped: the interval so far ends on its own clock
+            screen.restarted = False
+            ended = self._usable(self.detector.restart(), screen.time_base - 1)
+        if self._pause_reasons:
+            self.counters.samples_paused += 1
+            return ended
         temperature = self.temperature.at(t_ns)
         if temperature is None and self.temperature.value is not None:
             self.counters.temperature_stale += 1
-        return self._usable(self.detector.update(t_ns, ax, ay, az, gx, gy, gz, temperature))
+        pose = self._usable(self.detector.update(t_ns, ax, ay, az, gx, gy, gz, temperature))
+        return ended if pose is None else pose
 
     def holding(self) -> Pose | None:
         """The still interval in progress as a pose (what a person holding a pose expects counted)."""
-        return self._usable(self.detector.peek())
+        pose = self.detector.peek()
+        return pose if self._rejection(pose, self.screen.time_base) is None else None
 
     def flush(self) -> Pose | None:
         """End of a stream: the interval in progress, if long enough."""
@@ -123,31 +165,76 @@ class CalibrationSession:
 
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,
-                      temperature_degc: np.ndarray | None = None) -> list[Pose]:
+                      temperature_degc: np.ndarray | None = None,
+                      collecting: np.ndarray | None = None) -> list[Pose]:
         """A whole recording in arrival order: the poses `add_sample` per sample then `flush` would give
-        (same screening, temperature filter and detector rules, with array operations). Fresh session only."""
+        (same screening, temperature filter and detector rules, with array operations). `collecting` (one
+        bool per sample, optional): False where collection was paused (armed, flying), as if
+        `set_collecting` had been called at each change. Fresh session only."""
         t = np.asarray(t_ns, dtype=np.int64)
         accel = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
         gyro = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
-        keep = self.screen.screen_arrays(t, accel, gyro)
+        time_base = self.screen.time_base
+        keep, restart = self.screen.screen_arrays(t, accel, gyro)
+        paused = np.zeros(len(t), dtype=bool) if collecting is None else ~np.asarray(collecting, dtype=bool)
+        if self._pause_reasons:
+            paused[:] = True
+        self.counters.samples_paused += int(np.count_nonzero(keep & paused))
+        rows = np.flatnonzero(keep & ~paused)  # what the detector sees
+        # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
+        # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
+        breaks = np.zeros(len(rows), dtype=np.int64)
+        if len(rows):
+            previous = np.concatenate([[-1], rows[:-1]])
+            paused_before = np.concatenate([[0], np.cumsum(paused)])
+            jumps_before = np.concatenate([[0], np.cumsum(restart)])
+            breaks[jumps_before[rows + 1] > jumps_before[previous + 1]] = RESTART
+            breaks[paused_before[rows] > paused_before[previous + 1]] = DISCARD
         temps = None
         if temperature_stamps_ns is not None and temperature_degc is not None and len(temperature_stamps_ns):
             rejected = self.temperature.rejected
-            temps, stale = self.temperature.series(temperature_stamps_ns, temperature_degc, t[keep])
+            temps, stale = self.temperature.series(temperature_stamps_ns, temperature_degc, t[rows])
             self.counters.temperature_stale += stale
             self.counters.temperature_bad += self.temperature.rejected - rejected
-        poses = self.detector.process(t[keep], accel[keep], gyro[keep], temps)
-        return [p for p in poses if self._usable(p) is not None]
+        # Paused at the end: the interval then open was dropped when the pause began.
+        ends_paused = bool(len(rows) and np.any(paused[rows[-1] + 1:]))
+        poses = self.detector.process(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not ends_paused)
+        # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it).
+        bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1] if len(rows) else np.zeros(0, int)
+        segment_bases = bases[np.concatenate([[0], np.flatnonzero(breaks[1:]) + 1])] if len(rows) else bases
+        return [p for p, segment in zip(poses, self.detector.pose_segments)
+                if self._usable(p, int(segment_bases[segment])) is not None]
 
-    def _usable(self, pose: Pose | None) -> Pose | None:
-        if pose is not None and self.screen.overlaps_frozen(pose.start_ns, pose.end_ns):
+    def _rejection(self, pose: Pose | None, time_base: int) -> str | None:
+        """Why a still interval is no pose: 'frozen' (it overlaps a frozen run), 'implausible' (|mean|
+        is no gravity: outside 0.5..1.5 g, e.g. a dead sensor's zeros), 'none'; None when it is one."""
+        if pose is None:
+            return "none"
+        if self.screen.overlaps_frozen(pose.start_ns, pose.end_ns, time_base):
+            return "frozen"
+        gravity = self.settings.gravity
+        low, high = PLAUSIBLE_GRAVITY
+        if not low * gravity <= float(np.linalg.norm(pose.accel_mps2)) <= high * gravity:
+            return "implausible"
+        return None
+
+    def _usable(self, pose: Pose | None, time_base: int | None = None) -> Pose | None:
+        why = self._rejection(pose, self.screen.time_base if time_base is None else time_base)
+        if why is None:
+            return pose
+        if why == "frozen":
             self.counters.frozen_poses_dropped += 1
-            return None
-        return pose
+        elif why == "implausible" and pose is not None:
+            self.counters.implausible_poses += 1
+            self.implausible_means = (*self.implausible_means[-15:], pose.accel_mps2)
+        return None
 
     # ------------------------------------------------------------------ pose side
     def add_pose(self, pose: Pose) -> StoreEvent:
-        return self.store.add(pose)
+        event = self.store.add(pose)
+        if event.disagreed:
+            self.counters.merge_disagreements += 1
+        return event
 
     def reset(self) -> int:
         """Drop the poses held (not the learned noise floor); returns how many were dropped."""
@@ -180,11 +267,14 @@ class CalibrationSession:
             return None
         accel = [p.accel_mps2 for p in poses]
         gravity = self.settings.gravity
+        # A pose off the sphere with the rest is left out (and named) by the fit itself.
+        outliers, noise = self.settings.outliers, pose_mean_sigma(poses)
         if self.temperature_problem(poses) is None:
             options = self.settings.temperature
             result = fit(accel, model=self.model, gravity=gravity,
                          temperature_degc=[p.temperature_degc for p in poses if p.temperature_degc is not None],
-                         temperature_model=options.model, temperature_options=options)
+                         temperature_model=options.model, temperature_options=options,
+                         outlier_options=outliers, pose_sigma_mps2=noise)
             if result.success:
                 self.last_fit = result
                 return result
@@ -192,10 +282,11 @@ class CalibrationSession:
         initial = self.last_fit.calibration if self.last_fit is not None and self.last_fit.success else None
         if initial is not None and initial.temperature is not None:
             initial = initial.replace(temperature=None)
-        result = fit(accel, model=self.model, gravity=gravity, initial=initial)
+        result = fit(accel, model=self.model, gravity=gravity, initial=initial, outlier_options=outliers,
+                     pose_sigma_mps2=noise)
         if initial is not None and not result.success:
             # A warm start from a calibration that no longer fits (the poses changed) must not decide.
-            result = fit(accel, model=self.model, gravity=gravity)
+            result = fit(accel, model=self.model, gravity=gravity, outlier_options=outliers, pose_sigma_mps2=noise)
         self.last_fit = result
         return result
 
@@ -205,6 +296,11 @@ class CalibrationSession:
         poses = self.store.poses + list(extra)
         need = max(self.settings.min_poses, parameter_count(self.model) + 1)
         if len(poses) < need:
+            # Still intervals that were no gravity: a stream in g or in counts says so, not "0 poses".
+            dropped = self.implausible_means
+            problem = units_problem(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
+            if problem is not None:
+                return Verdict(False, "gate " + problem)
             return Verdict(False, f"gate poses: have {len(poses)} poses, need min_poses={need}"
                            f" ({self._missing_text(poses)})")
         problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
@@ -212,11 +308,13 @@ class CalibrationSession:
             return Verdict(False, "gate " + problem)
         result = self.refit(extra)
         refusal = None if result is None else self.gates.check(result)
+        # Poses left out as outliers are said either way, counted from 1 as the node's log counts them.
+        left_out = "" if result is None else "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result is None or result.calibration is None or refusal is not None:
-            return Verdict(False, refusal or f"gate fit: no fit from {len(poses)} poses", result)
+            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id)
-        return Verdict(True, "passed every gate", replace(result, calibration=calibration), calibration)
+        return Verdict(True, "passed every gate" + left_out, replace(result, calibration=calibration), calibration)
 
     def _missing_text(self, poses: Sequence[Pose]) -> str:
         missing = missing_directions(_directions(poses)) if poses else list(ALL_FACES)
@@ -248,23 +346,35 @@ class CalibrationSession:
             sigma = float(np.max(fit_.sigma.bias) / MG) if np.all(np.isfinite(fit_.sigma.bias)) else None
             fitted_temperature = fit_.calibration.temperature
         need = max(self.settings.min_poses, parameter_count(self.model) + 1)
-        ready = fit_ is not None and self.gates.check(fit_) is None and n >= need
+        refusal = None if self.last_fit is None else self.gates.check(self.last_fit)
+        ready = fit_ is not None and refusal is None and n >= need
+        # Once there is a fit (one that failed for want of observability too), the orientation that would
+        # pin the loosest parameter down most; before, the first face not yet seen.
+        turn = None
+        if self.last_fit is not None and (refusal or "").startswith(("gate poses", "gate fit", "gate sigma")):
+            turn = self.gates.next_orientation(self.last_fit)
         temps = [p.temperature_degc for p in self.store.poses if p.temperature_degc is not None]
         span = (float(min(temps)), float(max(temps))) if temps else None
         problem = self.temperature_problem()
-        if problem is None:
+        if problem is None and self.settings.temperature_model == "segmented":
+            # Which segments are learned, and which orientations each of the others still needs.
+            status = segment_status(np.array(temps, dtype=float), self.directions(calibration),
+                                    self.settings.temperature, fitted_temperature)
+        elif problem is None:
             status = "temperature model fitted" if fitted_temperature is not None else \
                 "temperature span sufficient; needs more poses per temperature"
         else:
             status = problem
-        if missing:
+        if ready:
+            advice = f"ready: call {calibrate_service}"
+        elif turn is not None:
+            advice = turn.text
+        elif missing:
             advice = advice_for(missing)
         elif n < need:
             advice = f"hold still in a new orientation ({n} of {need} poses)"
-        elif not ready:
-            advice = "hold still in more orientations (fit not yet within the gates)"
         else:
-            advice = f"ready: call {calibrate_service}"
+            advice = "hold still in more orientations (fit not yet within the gates)"
         return Progress(n, need, missing, rms, sigma, ready, advice, span, status)
 
 

@@ -12,7 +12,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from .coverage import SigmaBounds
 from .errors import SettingsError
+from .fit import OutlierOptions
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 
 STANDARD_GRAVITY = 9.80665
@@ -50,6 +52,20 @@ PARAMETERS: tuple[Parameter, ...] = (
               0.01, 1000.0, dynamic=True),
     Parameter("max_bias_sigma_mg", 5.0, "quality gate: largest bias uncertainty (1 sigma) that may be applied, mg",
               0.001, 1000.0, dynamic=True),
+    Parameter("max_scale_sigma_ppm", SigmaBounds.scale_ppm,
+              "quality gate: largest scale-factor uncertainty (1 sigma, of the axis' gain) that may be applied, ppm "
+              "(5000 ppm is 5 mg at 1 g)", 0.1, 1e6, dynamic=True),
+    Parameter("max_misalignment_sigma_mrad", SigmaBounds.misalignment_mrad,
+              "quality gate: largest misalignment uncertainty (1 sigma) that may be applied, mrad (5 mrad is ~5 mg "
+              "at 1 g)", 0.001, 1000.0, dynamic=True),
+    Parameter("outlier_threshold_mg", OutlierOptions.threshold_mg,
+              "robust fit: a pose this far off the sphere the other poses fit (and outlier_k_sigma times their "
+              "spread) is left out and named as an outlier, mg; 0 = never leave a pose out", 0.0, 10_000.0,
+              dynamic=True),
+    Parameter("outlier_k_sigma", OutlierOptions.k_sigma,
+              "robust fit: a pose is left out only when its residual is beyond this many sigmas of what the other "
+              "poses' scatter predicts for it (as improbable as k Gaussian sigmas, allowing for their degrees of "
+              "freedom)", 2.0, 1000.0, dynamic=True),
     Parameter("max_bias_mps2", 2.0, "plausibility gate: largest |bias| per axis, m/s^2", 0.001, 100.0, dynamic=True),
     Parameter("scale_min", 0.9, "plausibility gate: smallest correction gain per axis (row norm of M)", 0.01, 0.999,
               dynamic=True),
@@ -57,6 +73,10 @@ PARAMETERS: tuple[Parameter, ...] = (
               dynamic=True),
     Parameter("merge_angle_deg", 5.0, "a new pose within this angle of a held one (same temperature bin) refines it",
               0.1, 45.0),
+    Parameter("merge_tolerance_mg", 2.0,
+              "a new pose is merged into a held one at its orientation only when their means agree within their "
+              "standard errors plus this, mg; otherwise it is kept apart and counted (merge_disagreements)",
+              0.0, 1000.0),
     Parameter("max_poses", 100, "pose store capacity; the oldest pose gives way beyond it", 6, 100_000),
     Parameter("accel_range_mps2", 16 * STANDARD_GRAVITY,
               "accelerometer full scale; samples at or beyond it are counted as saturated and kept out of the fit",
@@ -75,6 +95,10 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("temperature.bias_order", 2, "polynomial model: order of the bias drift", 0, 3),
     Parameter("temperature.scale_order", 1, "polynomial model: order of the scale drift", 0, 2),
     Parameter("temperature.segment_width_degc", 10.0, "segmented model: segment width, degC", 1.0, 100.0),
+    Parameter("temperature.segment_blend", True,
+              "segmented model: interpolate the drift between the temperatures neighbouring segments were "
+              "learned at (no step at a segment edge); false: the seed paper's pick of the segment holding "
+              "the temperature"),
     Parameter("temperature.min_span_degc", 10.0, "smallest span of pose temperatures to fit a temperature model, degC",
               0.0, 200.0),
     Parameter("temperature.bin_degc", 5.0, "poses at one orientation but temperatures this far apart are kept apart, "
@@ -89,6 +113,15 @@ PARAMETERS: tuple[Parameter, ...] = (
               0.0, 1e6, zero_means_auto=True),
     Parameter("static.k_sigma", 6.0, "static detector: threshold as a multiple of the noise-floor variance",
               1.0, 1000.0),
+    Parameter("static.max_noise_mg", 15.0,
+              "static detector: largest accel noise of a still window, mg rms per axis; the learned threshold never "
+              "exceeds it (MEMS parts at rest: 0.5-10 mg; motor vibration in flight: 20 mg and more)", 0.1, 1000.0),
+    Parameter("static.max_gyro_noise_mradps", 50.0,
+              "static detector: largest gyro noise of a still window, mrad/s rms per axis (50 mrad/s = 2.9 deg/s); "
+              "the learned gyro threshold never exceeds it", 0.1, 10_000.0),
+    Parameter("static.max_floor_rise", 1.5,
+              "static detector: the learned noise floors may rise at most this factor (rms) above the quietest "
+              "floor seen since start, so flight vibration is never learned as noise", 1.0, 1000.0),
 )
 BY_NAME = {p.name: p for p in PARAMETERS}
 
@@ -144,6 +177,10 @@ class Settings:
     min_poses: int = _default("min_poses")
     max_residual_rms_mg: float = _default("max_residual_rms_mg")
     max_bias_sigma_mg: float = _default("max_bias_sigma_mg")
+    max_scale_sigma_ppm: float = _default("max_scale_sigma_ppm")
+    max_misalignment_sigma_mrad: float = _default("max_misalignment_sigma_mrad")
+    outlier_threshold_mg: float = _default("outlier_threshold_mg")
+    outlier_k_sigma: float = _default("outlier_k_sigma")
     max_bias_mps2: float = _default("max_bias_mps2")
     scale_min: float = _default("scale_min")
     scale_max: float = _default("scale_max")
@@ -157,6 +194,7 @@ class Settings:
     temperature_bias_order: int = _default("temperature.bias_order")
     temperature_scale_order: int = _default("temperature.scale_order")
     temperature_segment_width_degc: float = _default("temperature.segment_width_degc")
+    temperature_segment_blend: bool = _default("temperature.segment_blend")
     temperature_min_span_degc: float = _default("temperature.min_span_degc")
     temperature_bin_degc: float = _default("temperature.bin_degc")
     static_window_s: float = _default("static.window_s")
@@ -164,6 +202,10 @@ class Settings:
     static_accel_var_threshold: float = _default("static.accel_var_threshold")
     static_gyro_var_threshold: float = _default("static.gyro_var_threshold")
     static_k_sigma: float = _default("static.k_sigma")
+    static_max_noise_mg: float = _default("static.max_noise_mg")
+    static_max_gyro_noise_mradps: float = _default("static.max_gyro_noise_mradps")
+    static_max_floor_rise: float = _default("static.max_floor_rise")
+    merge_tolerance_mg: float = _default("merge_tolerance_mg")
 
     def __post_init__(self) -> None:
         for parameter in PARAMETERS:
@@ -203,6 +245,10 @@ class Settings:
         return {p.name: getattr(self, p.field) for p in PARAMETERS}
 
     @property
+    def outliers(self) -> OutlierOptions:
+        return OutlierOptions(threshold_mg=self.outlier_threshold_mg, k_sigma=self.outlier_k_sigma)
+
+    @property
     def temperature(self) -> TemperatureOptions:
         return TemperatureOptions(
             model=self.temperature_model,
@@ -210,6 +256,9 @@ class Settings:
             scale_order=self.temperature_scale_order,
             segment_width_degc=self.temperature_segment_width_degc,
             min_span_degc=self.temperature_min_span_degc,
+            segment_blend=self.temperature_segment_blend,
+            # A session learns segments as poses at new temperatures come in; the rest are reported.
+            every_segment=False,
         )
 
 

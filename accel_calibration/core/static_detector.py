@@ -7,6 +7,12 @@ k * sigma^2 of an initial still period, but the floor here is learned continuous
 quantile of all window variances seen (a log-spaced histogram), so no initial still period is
 needed and any raw unit (counts, g, m/s^2) works. Explicit thresholds override.
 
+The floor cannot learn flight vibration: it may rise at most `max_floor_rise` (rms) above the quietest
+floor seen since start, and a window noisier than `accel_noise_ceiling` / `gyro_noise_ceiling` (rms
+per axis, a value every MEMS part at rest stays below and motor vibration does not) is never still.
+A window in which more than half of the samples repeat their predecessor exactly (a frozen driver, a
+gyro reading 0 while it warms up) is no evidence of the noise: it never feeds the floor.
+
 A still interval becomes a Pose when motion starts again (or at `max_pose_s`), if it lasted
 `min_hold_s`; `trim_s` is dropped at both ends (settling after the last motion, the onset of the
 next one before the window noticed it).
@@ -23,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import replace
 from typing import Any, Final, overload
 
 import numpy as np
@@ -50,9 +57,17 @@ _REBASE = 1e6
 _TINY_SQUARES = 1e-150
 _INF = math.inf
 # One accepted sample: t_ns, ax ay az, gx gy gz (None without gyro), temperature (None without), then
-# the differences from the shift: dx dy dz, ex ey ez.
+# the differences from the shift: dx dy dz, ex ey ez, then repeat flags (_ACCEL_REPEAT | _GYRO_REPEAT:
+# the accel / gyro triple equals the previous accepted sample's, bit for bit).
 _Sample = tuple[int, float, float, float, float | None, float | None, float | None, float | None,
-                float, float, float, float, float, float]
+                float, float, float, float, float, float, int]
+_ACCEL_REPEAT = 1
+_GYRO_REPEAT = 2
+# Marks for process(breaks=...): before this sample the clock was re-synchronised (restart()), or
+# collection was paused and resumed (discard()).
+RESTART = 1
+DISCARD = 2
+_INT64_MAX = 2**63 - 1
 
 
 class _VarianceFloor:
@@ -118,6 +133,14 @@ class StaticDetector:
       accel_limit, gyro_limit: largest absolute value per axis the sensor can read (input units); a
         sample beyond it is a glitch, skipped and counted in rejected_samples and rejected_out_of_range.
         None = no limit but the hard guard of 1e12 (which always applies).
+      max_floor_rise: the learned floors may rise at most this factor (rms, so its square in variance)
+        above the quietest floor seen after warm-up: hours of flight vibration are never learned as noise.
+      accel_noise_ceiling, gyro_noise_ceiling: largest noise (rms per axis, input units) of a still
+        window; the learned threshold never exceeds it, so vibration is never still even when the stream
+        starts in flight. None = no ceiling (the unit is not known here; the session sets them in SI).
+      floor_min_magnitude: smallest |mean acceleration| of a window that may teach the floor (input
+        units; the session: 0.05 g): a dead sensor's quiet zeros must not become the quietest floor.
+        None = any.
     """
 
     def __init__(
@@ -135,6 +158,10 @@ class StaticDetector:
         max_pose_s: float = 60.0,
         accel_limit: float | None = None,
         gyro_limit: float | None = None,
+        max_floor_rise: float = 1.5,
+        accel_noise_ceiling: float | None = None,
+        gyro_noise_ceiling: float | None = None,
+        floor_min_magnitude: float | None = None,
     ) -> None:
         def positive(name: str, value: object) -> float:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
@@ -161,6 +188,20 @@ class StaticDetector:
         self.accel_limit = None if accel_limit is None else positive("accel_limit", accel_limit)
         self.gyro_limit = None if gyro_limit is None else positive("gyro_limit", gyro_limit)
         self._accel_max = _HARD_LIMIT if self.accel_limit is None else min(self.accel_limit, _HARD_LIMIT)
+        self.max_floor_rise = positive("max_floor_rise", max_floor_rise)
+        if self.max_floor_rise < 1.0:
+            raise CalibrationError(f"max_floor_rise must be at least 1, got {max_floor_rise!r}")
+        self._rise_var = self.max_floor_rise ** 2
+        self.accel_noise_ceiling = (None if accel_noise_ceiling is None
+                                    else positive("accel_noise_ceiling", accel_noise_ceiling))
+        self.gyro_noise_ceiling = (None if gyro_noise_ceiling is None
+                                   else positive("gyro_noise_ceiling", gyro_noise_ceiling))
+        self.floor_min_magnitude = (None if floor_min_magnitude is None
+                                    else positive("floor_min_magnitude", floor_min_magnitude))
+        self._min_magnitude_squared = 0.0 if self.floor_min_magnitude is None else self.floor_min_magnitude ** 2
+        # As window totals (three axes): the largest learned threshold.
+        self._accel_cap = _INF if self.accel_noise_ceiling is None else 3.0 * self.accel_noise_ceiling ** 2
+        self._gyro_cap = _INF if self.gyro_noise_ceiling is None else 3.0 * self.gyro_noise_ceiling ** 2
         self._gyro_max = _HARD_LIMIT if self.gyro_limit is None else min(self.gyro_limit, _HARD_LIMIT)
         self._window_ns = int(self.window_s * 1e9)
         self._max_pose_ns = int(self.max_pose_s * 1e9)  # in whole ns, as process() has it
@@ -170,7 +211,12 @@ class StaticDetector:
         self._gyro_floor = _VarianceFloor(noise_quantile)
         self.rejected_samples = 0  # every sample skipped: NaN/inf, stamp not increasing, out of range
         self.rejected_out_of_range = 0  # of those, the finite ones beyond accel_limit/gyro_limit/the guard
-        self._full_time_ns = 0  # stream time with a full window: the noise floor's evidence
+        self._full_time_ns = 0  # stream time with a full window that is evidence of the noise floor
+        self._warmup_ns = self.warmup_s * 1e9
+        # Lowest floor values seen after warm-up: the learned floors may rise only max_floor_rise above.
+        self._accel_quietest = _INF
+        self._gyro_quietest = _INF
+        self.pose_segments: list[int] = []  # after process(): the segment (between breaks) of each pose
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -178,6 +224,7 @@ class StaticDetector:
         """Forget the stream (not the learned noise floor)."""
         self._window: deque[_Sample] = deque()
         self._sums = [0.0] * 8  # ax ay az |a|^2 gx gy gz |g|^2, of values minus the shift
+        self._repeats = [0, 0]  # samples in the window repeating their predecessor: accel, gyro
         self._shift: tuple[float, float, float, float, float, float] | None = None
         self._refresh_countdown = 10_000
         self._last_ns: int | None = None
@@ -187,23 +234,37 @@ class StaticDetector:
         # e.g. a rejected sample): no verdict on them; they join the interval if it goes on.
         self._undecided: list[_Sample] = []
         self._warmup_max: tuple[float, float] | None = (0.0, 0.0) if self.thresholds[0] is None else None
+        self._previous: tuple[float, float, float, float | None, float | None, float | None] | None = None
         self.state = "waiting"
 
     @property
     def noise_floor_accel_var(self) -> float | None:
-        """Per-axis variance of the acceleration noise (window total / 3), when learned."""
+        """Per-axis variance of the acceleration noise (window total / 3), when learned: the floor in
+        force, bounded as the thresholds are."""
         value = self._accel_floor.value
-        return None if value is None or self._full_time_ns < self.warmup_s * 1e9 else value / 3.0
+        if value is None or self._full_time_ns < self._warmup_ns:
+            return None
+        return min(value, self._accel_quietest * self._rise_var, self._accel_cap) / 3.0
+
+    @property
+    def quietest_floors(self) -> tuple[float | None, float | None]:
+        """(accel, gyro) lowest window-total floors seen after warm-up; None before."""
+        a, g = self._accel_quietest, self._gyro_quietest
+        return (None if a == _INF else a), (None if g == _INF else g)
 
     @property
     def thresholds(self) -> tuple[float | None, float | None]:
         """(accel, gyro) window-variance thresholds in force; None where not yet known."""
+        warm = self._full_time_ns >= self._warmup_ns
         accel = self.accel_var_threshold
-        if accel is None and self._full_time_ns >= self.warmup_s * 1e9 and self._accel_floor.value is not None:
-            accel = self.k_sigma * self._accel_floor.value
+        value = self._accel_floor.value
+        if accel is None and warm and value is not None:
+            # Same operations, in the same order, as static_detector_batch: the two paths agree bit for bit.
+            accel = min(self.k_sigma * min(value, self._accel_quietest * self._rise_var), self._accel_cap)
         gyro = self.gyro_var_threshold
-        if gyro is None and self._full_time_ns >= self.warmup_s * 1e9 and self._gyro_floor.value is not None:
-            gyro = self.gyro_k_sigma * self._gyro_floor.value
+        value = self._gyro_floor.value
+        if gyro is None and warm and value is not None:
+            gyro = min(self.gyro_k_sigma * min(value, self._gyro_quietest * self._rise_var), self._gyro_cap)
         return accel, gyro
 
     # ---------------------------------------------------------------- per sample
@@ -242,6 +303,14 @@ class StaticDetector:
             emitted = self._end_interval()
             self._clear_window()
         self._last_ns = t_ns
+        previous = self._previous
+        flags = 0
+        if previous is not None:
+            if ax == previous[0] and ay == previous[1] and az == previous[2]:
+                flags = _ACCEL_REPEAT
+            if has_gyro and gx == previous[3] and gy == previous[4] and gz == previous[5]:
+                flags |= _GYRO_REPEAT
+        self._previous = (ax, ay, az, gx, gy, gz)
         shift = self._shift
         if shift is None:
             shift = self._shift = (ax, ay, az, gx or 0.0, gy or 0.0, gz or 0.0)
@@ -251,9 +320,13 @@ class StaticDetector:
             ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
         else:
             ex = ey = ez = 0.0
-        sample = (t_ns, ax, ay, az, gx, gy, gz, temperature_degc, dx, dy, dz, ex, ey, ez)
+        sample = (t_ns, ax, ay, az, gx, gy, gz, temperature_degc, dx, dy, dz, ex, ey, ez, flags)
         window = self._window
         window.append(sample)
+        if flags:
+            repeats = self._repeats
+            repeats[0] += flags & _ACCEL_REPEAT
+            repeats[1] += flags >> 1
         s = self._sums
         s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
         s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
@@ -262,6 +335,10 @@ class StaticDetector:
         while window[0][0] <= horizon:
             old = window.popleft()
             dx, dy, dz, ex, ey, ez = old[8:14]
+            if old[14]:
+                repeats = self._repeats
+                repeats[0] -= old[14] & _ACCEL_REPEAT
+                repeats[1] -= old[14] >> 1
             qa = dx * dx + dy * dy + dz * dz
             qg = ex * ex + ey * ey + ez * ez
             s[0] -= dx; s[1] -= dy; s[2] -= dz; s[3] -= qa  # noqa: E702
@@ -280,7 +357,6 @@ class StaticDetector:
             if self._interval is not None:
                 self._undecided.append(sample)
             return emitted
-        self._full_time_ns += t_ns - last if last is not None else 0
         n = len(window)
         accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
         gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n if has_gyro else None
@@ -294,9 +370,26 @@ class StaticDetector:
             s = self._sums
             accel_var = (s[3] - (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / n) / n
             gyro_var = (s[7] - (s[4] * s[4] + s[5] * s[5] + s[6] * s[6]) / n) / n if has_gyro else None
-        self._accel_floor.add(accel_var)
-        if gyro_var is not None:  # has_gyro
-            self._gyro_floor.add(gyro_var)
+        # A window that is mostly repeated samples (a frozen driver, a gyro stuck at 0) says nothing
+        # about the noise: it neither feeds the floor nor counts toward the warm-up.
+        # A window whose mean is no gravity (a dead sensor's quiet zeros) says nothing about it either.
+        repeats = self._repeats
+        shift = self._shift  # (rebuilt with the sums, when they were)
+        assert shift is not None  # set by the window's first sample
+        mx, my, mz = shift[0] + s[0] / n, shift[1] + s[1] / n, shift[2] + s[2] / n
+        if mx * mx + my * my + mz * mz >= self._min_magnitude_squared:
+            if 2 * repeats[0] <= n:
+                self._full_time_ns += t_ns - last if last is not None else 0
+                self._accel_floor.add(accel_var)
+            if gyro_var is not None and 2 * repeats[1] <= n:  # has_gyro
+                self._gyro_floor.add(gyro_var)
+        if self._full_time_ns >= self._warmup_ns:
+            value = self._accel_floor.value
+            if value is not None and value < self._accel_quietest:
+                self._accel_quietest = value
+            value = self._gyro_floor.value
+            if value is not None and value < self._gyro_quietest:
+                self._gyro_quietest = value
         accel_limit, gyro_limit = self.thresholds
         if accel_limit is None:
             # Learning the noise floor. The stream usually starts still (a vehicle on the ground): keep a
@@ -335,6 +428,21 @@ class StaticDetector:
             self.state = "moving"
         return emitted
 
+    def restart(self) -> Pose | None:
+        """The stream's clock was re-synchronised (a stamp jump): the interval in progress ends as at a
+        gap (returned when long enough) and the next sample starts a new window, whatever its stamp."""
+        emitted = self._end_interval()
+        self._clear_window()
+        self._last_ns = None
+        return emitted
+
+    def discard(self) -> None:
+        """Collection paused (armed, flying, or asked to): the interval in progress is dropped, not
+        emitted, and the next sample starts a new window. The learned floor is kept."""
+        self._interval, self._pending, self._undecided = None, deque(), []
+        self._clear_window()
+        self._last_ns = None
+
     def peek(self) -> Pose | None:
         """The ongoing still interval as a pose, as flush() would give it, without ending it: what a
         person holding the last pose expects /calibrate to count."""
@@ -353,15 +461,29 @@ class StaticDetector:
         return self._end_interval(keep_pending=True)
 
     def process_streaming(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
-                          temperature_degc: ArrayLike | None = None) -> list[Pose]:
-        """update() sample by sample, then flush(): the reference `process` must agree with."""
+                          temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
+                          flush: bool = True) -> list[Pose]:
+        """update() sample by sample (restart() / discard() where `breaks` says), then flush() (discard()
+        when not `flush`): the reference `process` must agree with."""
         t_ns = np.asarray(t_ns, dtype=np.int64)
         poses = []
         update = self.update
         a = np.asarray(accel, dtype=float).tolist()
         g = None if gyro is None else np.asarray(gyro, dtype=float).tolist()
         temps = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).tolist()
+        marks = None if breaks is None else np.asarray(breaks, dtype=np.int64).reshape(-1).tolist()
+        segments: list[int] = []
+        segment = 0
         for i, t in enumerate(t_ns.tolist()):
+            if marks is not None and marks[i] and i > 0:
+                if marks[i] == RESTART:
+                    ended = self.restart()
+                    if ended is not None:
+                        poses.append(ended)
+                else:
+                    self.discard()
+                segments += [segment] * (len(poses) - len(segments))
+                segment += 1
             ax, ay, az = a[i]
             temperature = None if temps is None else temps[i]
             if g is None:
@@ -371,31 +493,83 @@ class StaticDetector:
                 pose = update(t, ax, ay, az, gx, gy, gz, temperature)
             if pose is not None:
                 poses.append(pose)
+        if not flush:
+            self.discard()
         last = self.flush()
         if last is not None:
             poses.append(last)
+        self.pose_segments = segments + [segment] * (len(poses) - len(segments))
         return poses
 
     def process(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
-                temperature_degc: ArrayLike | None = None) -> list[Pose]:
+                temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
+                flush: bool = True) -> list[Pose]:
         """A whole recording at once (bag replay, CLI): the poses update() would give sample by sample
         followed by flush(), computed with array operations (window sums from sums within blocks, the noise
         floor's histogram queried at the same points, the interval rules applied per run of still
         samples). Needs a fresh detector. Agreement with update() is tested; window variances differ
-        only by rounding (~1e-12 relative)."""
+        only by rounding (~1e-12 relative).
+
+        `breaks` (one per sample, optional): RESTART where restart() comes before the sample (a clock
+        re-synchronised), DISCARD where discard() does (collection paused since the previous sample).
+        Each segment runs on a clock of its own, laid end to end with a gap longer than a window.
+        `flush` False: the interval still open at the end is dropped (collection paused there)."""
         from .static_detector_batch import detect_batch
 
         if self._last_ns is not None or self._full_time_ns:
             raise CalibrationError("process() needs a fresh StaticDetector (this one has seen samples)")
-        poses, rejected, out_of_range = detect_batch(self, t_ns, accel, gyro, temperature_degc)
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        marks = None if breaks is None else np.asarray(breaks, dtype=np.int64).reshape(-1)
+        if marks is not None and len(marks) != len(t):
+            raise CalibrationError(f"breaks must have one entry per sample ({len(t)}), got {len(marks)}")
+        if marks is None or not np.any(marks[1:]):  # a break before the first sample changes nothing
+            poses, rejected, out_of_range = detect_batch(self, t, accel, gyro, temperature_degc, flush=flush)
+            self.pose_segments = [0] * len(poses)
+        else:
+            laid = self._end_to_end(t, marks)
+            if laid is None:  # the clocks laid end to end would not fit in int64 ns: per sample instead
+                return self.process_streaming(t, accel, gyro, temperature_degc, marks, flush)
+            virtual, segment_starts, offsets = laid
+            drop = marks == DISCARD
+            poses, rejected, out_of_range = detect_batch(self, virtual, accel, gyro, temperature_degc, drop, flush)
+            shifted, segments = [], []
+            for pose in poses:
+                segment = int(np.searchsorted(segment_starts, pose.start_ns, side="right")) - 1
+                offset = int(offsets[segment])
+                shifted.append(replace(pose, start_ns=pose.start_ns - offset, end_ns=pose.end_ns - offset))
+                segments.append(segment)
+            poses, self.pose_segments = shifted, segments
         self.rejected_samples += rejected
         self.rejected_out_of_range += out_of_range
         return poses
+
+    def _end_to_end(self, t: np.ndarray, marks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Stamps of segments (split before each marked sample) laid end to end, each starting a window
+        and a nanosecond after everything before it: (stamps, first virtual stamp of each segment, the
+        offset added to each segment). None when that does not fit in int64."""
+        cuts = np.flatnonzero(marks)
+        bounds = [0, *[int(c) for c in cuts if c > 0], len(t)]
+        virtual = np.empty_like(t)
+        starts, offsets = [], []
+        top: int | None = None  # the latest virtual stamp so far
+        for first, stop in zip(bounds[:-1], bounds[1:]):
+            segment = t[first:stop]
+            low, high = int(segment.min()), int(segment.max())
+            base = low if top is None else top + self._window_ns + 1
+            offset = base - low
+            top = base + (high - low)
+            if top > _INT64_MAX or not -_INT64_MAX <= offset <= _INT64_MAX:
+                return None
+            virtual[first:stop] = segment + np.int64(offset)
+            starts.append(base)
+            offsets.append(offset)
+        return virtual, np.array(starts, dtype=np.int64), np.array(offsets, dtype=np.int64)
 
     # ---------------------------------------------------------------- internals
     def _clear_window(self) -> None:
         self._window.clear()
         self._sums = [0.0] * 8
+        self._repeats = [0, 0]  # samples in the window repeating their predecessor: accel, gyro
         self._shift = None
 
     def _refresh_sums(self) -> None:
@@ -426,12 +600,13 @@ class StaticDetector:
         s = [0.0] * 8
         for sample in window:
             t_ns, ax, ay, az, gx, gy, gz, temperature = sample[:8]
+            flags = sample[14]
             dx, dy, dz = ax - sx, ay - sy, az - sz
             if gx is None or gy is None or gz is None:  # no gyro (its three axes come together)
                 ex = ey = ez = 0.0
             else:
                 ex, ey, ez = gx - sgx, gy - sgy, gz - sgz
-            rebuilt.append((t_ns, ax, ay, az, gx, gy, gz, temperature, dx, dy, dz, ex, ey, ez))
+            rebuilt.append((t_ns, ax, ay, az, gx, gy, gz, temperature, dx, dy, dz, ex, ey, ez, flags))
             s[0] += dx; s[1] += dy; s[2] += dz; s[3] += dx * dx + dy * dy + dz * dz  # noqa: E702
             s[4] += ex; s[5] += ey; s[6] += ez; s[7] += ex * ex + ey * ey + ez * ez  # noqa: E702
         window.clear()  # in place: callers hold the deque

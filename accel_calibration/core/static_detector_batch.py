@@ -3,8 +3,9 @@ operations, for bag replay and the CLI where per-sample Python would dominate th
 
 Equivalent to update() per sample then flush() (tested): the same validity rules, window
 membership from timestamps, the noise floor's histogram queried at the same add counts (every 64
-windows, halved every 200k), the same warm-up adoption, trims, gap and max_pose_s cuts. Only the
-window variances differ, by rounding (block sums instead of running sums).
+windows, halved every 200k) and fed by the same windows (not those mostly of repeated samples), its
+bound by the quietest floor seen and the ceiling, the same warm-up adoption, trims, gap and
+max_pose_s cuts. Only the window variances differ, by rounding (block sums instead of running sums).
 
 Window sums are not differences of cumulative sums over the whole recording: one large value would
 leave its rounding in every later difference (and a value beyond ~1e154 makes them inf - inf = NaN),
@@ -82,8 +83,9 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
     return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
 
 
-def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray, full: np.ndarray) -> np.ndarray:
-    """Total variance (sum over axes) of values[start_i .. i] for each full window i (0 elsewhere:
+def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray,
+                     full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total variance (sum over axes) and mean of values[start_i .. i] for each full window i (0 elsewhere:
     never used), about each segment's median.
 
     Blocks are as long as the shortest full window, so every full window holds a block boundary; it
@@ -93,9 +95,10 @@ def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.nd
     """
     n_rows = len(values)
     variance = np.zeros(n_rows)
+    mean = np.zeros((n_rows, 3))
     windows = np.flatnonzero(full)  # index of each full window's last sample
     if not len(windows):
-        return variance
+        return variance, mean
     first = start[windows]
     block = int((windows - first).min()) + 1
     reference = np.empty_like(values)
@@ -126,12 +129,32 @@ def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.nd
     count = windows - first + 1
     s1, s2 = sums[:, :3], sums[:, 3]
     variance[windows] = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
-    return variance
+    mean[windows] = reference[windows] + s1 / count[:, None]
+    return variance, mean
+
+
+def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """Per row: how many rows of its window start_i .. i repeat their predecessor bit for bit (all three
+    axes; the first row of the recording has none), as update() counts them."""
+    repeat = np.zeros(len(values), dtype=np.int64)
+    if len(values) > 1:
+        repeat[1:] = np.all(values[1:] == values[:-1], axis=1)
+    running = np.concatenate([[0], np.cumsum(repeat)])
+    return np.asarray(running[1:] - running[start])
+
+
+def _quietest(floor: np.ndarray, warm: np.ndarray) -> np.ndarray:
+    """The lowest floor value in force after warm-up so far (inf before), per full window."""
+    candidates = np.where(warm & ~np.isnan(floor), floor, np.inf)
+    return np.asarray(np.minimum.accumulate(candidates)) if len(candidates) else candidates
 
 
 def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
-                 temperature_degc: ArrayLike | None = None) -> tuple[list[Pose], int, int]:
-    """(poses, rejected samples, of which finite but out of range)."""
+                 temperature_degc: ArrayLike | None = None,
+                 drop: ArrayLike | None = None, flush: bool = True) -> tuple[list[Pose], int, int]:
+    """(poses, rejected samples, of which finite but out of range). `drop` (per sample, optional): the
+    interval open before this sample is dropped, not emitted (discard(); the stamps must then make this
+    sample start a new window). `flush` False: the interval open at the end is dropped too."""
     d = detector
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     a_all = np.asarray(accel, dtype=float).reshape(-1, 3)
@@ -154,6 +177,12 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
     rejected = len(t_all) - int(accepted.sum())
     keep = np.flatnonzero(valid)[accepted]
+    dropped = None
+    if drop is not None:
+        # A discard before a rejected sample still applies to the next accepted one.
+        marked = np.concatenate([[0], np.cumsum(np.asarray(drop, dtype=bool).reshape(-1))])
+        upto = marked[keep + 1]
+        dropped = (upto - np.concatenate([[0], upto[:-1]])) > 0
     t = t_all[keep]
     a = a_all[keep]
     g = None if g_all is None else g_all[keep]
@@ -168,26 +197,43 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     start = np.maximum(np.searchsorted(t, t - window_ns, side="right"), segment_first)
     count = np.arange(n) - start + 1
     full = ((t - t[start]) >= d._full_ns) & (count >= 5)
+    # Windows mostly of repeated samples are no evidence of the noise (update(): 2 * repeats <= n).
+    accel_evidence = 2 * _repeats_in_window(a, start) <= count
+    gyro_evidence = None if g is None else 2 * _repeats_in_window(g, start) <= count
+    accel_var, accel_mean = _window_variance(a, start, segment_first, full)
+    gyro_var = None if g is None else _window_variance(g, start, segment_first, full)[0]
+    # A window whose mean is no gravity (a dead sensor's quiet zeros) does not teach the floor either.
+    plausible = np.einsum("ij,ij->i", accel_mean, accel_mean) >= d._min_magnitude_squared
+    accel_evidence &= plausible
+    if gyro_evidence is not None:
+        gyro_evidence &= plausible
     dt = np.concatenate([[0], np.diff(t)])
-    full_time = np.cumsum(np.where(full, dt, 0))
-    accel_var = _window_variance(a, start, segment_first, full)
-    gyro_var = None if g is None else _window_variance(g, start, segment_first, full)
+    full_time = np.cumsum(np.where(full & accel_evidence, dt, 0))
 
     full_index = np.flatnonzero(full)
     accel_limit = np.full(n, np.nan)
     gyro_limit = np.full(n, np.nan)
-    warm = full_time >= d.warmup_s * 1e9
-    floor_a = _floor_values(accel_var[full_index], d._accel_floor.quantile, d._accel_floor.half_life)
+    warm = full_time >= d._warmup_ns
+    warm_full = warm[full_index]
+    # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
+    floor_a = _floor_values(np.where(accel_evidence, accel_var, np.nan)[full_index], d._accel_floor.quantile,
+                            d._accel_floor.half_life)
     if d.accel_var_threshold is not None:
         accel_limit[full_index] = d.accel_var_threshold
     else:
-        accel_limit[full_index] = np.where(warm[full_index], d.k_sigma * floor_a, np.nan)
-    if gyro_var is not None:  # there is a gyro
-        floor_g = _floor_values(gyro_var[full_index], d._gyro_floor.quantile, d._gyro_floor.half_life)
+        bounded = np.minimum(floor_a, _quietest(floor_a, warm_full) * d._rise_var)
+        with np.errstate(invalid="ignore"):
+            accel_limit[full_index] = np.where(warm_full, np.minimum(d.k_sigma * bounded, d._accel_cap), np.nan)
+    if gyro_var is not None and gyro_evidence is not None:  # there is a gyro
+        floor_g = _floor_values(np.where(gyro_evidence, gyro_var, np.nan)[full_index], d._gyro_floor.quantile,
+                                d._gyro_floor.half_life)
         if d.gyro_var_threshold is not None:
             gyro_limit[full_index] = d.gyro_var_threshold
         else:
-            gyro_limit[full_index] = np.where(warm[full_index], d.gyro_k_sigma * floor_g, np.nan)
+            bounded = np.minimum(floor_g, _quietest(floor_g, warm_full) * d._rise_var)
+            with np.errstate(invalid="ignore"):
+                gyro_limit[full_index] = np.where(warm_full, np.minimum(d.gyro_k_sigma * bounded, d._gyro_cap),
+                                                  np.nan)
     learning = full & np.isnan(accel_limit)
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
@@ -232,7 +278,8 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     max_pose_ns = int(d.max_pose_s * 1e9) if math.isfinite(d.max_pose_s) else None
     for first, final in zip(boundary.tolist(), ends.tolist()):
         if gaps[first] and opened is not None:
-            emit(opened, last, True)
+            if dropped is None or not dropped[first]:
+                emit(opened, last, True)
             opened = None
         kind = state[first]
         if kind == 0:
@@ -270,6 +317,6 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
             emit(opened, split, True)
             opened = last = split
             i = split + 1
-    if opened is not None:
+    if opened is not None and flush:
         emit(opened, last, False)
     return poses, rejected, out_of_range

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
+import stat
 from pathlib import Path
 from typing import cast
 
@@ -28,6 +28,7 @@ import yaml
 from ..core.calibration import Calibration, Quality
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TemperatureModel
+from .output_paths import stale_temp_files, write_bytes_atomically
 
 
 class CalibrationFileError(CalibrationError):
@@ -35,6 +36,38 @@ class CalibrationFileError(CalibrationError):
 
 FORMAT_VERSION = 1
 ROOT_KEY = "accel_calibration"
+MAX_CALIBRATION_BYTES = 1 << 20  # a calibration file is ~2 KB; a bigger one is something else
+MAX_YAML_DEPTH = 32  # a calibration file nests 4 deep, a rosbag2 metadata.yaml 6
+MAX_NUMBER = 1e12  # beyond any bias or gain, raw counts included: a corrupt or foreign file
+MAX_POSES = 10**9
+
+
+def _first_absurd_number(value, where: str = "") -> str | None:
+    """What is wrong with the first number too large for any calibration ("bias holds 1e+200, ..."),
+    walking lists and mappings; also catches integers too large to become floats at all."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        if not abs(value) > MAX_NUMBER:  # NaN passes here: the finiteness checks name it
+            return None
+        if isinstance(value, float):
+            text = f"{value:.3g}"
+        elif value.bit_length() < 1000:
+            text = f"{float(value):.3g}"
+        else:
+            text = f"an integer of about {int(value.bit_length() * 0.30103)} digits"
+        return f"{where or 'a value'} holds {text}, beyond any calibration's range (|x| <= {MAX_NUMBER:g})"
+    if isinstance(value, dict):
+        for key, item in value.items():
+            found = _first_absurd_number(item, f"{where}.{key}" if where else str(key))
+            if found:
+                return found
+    elif isinstance(value, list):
+        for item in value:
+            found = _first_absurd_number(item, where)
+            if found:
+                return found
+    return None
 
 
 def calibration_to_dict(calibration: Calibration) -> dict:
@@ -72,8 +105,12 @@ def calibration_to_dict(calibration: Calibration) -> dict:
             block["bias_coefficients"] = t.bias_coefficients.tolist()  # row k: m/s^2 per degC^(k+1)
             block["scale_coefficients"] = t.scale_coefficients.tolist()  # row k: 1 per degC^(k+1)
         else:
-            block["segment_edges_degc"] = t.segment_edges_degc.tolist()
-            block["segment_coefficients"] = t.segment_coefficients.tolist()  # per segment: q0, q1, q2 rows
+            block["segment_bounds_degc"] = t.segment_bounds_degc.tolist()  # per segment: low, high
+            block["segment_temperatures_degc"] = t.segment_temperatures_degc.tolist()  # each learned at
+            block["segment_coefficients"] = t.segment_coefficients.tolist()  # per segment: l, m, n rows
+            block["segment_poses"] = [int(p) for p in t.segment_poses]
+            block["segment_blend"] = bool(t.segment_blend)
+            block["units"] = dict(SEGMENT_UNITS)
         body["temperature"] = block
     if c.reference_temperature_degc is not None:
         body["reference_temperature_degc"] = float(c.reference_temperature_degc)
@@ -82,6 +119,31 @@ def calibration_to_dict(calibration: Calibration) -> dict:
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
     return {ROOT_KEY: body}
+
+
+# The segmented block (issue 11 on): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
+# output in m/s^2, added after M (a_raw - b). Written with every file, checked on reading.
+SEGMENT_UNITS = {
+    "segment_bounds_degc": "degC", "segment_temperatures_degc": "degC",
+    "segment_coefficients": "per segment rows l (s^2/m), m (1), n (m/s^2); columns x, y, z; "
+                            "sigma = l a_raw^2 + m a_raw + n added to M (a_raw - b)",
+}
+OLD_SEGMENTED = ("holds the segmented temperature model of before issue 11 (segment_edges_degc: a per-segment "
+                 "quadratic in temperature), whose format changed to the seed paper's model (segment_bounds_degc: a "
+                 "per-axis quadratic in the measured acceleration per segment) and is no longer read: refit it with "
+                 "accel-calib fit --temperature-model segmented")
+
+
+def _check_segment_block(block: dict) -> None:
+    """Refuse the segmented block of the earlier format, and units other than this reader's."""
+    if block.get("model") != "segmented":
+        return
+    if "segment_edges_degc" in block and "segment_bounds_degc" not in block:
+        raise CalibrationFileError(f"temperature block {OLD_SEGMENTED}")
+    units = block.get("units")
+    if units is not None and units != SEGMENT_UNITS:
+        raise CalibrationFileError(f"temperature.units must be {SEGMENT_UNITS} for the segmented model, "
+                                   f"got {units!r:.120}")
 
 
 def calibration_to_yaml(calibration: Calibration) -> str:
@@ -94,6 +156,29 @@ def _number(value, name) -> float:
     return float(value)
 
 
+def _list(value, name: str) -> list:
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise CalibrationFileError(f"{name} must be a list, got {value!r:.40}")
+    return value
+
+
+def _require_numbers(value, name: str, source: str) -> None:
+    """Leaves of a numeric field are numbers: numpy would turn text such as '1e200' or 'inf' (YAML 1.1
+    reads 1e200 without a dot as text) or true into a float, and the file would say what it does not."""
+    if value is None:
+        return
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            hint = " (YAML reads 1e5 as text: write 1.0e+5)" if isinstance(item, str) else ""
+            raise CalibrationFileError(f"{source}: {name} must be numbers, got {item!r:.40}{hint}")
+
+
 def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
     if not isinstance(document, dict) or ROOT_KEY not in document:
@@ -104,6 +189,8 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     version = body.get("format_version", 1)
     if isinstance(version, bool) or not isinstance(version, int):
         raise CalibrationFileError(f"{source}: format_version must be an integer, got {version!r:.40}")
+    if version < 1:
+        raise CalibrationFileError(f"{source}: format_version must be 1 or more, got {version}")
     if version > FORMAT_VERSION:
         raise CalibrationFileError(
             f"{source}: written by a newer accel_calibration (format {version}; this version reads up to "
@@ -112,6 +199,18 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     for key in ("model", "bias", "matrix"):
         if key not in body:
             raise CalibrationFileError(f"{source}: missing key '{key}'")
+    absurd = _first_absurd_number(body)
+    if absurd is not None:
+        raise CalibrationFileError(f"{source}: {absurd}")
+    blocks = {key: body.get(key) for key in ("uncertainty", "temperature")}
+    uncertainty_block: dict = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
+    temperature_block: dict = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
+    for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps")] + [
+            (f"uncertainty.{key}", uncertainty_block.get(key)) for key in ("bias", "matrix")] + [
+            (f"temperature.{key}", temperature_block.get(key)) for key in (
+                "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
+                "segment_temperatures_degc", "segment_coefficients", "segment_poses")]:
+        _require_numbers(value, name, source)
     try:
         quality = None
         if body.get("quality") is not None:
@@ -119,8 +218,8 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             if not isinstance(q, dict):
                 raise CalibrationFileError("quality must be a mapping")
             poses = q.get("poses", 0)
-            if isinstance(poses, bool) or not isinstance(poses, int) or poses < 0:
-                raise CalibrationFileError(f"quality.poses must be a non-negative integer, got {poses!r:.40}")
+            if isinstance(poses, bool) or not isinstance(poses, int) or not 0 <= poses <= MAX_POSES:
+                raise CalibrationFileError(f"quality.poses must be an integer 0..{MAX_POSES}, got {poses!r:.40}")
             cond = q.get("condition_number")
             quality = Quality(
                 residual_rms_mg=_number(q.get("residual_rms_mg", float("nan")), "quality.residual_rms_mg")
@@ -144,6 +243,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             t = body["temperature"]
             if not isinstance(t, dict) or "model" not in t:
                 raise CalibrationFileError("temperature must be a mapping with a 'model' key")
+            _check_segment_block(t)
             try:
                 temperature = TemperatureModel(
                     kind=t["model"],
@@ -153,8 +253,11 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
                                     tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", []))),
                     bias_coefficients=t.get("bias_coefficients") or np.zeros((0, 3)),
                     scale_coefficients=t.get("scale_coefficients") or np.zeros((0, 3)),
-                    segment_edges_degc=t.get("segment_edges_degc") or np.zeros(0),
+                    segment_bounds_degc=t.get("segment_bounds_degc") or np.zeros((0, 2)),
+                    segment_temperatures_degc=t.get("segment_temperatures_degc") or np.zeros(0),
                     segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
+                    segment_poses=tuple(_list(t.get("segment_poses"), "temperature.segment_poses")),
+                    segment_blend=t.get("segment_blend", True),
                 )
             except (TypeError, ValueError) as error:
                 raise CalibrationFileError(f"temperature block: {error}") from None
@@ -178,25 +281,105 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
         raise CalibrationFileError(f"{source}: {error}") from None
 
 
-def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration:
+class _SafeLoader(yaml.SafeLoader):
+    """SafeLoader that refuses aliases (an alias bomb expands in whatever walks the result, not in the
+    parser) and nesting beyond MAX_YAML_DEPTH (the composer recurses: deep input would exhaust the
+    stack). Both are refused as soon as the parser reaches them, before the document is built."""
+
+    depth = 0
+
+    def compose_node(self, parent, index):  # type: ignore[no-untyped-def]
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted here",
+                                              event.start_mark)
+        self.depth += 1
+        try:
+            if self.depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels",
+                                                  self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self.depth -= 1
+
+
+def safe_yaml_load(text: str, source: str, error=None):
+    """Parse untrusted YAML: no aliases, bounded depth, safe types only. Every failure is one
+    `error` (CalibrationFileError by default) naming `source`."""
+    error = error or CalibrationFileError
+    loader = None
     try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        first = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise CalibrationFileError(f"{source}: not valid YAML ({first})") from None
+        loader = _SafeLoader(text)  # reads (and may refuse) the first characters already
+        return loader.get_single_data()
+    except yaml.YAMLError as problem:
+        first = str(problem).splitlines()[0] if str(problem) else type(problem).__name__
+        context = getattr(problem, "problem", None)
+        mark = getattr(problem, "problem_mark", None)
+        if context and mark is not None:
+            first = f"{context} (line {mark.line + 1})"
+        raise error(f"{source}: not valid YAML ({first})") from None
+    except (ValueError, TypeError, OverflowError, RecursionError, MemoryError) as problem:
+        # The safe constructors raise these for values the grammar accepts, e.g. a date 2024-13-45.
+        raise error(f"{source}: not valid YAML ({type(problem).__name__}: {str(problem)[:80]})") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration:
+    document = safe_yaml_load(text, source)
     return calibration_from_dict(document, source)
 
 
-def load_calibration(path) -> Calibration:
+def read_regular_file(path, max_bytes: int, what: str, error=None) -> bytes:
+    """The bytes of a regular file of at most `max_bytes`, or one `error` naming the path. A FIFO, device,
+    socket or directory is refused from its stat, before it is opened (opening a FIFO blocks until a
+    writer comes); the open itself is non-blocking and the type checked again on the open file."""
+    error = error or CalibrationFileError
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        info = os.stat(path)
     except FileNotFoundError:
-        raise CalibrationFileError(f"calibration file {path} not found") from None
-    except IsADirectoryError:
-        raise CalibrationFileError(f"calibration file {path} is a directory") from None
-    except OSError as error:
-        raise CalibrationFileError(f"cannot read calibration file {path}: {error.strerror}") from None
+        raise error(f"{path}: {what} not found") from None
+    except OSError as problem:
+        raise error(f"{path}: cannot read the {what} ({problem.strerror or problem})") from None
+    _require_regular(info, path, what, max_bytes, error)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as problem:
+        raise error(f"{path}: cannot read the {what} ({problem.strerror or problem})") from None
+    try:
+        _require_regular(os.fstat(fd), path, what, max_bytes, error)  # replaced between stat and open
+        chunks, size = [], 0
+        while size <= max_bytes:
+            chunk = os.read(fd, min(1 << 20, max_bytes + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as problem:
+        raise error(f"{path}: cannot read the {what} ({problem.strerror or problem})") from None
+    finally:
+        os.close(fd)
+    if size > max_bytes:
+        raise error(f"{path}: larger than {max_bytes // 1024} KiB, too large for a {what}")
+    return b"".join(chunks)
+
+
+def _require_regular(info: os.stat_result, path: Path, what: str, max_bytes: int, error) -> None:
+    mode = info.st_mode
+    if stat.S_ISDIR(mode):
+        raise error(f"{path}: is a directory, expected a {what}")
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+                else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+        raise error(f"{path}: is {kind}, expected a {what} (a regular file)")
+    if info.st_size > max_bytes:
+        raise error(f"{path}: larger than {max_bytes // 1024} KiB, too large for a {what}")
+
+
+def load_calibration(path) -> Calibration:
+    raw = read_regular_file(path, MAX_CALIBRATION_BYTES, "calibration file")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -204,44 +387,18 @@ def load_calibration(path) -> Calibration:
     return calibration_from_yaml(text, str(path))
 
 
-def _temp_prefix(path: Path) -> str:
-    return f".{path.name}."
-
-
 def write_text_atomically(path, text: str) -> None:
     """Write next to the target and rename over it, so a reader (or a crash) never sees half a file
-    and the old file stays whole when the write fails. The temp file is removed on any failure,
-    an interrupt included; one left by a killed process is removed by `remove_stale_temp_files`."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    tmp_name = None
-    try:
-        fd, tmp_name = tempfile.mkstemp(prefix=_temp_prefix(path), suffix=".tmp", dir=directory)
-        with os.fdopen(fd, "w", encoding="utf-8") as tmp:
-            tmp.write(text)
-            tmp.flush()
-            os.fsync(tmp.fileno())
-        os.replace(tmp_name, path)
-        tmp_name = None
-    except OSError as error:
-        raise CalibrationFileError(f"cannot write {path}: {error.strerror or error}") from None
-    finally:
-        if tmp_name is not None:
-            try:
-                os.unlink(tmp_name)
-            except OSError:
-                pass
+    and the old file stays whole when the write fails (see io/output_paths.py: symlinks are written
+    through, the old file's mode kept). A temp file left by a killed process is removed by
+    `remove_stale_temp_files`."""
+    write_bytes_atomically(path, text.encode("utf-8"))
 
 
 def remove_stale_temp_files(path) -> int:
     """Remove temp files a killed writer left beside `path` (ours only: `.<name>.*.tmp`); returns how many."""
-    path = Path(path)
     removed = 0
-    try:
-        candidates = list(path.parent.glob(_temp_prefix(path) + "*.tmp"))
-    except OSError:
-        return 0
-    for candidate in candidates:
+    for candidate in stale_temp_files(path):
         try:
             candidate.unlink()
             removed += 1

@@ -11,10 +11,16 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import CalibrationError
+from .calibration_file import read_regular_file
 
 ACCEL_COLUMNS = ("ax", "ay", "az")
 REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
 TEMPERATURE_COLUMN = "temperature"
+MAX_TABLE_BYTES = 256 << 20  # ~3 M rows of samples; parsing holds several times this in memory
+# |value| beyond this is no acceleration in any unit (raw counts of a 24-bit part at 16 g: ~1e8), and
+# keeps every product of the fit and of the correction far from overflow.
+MAX_ACCEL = 1e12
+TEMPERATURE_LIMITS_DEGC = (-273.15, 1000.0)  # physical: absolute zero to beyond any sensor
 
 
 @dataclass(frozen=True)
@@ -28,14 +34,7 @@ class Table:
 
 def read_text(path) -> str:
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise CalibrationError(f"{path}: is a directory, expected a CSV file") from None
-    except OSError as error:
-        raise CalibrationError(f"{path}: cannot read ({error.strerror})") from None
+    data = read_regular_file(path, MAX_TABLE_BYTES, "CSV file", error=CalibrationError)
     if b"\x00" in data:
         raise CalibrationError(f"{path}: binary content, expected a CSV text file")
     try:
@@ -44,8 +43,9 @@ def read_text(path) -> str:
         raise CalibrationError(f"{path}: not UTF-8 text, expected a CSV file") from None
 
 
-def _numbers(rows, header, names, path) -> np.ndarray:
+def _numbers(rows, header, names, path, limits=(-MAX_ACCEL, MAX_ACCEL)) -> np.ndarray:
     indices = [header.index(name) for name in names]
+    low, high = limits
     values = np.empty((len(rows), len(names)))
     for r, row in enumerate(rows):
         for c, index in enumerate(indices):
@@ -57,7 +57,10 @@ def _numbers(rows, header, names, path) -> np.ndarray:
                     f"{path}: row {r + 2}, column {names[c]}: {cell[:20]!r} is not a number"
                 ) from None
             if not math.isfinite(number):
-                raise CalibrationError(f"{path}: row {r + 2}, column {names[c]}: {cell!r} is not finite")
+                raise CalibrationError(f"{path}: row {r + 2}, column {names[c]}: {cell[:20]!r} is not finite")
+            if not low <= number <= high:
+                raise CalibrationError(f"{path}: row {r + 2}, column {names[c]}: {number:.3g} is outside "
+                                       f"{low:g}..{high:g}: a corrupt value or the wrong units")
             values[r, c] = number
     return values
 
@@ -71,6 +74,10 @@ def read_table(path) -> Table:
     if not records:
         raise CalibrationError(f"{path}: empty file, expected a header row with {','.join(ACCEL_COLUMNS)}")
     header = [cell.strip().lower() for cell in records[0]]
+    repeated = sorted({name for name in header if name and header.count(name) > 1})
+    if repeated:
+        raise CalibrationError(f"{path}: column {', '.join(repeated)} appears more than once in the header: "
+                               "which one is meant is unclear; rename or drop the copy")
     missing = [name for name in ACCEL_COLUMNS if name not in header]
     if missing:
         raise CalibrationError(
@@ -84,7 +91,8 @@ def read_table(path) -> Table:
         if len(row) != len(header):
             raise CalibrationError(f"{path}: row {r + 2} has {len(row)} fields, header has {len(header)}")
     accel = _numbers(rows, header, ACCEL_COLUMNS, path)
-    temperature = _numbers(rows, header, (TEMPERATURE_COLUMN,), path)[:, 0] if TEMPERATURE_COLUMN in header else None
+    temperature = (_numbers(rows, header, (TEMPERATURE_COLUMN,), path, TEMPERATURE_LIMITS_DEGC)[:, 0]
+                   if TEMPERATURE_COLUMN in header else None)
     reference = None
     present = [name in header for name in REFERENCE_COLUMNS]
     if any(present):

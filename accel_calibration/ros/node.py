@@ -33,12 +33,14 @@ from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Imu, Temperature
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from ..core.calibration import Calibration
 from ..core.correction import Correction
 from ..core.errors import AccelCalibrationError, CalibrationError, SettingsError
 from ..core.fit import FitResult
+from ..core.screening import Counters
 from ..core.session import CalibrationSession
 from ..core.settings import PARAMETERS, RELIABILITIES, Parameter, Settings, check_value
 from ..io.calibration_file import (
@@ -53,6 +55,7 @@ NODE_NAME = "accel_calibration"
 # publish with sensor-data QoS.
 INPUT_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 SERVICE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+ARMED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 MIRROR_PREFIX = "calibration."
 # Parameters of the node itself (not of the session): fixed at start-up.
 NODE_PARAMETERS = (
@@ -121,6 +124,9 @@ class CalibrationNode(Node):
         self._publisher = self.create_publisher(Imu, "imu/data_calibrated", output_qos)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Imu, "imu/data_raw", self._guard("imu", self._on_imu), INPUT_QOS)
+        # Optional: true while the vehicle is armed or flying (remap `armed` to the stack's state); nothing
+        # is collected meanwhile. Reliable: one lost "true" would let a flight in.
+        self.create_subscription(Bool, "armed", self._guard("armed", self._on_armed), ARMED_QOS)
         self.create_subscription(Temperature, "imu/temperature", self._guard("temperature", self._on_temperature),
                                  INPUT_QOS)
         # Services keep up to 100 requests (default 10): several tools may call /calibrate at once.
@@ -128,6 +134,9 @@ class CalibrationNode(Node):
         self._deferred_service(Trigger, "calibration/reset", lambda request: self._worker.submit(self._reset_job))
         self._deferred_service(Trigger, "calibration/save", lambda request: self._worker.submit(self._save_job))
         self.create_service(Trigger, "calibration/get", self._guard("calibration/get", self._srv_get, _failed_trigger),
+                            qos_profile=SERVICE_QOS)
+        self.create_service(SetBool, "calibration/pause",
+                            self._guard("calibration/pause", self._srv_pause, _failed_set_bool),
                             qos_profile=SERVICE_QOS)
         self.create_service(SetBool, "calibration/enable",
                             self._guard("calibration/enable", self._srv_enable, _failed_set_bool),
@@ -262,8 +271,12 @@ class CalibrationNode(Node):
             self._status = (DiagnosticStatus.WARN, "uncalibrated: raw passes through")
             return
         try:
+            from ..core.plausibility import plausibility_problem
+
             calibration = load_calibration(path)
-            implausible = self._session.gates.plausibility(calibration)
+            settings = self._session.settings
+            implausible = plausibility_problem(calibration, max_bias_mps2=settings.max_bias_mps2,
+                                               scale_band=(settings.scale_min, settings.scale_max))
             if implausible is not None:
                 raise CalibrationError(f"{path}: implausible for an accelerometer in m/s^2 ({implausible})")
         except CalibrationError as error:
@@ -466,6 +479,27 @@ class CalibrationNode(Node):
             response.success, response.message = True, calibration_to_yaml(calibration)
         return response
 
+    def _on_armed(self, msg: Bool) -> None:
+        armed = bool(msg.data)
+        if armed == ("armed" in self._session.pause_reasons):
+            return
+        self._session.set_collecting(not armed, "armed")  # on the stream's thread, as add_sample
+        self.get_logger().info("armed: collection paused (nothing of a flight becomes a pose)" if armed
+                               else "disarmed: collection resumed" + self._still_paused())
+
+    def _srv_pause(self, request: Any, response: Any) -> Any:
+        pause = bool(request.data)
+        self._session.set_collecting(not pause, "calibration/pause")
+        response.success = True
+        response.message = ("collection paused: the corrected stream goes on, no poses are collected" if pause
+                            else "collection resumed" + self._still_paused())
+        self.get_logger().info("calibration/pause: " + response.message)
+        return response
+
+    def _still_paused(self) -> str:
+        reasons = self._session.pause_reasons
+        return f" (still paused: {', '.join(reasons)})" if reasons else ""
+
     def _srv_enable(self, request: Any, response: Any) -> Any:
         self._enabled = bool(request.data)
         response.success = True
@@ -485,7 +519,7 @@ class CalibrationNode(Node):
         progress = self._progress
         level, message = self._status
         counts = self.counters()
-        if level == DiagnosticStatus.OK and any(v for k, v in counts.items() if k != "samples"):
+        if level == DiagnosticStatus.OK and any(v for k, v in counts.items() if k not in Counters.INFORMATIONAL):
             level = DiagnosticStatus.WARN
         temperature = self._session.temperature.value
         values = {
@@ -496,6 +530,9 @@ class CalibrationNode(Node):
             "fit_residual_rms_mg": "" if progress.residual_rms_mg is None else f"{progress.residual_rms_mg:.3f}",
             "fit_bias_sigma_max_mg": "" if progress.max_bias_sigma_mg is None else f"{progress.max_bias_sigma_mg:.3f}",
             "detector_state": str(self._session.detector.state),
+            # "yes", or why not: "paused (armed)", "paused (calibration/pause)" -- the stream is corrected still
+            "collecting": ("yes" if self._session.collecting
+                           else "paused (" + ", ".join(self._session.pause_reasons) + ")"),
             "correction": "on" if self._enabled and self._calibration is not None else "off",
             "calibration_file": str(self._calibration_path),
             "frame_id": self._frame_id or "",
@@ -511,10 +548,12 @@ class CalibrationNode(Node):
         calibration = self._calibration
         if calibration is not None and calibration.quality is not None:
             values["calibration_residual_rms_mg"] = f"{calibration.quality.residual_rms_mg:.3f}"
+        reasons = self._session.pause_reasons
+        paused = f" (collection paused: {', '.join(reasons)})" if reasons else ""
         status = DiagnosticStatus(
             level=level,
             name=f"accel_calibration: {self.get_fully_qualified_name()}",
-            message=f"{message}; {progress.advice}",
+            message=f"{message}; {progress.advice}" + paused,
             hardware_id=calibration.sensor_id if calibration is not None else self._session.settings.sensor_id,
             values=[KeyValue(key=k, value=v) for k, v in values.items()],
         )
@@ -570,6 +609,10 @@ def _summary_yaml(result: FitResult, saved_message: str) -> str:
         t = c.temperature
         lines.append(f"temperature_model: {{kind: {t.kind}, reference_degc: {t.reference_degc:.2f}, "
                      f"range_degc: [{t.range_degc[0]:.2f}, {t.range_degc[1]:.2f}]}}")
+    if result.outliers:  # poses left out of the fit, numbered from 1 as the log numbers accepted poses
+        lines.append("outliers: [" + ", ".join(
+            f"{{pose: {o.index + 1}, residual_mg: {o.residual_mg:.1f}, orientation: '{o.orientation}'}}"
+            for o in result.outliers) + "]")
     lines.append(f"saved: {saved_message}")
     return "\n".join(lines)
 

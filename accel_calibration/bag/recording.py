@@ -1,0 +1,268 @@
+"""One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
+ULog, a CSV stream of raw samples. `open_recording` finds the format (from the path and content, or as
+named) and gives the same sample arrays whatever it was, for the same calibration session as the node
+(`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
+(a ULog gets a CSV of corrected samples).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .bag_io import BagError
+
+FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "csv")
+KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
+         "csv (raw samples with a header t,ax,ay,az)")
+BAGS = ("rosbag2", "mcap", "sqlite3")
+_MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
+_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
+
+
+class RecordingError(BagError):
+    """A recording that cannot be read as asked: one line naming the file and what to do."""
+
+
+@dataclass
+class Recording:
+    """A recording as the session takes it: SI units, stamps in ns in the order recorded."""
+
+    path: str
+    format: str  # one of FORMATS
+    stream: str  # what was read: an Imu topic, "sensor_combined", "ax,ay,az (g) at t", ...
+    t_ns: np.ndarray  # int64
+    accel_mps2: np.ndarray  # (N, 3)
+    gyro_radps: np.ndarray | None  # (N, 3); None when the recording has no gyro
+    temperature: tuple[np.ndarray, np.ndarray] | None  # (stamps ns, degC), held and filtered by the session
+    temperature_stream: str | None
+    frame_id: str = ""
+    sensor_id: str = ""
+    source: object = None  # what writing a corrected copy needs (bag_io.ImuData, csv_stream.CsvLayout)
+
+    @property
+    def unit(self) -> str:
+        """What one element of the stream is called when counting them."""
+        return "messages" if self.format in BAGS else "samples"
+
+
+def detect_format(path) -> str:
+    """The format of `path` from its content (magic bytes), else its suffix, else text that looks like CSV."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path}: no such bag or file")
+    if path.is_dir():
+        if (path / "metadata.yaml").exists() or any(path.glob("*.mcap")) or any(path.glob("*.db3")):
+            return "rosbag2"
+        raise RecordingError(f"{path}: a directory but no rosbag2 (no metadata.yaml, .mcap or .db3 in it); "
+                             f"known formats: {KNOWN}")
+    _regular_file(path)
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(4096)
+    except OSError as error:
+        raise RecordingError(f"{path}: cannot read ({error.strerror})") from None
+    for magic, name in _MAGIC.items():
+        if head.startswith(magic):
+            return name
+    by_suffix = _SUFFIX.get(path.suffix.lower())
+    if by_suffix is not None:
+        return by_suffix
+    first_line = head.split(b"\n", 1)[0]
+    if head and b"\x00" not in head and any(d in first_line for d in (b",", b";", b"\t")):
+        try:
+            first_line.decode("utf-8-sig")
+            return "csv"
+        except UnicodeDecodeError:
+            pass
+    raise RecordingError(f"{path}: unknown recording format; known: {KNOWN} (or name one with --format)")
+
+
+def _regular_file(path: Path) -> None:
+    if not path.exists():
+        raise RecordingError(f"{path}: no such bag or file")
+    if not path.is_file():  # a FIFO or a device would block a read, or never end
+        raise RecordingError(f"{path}: not a regular file (a directory, FIFO, device or socket): not a "
+                             "recording of this format")
+
+
+def open_recording(path, format: str | None = None, *, imu_topic: str | None = None,
+                   temperature_topic: str | None = None, instance: int | None = None, time_unit: str | None = None,
+                   units: str | None = None, counts_per_g: float | None = None, progress: bool = False,
+                   for_copy: bool = False) -> Recording:
+    """The recording at `path` as sample arrays. Options that do not apply to its format are refused
+    (one line), not ignored. `for_copy`: read a bag in rosbags' message order, which a corrected copy needs."""
+    if format is not None and format not in FORMATS:
+        raise RecordingError(f"--format {format!r} is not a known format; known: {KNOWN}")
+    kind = format or detect_format(path)
+    given = {"--imu-topic": imu_topic, "--temperature-topic": temperature_topic, "--instance": instance,
+             "--time-unit": time_unit, "--units": units, "--counts-per-g": counts_per_g}
+    applies = {"ulog": ("--instance",), "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
+        kind, ("--imu-topic", "--temperature-topic"))
+    stray = [flag for flag, value in given.items() if value is not None and flag not in applies]
+    if stray:
+        raise RecordingError(f"{path}: {stray[0]} does not apply to a {kind} recording (it applies to "
+                             f"{_where(stray[0])})")
+    if kind != "rosbag2":
+        _regular_file(Path(path))
+    if kind in BAGS:
+        return _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy)
+    if kind == "ulog":
+        return _read_ulog(path, instance, progress)
+    return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
+
+
+def _where(flag: str) -> str:
+    if flag == "--instance":
+        return "PX4 ULog logs"
+    if flag in ("--imu-topic", "--temperature-topic"):
+        return "bags"
+    return "CSV streams"
+
+
+def _bar(path, total, unit: str, progress: bool):
+    if not progress:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit=unit, unit_scale=unit == "B", desc=Path(path).name, leave=False, disable=None)
+
+
+def _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy) -> Recording:
+    from .replay import ReplaySettings, _read_fast, _read_with_rosbags
+
+    topics = ReplaySettings(imu_topic=imu_topic, temperature_topic=temperature_topic)
+    if kind == "rosbag2" and not Path(path).is_dir():
+        raise RecordingError(f"{path}: not a directory; a single storage file is --format mcap or sqlite3")
+    loaded = None
+    if not for_copy:
+        loaded = _read_fast(path, topics, progress) if kind == "rosbag2" else _read_file_fast(path, topics, progress)
+    if loaded is None:
+        loaded = _read_with_rosbags(path, topics, progress)
+    imu, temperatures, temperature_name = loaded
+    return Recording(str(path), kind, imu.topic, imu.t_ns, imu.accel, imu.gyro, temperatures, temperature_name,
+                     frame_id=imu.frame_id, source=imu)
+
+
+def _read_file_fast(path, topics, progress):
+    """A single .mcap/.db3 file: topics and counts from rosbags' reader, messages straight from the file."""
+    from .bag_io import IMU, TEMPERATURE, TopicInfo, choose_topic, open_reader, read_fast
+    from .replay import _no_imu
+
+    reader = open_reader(path)
+    try:
+        infos = [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
+    finally:
+        reader.close()
+    imu_topic = choose_topic(infos, IMU, topics.imu_topic, "imu", path)
+    if imu_topic is None:
+        raise _no_imu(path, infos)
+    temperature_topic = choose_topic(infos, TEMPERATURE, topics.temperature_topic, "temperature", path)
+    bar = _bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), "msg", progress)
+    try:
+        read = read_fast(path, imu_topic, temperature_topic, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    if read is None:
+        return None
+    return read[0], read[1], temperature_topic.topic if temperature_topic else None
+
+
+def _read_ulog(path, instance, progress) -> Recording:
+    from .ulog_reader import read_ulog
+
+    if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
+        raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
+    bar = _bar(path, _size(path), "B", progress)
+    try:
+        log = read_ulog(path, instance, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    return Recording(str(path), "ulog", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
+                     log.temperature_stream, sensor_id=log.sensor_id)
+
+
+def _read_csv(path, time_unit, units, counts_per_g, progress) -> Recording:
+    from .csv_stream import read_csv_stream
+
+    bar = _bar(path, _size(path), "B", progress)
+    try:
+        samples = read_csv_stream(path, time_unit=time_unit, units=units, counts_per_g=counts_per_g, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    temperature_stream = "temperature column" if samples.temperature is not None else None
+    return Recording(str(path), "csv", samples.stream, samples.t_ns, samples.accel_mps2, samples.gyro_radps,
+                     samples.temperature, temperature_stream, source=samples.layout)
+
+
+def _size(path) -> int | None:
+    try:
+        return os.path.getsize(path)
+    except OSError:
+        return None
+
+
+# ------------------------------------------------------------------------------------------- writing
+def write_corrected_copy(replay, calibration, destination) -> str:
+    """A corrected copy of the replayed recording in its own format (a ULog: a CSV of corrected samples,
+    t_ns,ax,ay,az,gx,gy,gz,temperature in SI units, temperature the filtered value the correction used).
+    Returns a line saying what was written."""
+    from .replay import corrected_accel, write_corrected_bag
+
+    recording = replay.recording
+    kind = recording.format if recording is not None else "rosbag2"
+    source = Path(replay.bag)
+    if Path(destination).resolve() == source.resolve():
+        raise RecordingError(f"{destination}: is the recording itself; write the corrected copy elsewhere")
+    if kind == "rosbag2":
+        written = write_corrected_bag(replay, calibration, destination)
+        return f"corrected bag {destination} ({written} messages; {replay.imu_topic} corrected)"
+    if kind in ("mcap", "sqlite3"):
+        written = _write_corrected_bag_file(replay, calibration, destination)
+        return f"corrected {kind} file {destination} ({written} messages; {replay.imu_topic} corrected)"
+    from ..io.calibration_file import write_text_atomically
+    from .csv_stream import corrected_csv_text, samples_csv_text
+
+    temperatures = replay.temperatures_at_samples()
+    corrected, valid = corrected_accel(recording.accel_mps2, temperatures, calibration)
+    if kind == "csv":
+        text = corrected_csv_text(recording.path, recording.source, corrected, valid)
+        write_text_atomically(destination, text)
+        return f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
+    text = samples_csv_text(recording.t_ns, corrected, recording.gyro_radps, temperatures)
+    write_text_atomically(destination, text)
+    return f"corrected samples {destination} (CSV t_ns,ax,ay,az,...: a ULog is not rewritten; {len(corrected)} samples)"
+
+
+def _write_corrected_bag_file(replay, calibration, destination) -> int:
+    """A single storage file: the bag written beside the destination, then its one file moved into place."""
+    from .replay import write_corrected_bag
+
+    destination = Path(destination)
+    if destination.is_dir():
+        raise RecordingError(f"{destination}: is a directory; the corrected copy of a single {replay.recording.format} "
+                             "file is a file")
+    try:
+        scratch = Path(tempfile.mkdtemp(prefix=".corrected-", dir=destination.parent))
+    except OSError as error:
+        raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
+    try:
+        bag = scratch / destination.stem
+        written = write_corrected_bag(replay, calibration, bag)
+        files = [f for f in bag.iterdir() if f.suffix in (".mcap", ".db3")]
+        if len(files) != 1:
+            raise RecordingError(f"{destination}: the corrected bag came out as {len(files)} files, expected one")
+        try:
+            os.replace(files[0], destination)
+        except OSError as error:
+            raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return written

@@ -1,0 +1,377 @@
+"""PX4 ULog flight logs as sample arrays for the calibration session, read with pyulog.
+
+Two sources in a log:
+- `sensor_combined` (default): the estimator's IMU stream, accel in m/s^2 at `timestamp` +
+  `accelerometer_timestamp_relative` (us), gyro in rad/s. Its temperature is the `temperature` field of
+  the `sensor_accel` instance that `sensor_selection` names as the one feeding it (when logged).
+- `sensor_accel` / `sensor_gyro` of one IMU (`instance=N`): accel at `timestamp_sample`, the gyro of the
+  same instance interpolated to those stamps, the instance's `temperature` field as its temperature stream.
+
+Errors are `UlogError` (one line naming the file); pyulog's own prints are kept off stdout.
+A log cut short mid-record (power lost while logging) is refused: pyulog would stop there without a word.
+
+`write_ulog` writes a minimal ULog (tests, benchmarks, turning arrays into a log).
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .bag_io import BagError
+
+MAGIC = b"ULog\x01\x12\x35"
+RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: this sensor had no new sample in the message
+COMBINED = "sensor_combined"
+ACCEL, GYRO, SELECTION = "sensor_accel", "sensor_gyro", "sensor_selection"
+
+
+class UlogError(BagError):
+    """A ULog that cannot give accelerometer samples: the message names the file and what was found."""
+
+
+@dataclass
+class UlogSamples:
+    """What a log gives the session (SI units; stamps in ns of the log's clock, in logged order)."""
+
+    stream: str  # "sensor_combined" or "sensor_accel instance N"
+    t_ns: np.ndarray
+    accel_mps2: np.ndarray  # (N, 3)
+    gyro_radps: np.ndarray | None  # (N, 3)
+    temperature: tuple[np.ndarray, np.ndarray] | None  # (stamps ns, degC)
+    temperature_stream: str | None
+    sensor_id: str  # "px4 device <id>" when the log says which device
+
+
+def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
+    """`progress`: a tqdm bar counting bytes read."""
+    path = Path(path)
+    topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO]
+    log = _load(path, topics, progress)
+    if instance is None:
+        return _from_combined(path, log)
+    return _from_instance(path, log, instance)
+
+
+# pyulog stops without a word at a record cut short by the end of the file. So the file is read with one
+# more, whole, record after it: a logged string that pyulog reports last only when the record chain ends
+# exactly at the end of the file. A cut record swallows it. (Costs nothing; a header walk costs ~10 %.)
+END_MARKER = "accel_calibration: end of file"
+
+
+def _load(path: Path, topics: list[str], progress=None):
+    from pyulog import ULog
+    from pyulog.exceptions import ULogException
+
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(len(MAGIC))
+    except FileNotFoundError:
+        raise UlogError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise UlogError(f"{path}: is a directory, expected a .ulg file") from None
+    except OSError as error:
+        raise UlogError(f"{path}: cannot read ({error.strerror})") from None
+    if head != MAGIC:
+        raise UlogError(f"{path}: not a PX4 ULog (no ULog header)")
+    problem = _definitions_problem(path)
+    if problem is not None:
+        raise UlogError(f"{path}: {problem}")
+    marker = _record(b"L", struct.pack("<BQ", ord("6"), 0) + END_MARKER.encode())
+    chatter = io.StringIO()  # pyulog prints warnings on stdout; they must not interleave with ours
+    source = None
+    try:
+        source = io.BufferedReader(_MarkedFile(path, marker, progress), buffer_size=1 << 20)
+        with contextlib.redirect_stdout(chatter):
+            log = ULog(source, message_name_filter_list=topics)
+    except ULogException as error:
+        raise UlogError(f"{path}: unreadable ULog ({error})") from None
+    except (ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError, OverflowError, MemoryError) as error:
+        raise UlogError(f"{path}: unreadable ULog ({type(error).__name__}: {str(error)[:80]})") from None
+    except OSError as error:
+        raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
+    finally:
+        if source is not None:
+            source.close()  # pyulog closes it only when it finishes
+    messages = log.logged_messages
+    if not messages or messages[-1].message != END_MARKER:
+        raise UlogError(_truncation(path))
+    messages.pop()
+    log.formats_defined = sorted(log.message_formats)  # for saying what the log has
+    return log
+
+
+class _MarkedFile(io.RawIOBase):
+    """The file followed by `marker`, as one seekable stream (moving a tqdm bar by the bytes read)."""
+
+    def __init__(self, path: Path, marker: bytes, progress=None):
+        self._file = open(path, "rb")  # noqa: SIM115 (closed by close(), which pyulog calls)
+        self._size = self._file.seek(0, io.SEEK_END)
+        self._file.seek(0)
+        self._marker = marker
+        self._pos = 0
+        self._progress = progress
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        view = memoryview(buffer).cast("B")
+        if self._pos < self._size:
+            count = self._file.readinto(view[:self._size - self._pos])
+        else:
+            tail = self._marker[self._pos - self._size:self._pos - self._size + len(view)]
+            view[:len(tail)] = tail
+            count = len(tail)
+        self._pos += count
+        if self._progress is not None and count:
+            self._progress.update(count)
+        return count
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        base = {io.SEEK_SET: 0, io.SEEK_CUR: self._pos, io.SEEK_END: self._size + len(self._marker)}[whence]
+        if base + offset < 0:
+            raise OSError(22, "Invalid argument")  # as a file does
+        self._pos = base + offset
+        self._file.seek(min(self._pos, self._size))
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+
+_DEFINITIONS = frozenset(b"IMFPQB")  # record types pyulog parses before the data section
+_DATA_STARTS = frozenset(b"ALC")  # the first of these ends the definitions
+
+
+def _definitions_problem(path: Path) -> str | None:
+    """A definitions section cut short or corrupt, said plainly. pyulog must not see one: at a corrupt
+    record there it steps back by the record's size, and near the end of a cut file that can be further
+    than it went forward, for ever. (Few records: formats, parameters; the data section is not walked.)"""
+    import mmap
+
+    unpack = struct.Struct("<HB").unpack_from
+    with open(path, "rb") as stream:
+        size = stream.seek(0, io.SEEK_END)
+        if size < 16:
+            return f"truncated ULog: {size} bytes, shorter than the 16-byte file header"
+        if size == 16:
+            return "truncated ULog: a file header and nothing after it"
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            pos = 16
+            while pos < size:
+                if pos + 3 > size:
+                    return f"truncated ULog: the record at byte {pos} is cut short in its header"
+                length, kind = unpack(data, pos)
+                if kind in _DATA_STARTS:
+                    return None
+                if kind not in _DEFINITIONS and (kind == 0 or length == 0 or length > 10_000):
+                    return f"corrupt ULog: no valid record at byte {pos} of its definitions"
+                if pos + 3 + length > size:
+                    return (f"truncated ULog: the record at byte {pos} needs {3 + length} bytes, the file ends "
+                            f"{size - pos} bytes after its start (cut short before any data)")
+                pos += 3 + length
+    return None  # definitions only: no data, said by the reader
+
+
+def _truncation(path: Path) -> str:
+    try:
+        cut = _cut_at(path.read_bytes())
+    except OSError:
+        cut = None
+    if cut is None:
+        return f"{path}: truncated or corrupt ULog (its records do not end with the file)"
+    offset, needed, have = cut
+    return (f"{path}: truncated ULog: the record at byte {offset} needs {needed} bytes, the file ends {have} bytes "
+            "after its start (cut short while logging?)")
+
+
+def _cut_at(data: bytes) -> tuple[int, int, int] | None:
+    """(offset, bytes needed, bytes there) of a last record cut short by the end of the file, else None.
+    Walks the record headers (uint16 size, uint8 type) after the 16-byte file header: ~0.2 us a record."""
+    unpack = struct.Struct("<H").unpack_from
+    pos, end, last = 16, len(data), 16
+    while pos + 3 <= end:
+        last = pos
+        pos += 3 + unpack(data, pos)[0]
+    if pos == end:
+        return None
+    if pos < end:  # one or two bytes of a record header
+        return pos, 3, end - pos
+    return last, pos - last, end - last
+
+
+def _datasets(log, name: str) -> list:
+    return [d for d in log.data_list if d.name == name and len(d.data["timestamp"])]
+
+
+def _no_accel(path: Path, log, wanted: str) -> UlogError:
+    have = [name for name in log.formats_defined if name.startswith(("sensor_", "vehicle_imu"))]
+    listed = ", ".join(have[:8]) + (", ..." if len(have) > 8 else "") if have else "no sensor topics"
+    return UlogError(f"{path}: no accelerometer data ({wanted}) in this log; it defines {listed}")
+
+
+def _xyz(data: dict, names: tuple[str, str, str]) -> np.ndarray:
+    return np.column_stack([np.asarray(data[n], dtype=float) for n in names])
+
+
+def _from_combined(path: Path, log) -> UlogSamples:
+    found = _datasets(log, COMBINED)
+    if not found:
+        raise _no_accel(path, log, "sensor_combined; or sensor_accel with --instance N")
+    data = found[0].data
+    stamp_us = data["timestamp"].astype(np.int64)
+    if "accelerometer_timestamp_relative" in data:
+        relative = data["accelerometer_timestamp_relative"].astype(np.int64)
+        has_accel = relative != RELATIVE_TIMESTAMP_INVALID
+        stamp_us = stamp_us + np.where(has_accel, relative, 0)
+    else:
+        has_accel = np.ones(len(stamp_us), dtype=bool)
+    accel = _xyz(data, ("accelerometer_m_s2[0]", "accelerometer_m_s2[1]", "accelerometer_m_s2[2]"))
+    gyro = None
+    if "gyro_rad[0]" in data:
+        gyro = _xyz(data, ("gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]"))
+    if not has_accel.all():
+        accel, stamp_us = accel[has_accel], stamp_us[has_accel]
+        gyro = None if gyro is None else gyro[has_accel]
+    temperature, temperature_stream, sensor_id = _selected_accel_temperature(log)
+    return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id)
+
+
+def _selected_accel_temperature(log):
+    """The temperature of the sensor_accel instance sensor_combined is fed from (sensor_selection names
+    its device), or of the only instance; None when the log does not say."""
+    instances = _datasets(log, ACCEL)
+    selection = _datasets(log, SELECTION)
+    chosen = None
+    if selection and "accel_device_id" in selection[0].data:
+        devices = selection[0].data["accel_device_id"]
+        device = int(devices[-1])  # the one in force at the end (a switch mid-log is rare)
+        chosen = next((d for d in instances if "device_id" in d.data and int(d.data["device_id"][0]) == device), None)
+    elif len(instances) == 1:
+        chosen = instances[0]
+    if chosen is None or "temperature" not in chosen.data:
+        sensor_id = f"px4 device {int(selection[0].data['accel_device_id'][-1])}" if selection else ""
+        return None, None, sensor_id
+    stamps, degc = _temperature_of(chosen.data)
+    return (stamps, degc), f"sensor_accel instance {chosen.multi_id} temperature", _device(chosen.data)
+
+
+def _temperature_of(data: dict) -> tuple[np.ndarray, np.ndarray]:
+    stamp_us = data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"]
+    return stamp_us.astype(np.int64) * 1000, np.asarray(data["temperature"], dtype=float)
+
+
+def _device(data: dict) -> str:
+    return f"px4 device {int(data['device_id'][0])}" if "device_id" in data else ""
+
+
+def _from_instance(path: Path, log, instance: int) -> UlogSamples:
+    accels = {d.multi_id: d for d in _datasets(log, ACCEL)}
+    if not accels:
+        raise _no_accel(path, log, f"sensor_accel instance {instance}")
+    if instance not in accels:
+        raise UlogError(f"{path}: no sensor_accel instance {instance}; the log has instance(s) "
+                        f"{', '.join(map(str, sorted(accels)))}")
+    data = accels[instance].data
+    stamp_us = (data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"]).astype(np.int64)
+    accel = _xyz(data, ("x", "y", "z"))
+    gyros = {d.multi_id: d for d in _datasets(log, GYRO)}
+    gyro_set = gyros.get(instance)
+    device = int(data["device_id"][0]) if "device_id" in data else None
+    if device is not None:  # the gyro of the same chip, whatever its instance number
+        gyro_set = next((g for g in gyros.values() if "device_id" in g.data and int(g.data["device_id"][0]) == device),
+                        gyro_set)
+    gyro = None
+    if gyro_set is not None:
+        g = gyro_set.data
+        g_us = (g["timestamp_sample"] if "timestamp_sample" in g else g["timestamp"]).astype(np.int64)
+        order = np.argsort(g_us, kind="stable")
+        gyro = np.column_stack([np.interp(stamp_us, g_us[order], np.asarray(g[axis], dtype=float)[order])
+                                for axis in ("x", "y", "z")])
+    temperature = temperature_stream = None
+    if "temperature" in data:
+        temperature = _temperature_of(data)
+        temperature_stream = f"sensor_accel instance {instance} temperature"
+    return UlogSamples(f"sensor_accel instance {instance}", stamp_us * 1000, accel, gyro, temperature,
+                       temperature_stream, _device(data))
+
+
+# ---------------------------------------------------------------------------------------------- writing
+_TYPES = {np.dtype("<u8"): "uint64_t", np.dtype("<i8"): "int64_t", np.dtype("<u4"): "uint32_t",
+          np.dtype("<i4"): "int32_t", np.dtype("<u2"): "uint16_t", np.dtype("<i2"): "int16_t",
+          np.dtype("u1"): "uint8_t", np.dtype("i1"): "int8_t", np.dtype("<f4"): "float", np.dtype("<f8"): "double"}
+
+
+def _record(kind: bytes, body: bytes) -> bytes:
+    return struct.pack("<HB", len(body), kind[0]) + body
+
+
+def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0) -> int:
+    """Write a minimal ULog: `topics` are (name, multi_id, structured array with a uint64 `timestamp` field
+    first and scalar fields of the C types ULog knows). Messages of all topics are interleaved by timestamp,
+    as the PX4 logger writes them. Returns the data messages written."""
+    out = [MAGIC + b"\x01" + struct.pack("<Q", start_us),
+           _record(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
+    formats = {}
+    for name, _, array in topics:
+        if name not in formats:
+            fields = "".join(f"{_TYPES[array.dtype[field].newbyteorder('<')]} {field};" for field in array.dtype.names)
+            formats[name] = fields
+            out.append(_record(b"F", f"{name}:{fields}".encode()))
+    out.append(_record(b"I", bytes([len(b"char[8] sys_name")]) + b"char[8] sys_name" + b"accelcal"))
+    keys, blocks = [], []
+    for msg_id, (name, multi_id, array) in enumerate(topics):
+        out.append(_record(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))
+        size = 2 + array.dtype.itemsize
+        rows = np.zeros((len(array), 3 + size), dtype=np.uint8)
+        rows[:, 0:2] = np.frombuffer(struct.pack("<H", size), dtype=np.uint8)
+        rows[:, 2] = ord("D")
+        rows[:, 3:5] = np.frombuffer(struct.pack("<H", msg_id), dtype=np.uint8)
+        packed = np.ascontiguousarray(array).view(np.uint8).reshape(len(array), array.dtype.itemsize)
+        rows[:, 5:] = packed
+        blocks.append(rows)
+        keys.append(np.asarray(array["timestamp"], dtype=np.int64))
+    # Interleave: every message's bytes go to its place in timestamp order.
+    stamps = np.concatenate(keys) if keys else np.zeros(0, dtype=np.int64)
+    lengths = np.concatenate([np.full(len(b), b.shape[1]) for b in blocks]) if blocks else np.zeros(0, dtype=np.int64)
+    order = np.argsort(stamps, kind="stable")
+    starts = np.empty(len(order), dtype=np.int64)
+    starts[order] = np.concatenate(([0], np.cumsum(lengths[order])[:-1])) if len(order) else []
+    body = np.empty(int(lengths.sum()), dtype=np.uint8)
+    first = 0
+    for rows in blocks:
+        where = starts[first:first + len(rows)]
+        body[where[:, None] + np.arange(rows.shape[1])] = rows
+        first += len(rows)
+    with open(path, "wb") as stream:
+        stream.write(b"".join(out))
+        stream.write(body.tobytes())
+    return len(order)
+
+
+def sensor_combined_array(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray) -> np.ndarray:
+    """A sensor_combined dataset as PX4 v1.14 logs it (for write_ulog)."""
+    dtype = np.dtype([("timestamp", "<u8"), ("gyro_rad[0]", "<f4"), ("gyro_rad[1]", "<f4"), ("gyro_rad[2]", "<f4"),
+                      ("gyro_integral_dt", "<u4"), ("accelerometer_timestamp_relative", "<i4"),
+                      ("accelerometer_m_s2[0]", "<f4"), ("accelerometer_m_s2[1]", "<f4"),
+                      ("accelerometer_m_s2[2]", "<f4"), ("accelerometer_integral_dt", "<u4"),
+                      ("accelerometer_clipping", "u1"), ("accel_calibration_count", "u1"),
+                      ("gyro_calibration_count", "u1")])  # trailing padding is not logged
+    out = np.zeros(len(t_us), dtype=dtype)
+    out["timestamp"] = t_us
+    for i in range(3):
+        out[f"gyro_rad[{i}]"] = gyro_radps[:, i]
+        out[f"accelerometer_m_s2[{i}]"] = accel_mps2[:, i]
+    return out

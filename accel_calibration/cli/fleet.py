@@ -1,0 +1,450 @@
+"""accel-calib fleet: recalibrate every recording of a fleet on a Dask cluster and keep the results in
+the calibration history.
+
+Each recording is one task (the same replay as `accel-calib replay`), run on the workers of a local
+cluster started and stopped here (processes, one per core by default) or of an existing cluster
+(`--scheduler tcp://HOST:PORT`). Results come back as they finish; this process is the history's one
+writer (a row per result, as it arrives). A recording that cannot be read or calibrated is reported
+in one line and never stops the others. `accel-calib replay --jobs N` runs its bags through
+`map_on_local_cluster` here: one way to run many.
+
+Dask and SQLAlchemy are imported only when a command needs them (the CLI starts fast)."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..core.calibration import MG
+from ..core.errors import AccelCalibrationError, CalibrationError
+from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
+
+RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
+METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
+DEFAULT_HISTORY = "calibrations.sqlite"
+FORK_SERVER_PRELOAD = ("accel_calibration.cli.main", "accel_calibration.bag.replay", "accel_calibration.bag.recording")
+
+
+class FleetError(AccelCalibrationError):
+    """cli: the fleet cannot run (no recordings, no scheduler); one line."""
+
+
+# --- which recordings ----------------------------------------------------------------------------------
+
+def _is_bag_directory(path: Path) -> bool:
+    return (path / "metadata.yaml").is_file()
+
+
+def find_recordings(arguments: Sequence[str]) -> tuple[list[str], list[str]]:
+    """(recordings, problems): each argument is a recording (a rosbag2 directory, or a .mcap, .db3,
+    .ulg or .csv file) or a directory searched for them (a rosbag2 directory is one recording: its
+    storage files are not searched again). Resolved paths, each once, in a stable order."""
+    found: dict[str, None] = {}
+    problems = []
+    for argument in arguments:
+        path = Path(argument).expanduser()
+        if not path.exists():
+            problems.append(f"{argument}: no such file or directory")
+            continue
+        if path.is_file() or _is_bag_directory(path):
+            found[str(path.resolve())] = None
+            continue
+        before = len(found)
+        for directory, subdirectories, files in os.walk(path):
+            here = Path(directory)
+            if _is_bag_directory(here):
+                found[str(here.resolve())] = None
+                subdirectories.clear()
+                continue
+            subdirectories.sort()
+            for name in sorted(files):
+                if name.lower().endswith(RECORDING_SUFFIXES):
+                    found[str((here / name).resolve())] = None
+        if len(found) == before:
+            problems.append(f"{argument}: no recordings in it (rosbag2 directories, "
+                            f"{', '.join(RECORDING_SUFFIXES)})")
+    return list(found), problems
+
+
+# --- one recording, on a worker -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RecordingOutcome:
+    """What a worker sends back: small (never the samples), picklable."""
+
+    path: str
+    status: str  # calibrated | refused | failed
+    reason: str | None
+    record: HistoryRecord | None  # None when the recording could not even be identified
+    summary: str  # one line
+    peak_rss_mb: float | None  # the worker process's peak resident memory so far
+    elapsed_s: float
+
+
+def _package_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("accel_calibration")
+    except Exception:  # not installed as a distribution (run from a source tree)
+        return "unknown"
+
+
+def _peak_rss_mb() -> float | None:
+    """This process's peak resident memory, MB. Linux: VmHWM, the peak of this process image (getrusage's
+    ru_maxrss survives exec, so a spawned worker would report its parent's peak)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+    except ImportError:  # not on POSIX
+        return None
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024.0 if sys.platform != "darwin" else 1024.0**2)
+
+
+def _bag_metadata(path: Path) -> dict:
+    import yaml
+
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
+        return info if isinstance(info, dict) else {}
+    except (OSError, KeyError, TypeError, yaml.YAMLError):
+        return {}
+
+
+def _recorded_vehicle(path: Path, replay: Any) -> str | None:
+    """The vehicle as the recording names it: rosbag2 metadata custom_data, or what the reader found
+    (a ULog's system UUID or name) when it gives it."""
+    for source in (getattr(replay, "recording", None), replay):
+        for name in ("vehicle", "sys_uuid", "sys_name"):
+            value = getattr(source, name, None)
+            if isinstance(value, str) and value.strip():
+                return value.strip()
+    if path.is_dir():
+        custom = _bag_metadata(path).get("custom_data") or {}
+        if isinstance(custom, dict):
+            for key in METADATA_VEHICLE_KEYS:
+                value = custom.get(key)
+                if isinstance(value, str) and value.strip():
+                    return value.strip()
+    return None
+
+
+def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
+    if rule:
+        found = vehicle_from_rule(re.compile(rule), path.as_posix())
+        if found:
+            return found, "rule"
+    recorded = _recorded_vehicle(path, replay) if replay is not None else None
+    if recorded:
+        return recorded, "metadata"
+    return path.parent.name, "folder"
+
+
+def _start_ns(path: Path, replay: Any) -> int | None:
+    """When the recording started: rosbag2's starting_time (receive clock), else the first IMU stamp."""
+    if path.is_dir():
+        starting = _bag_metadata(path).get("starting_time")
+        if isinstance(starting, dict) and isinstance(starting.get("nanoseconds_since_epoch"), int):
+            return int(starting["nanoseconds_since_epoch"])
+    stamps = getattr(getattr(replay, "recording", None), "t_ns", None)
+    if stamps is not None and len(stamps):
+        return int(stamps.min())
+    return None
+
+
+def _count(value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, int):
+        return value
+    try:
+        return len(value)
+    except TypeError:
+        return None
+
+
+def _replay(path: str, settings: Any) -> Any:
+    """Replay one recording (the same session as the node) into a ReplayResult."""
+    from ..bag.replay import replay_bag
+
+    return replay_bag(path, settings)
+
+
+def _line(record: HistoryRecord, name: str) -> str:
+    who = f"{record.vehicle} {record.sensor or '-'} {name}"
+    if record.status != "calibrated" or record.bias is None or record.scale is None:
+        return f"{record.status:10s} {who}: {record.reason}"
+    bias = " ".join(f"{v / MG:+.1f}" for v in record.bias)
+    scale = " ".join(f"{v:.5f}" for v in record.scale)
+    return (f"calibrated {who}: {record.poses} poses, rms {record.residual_rms_mg:.2f} mg, "
+            f"bias {bias} mg, scale {scale}")
+
+
+def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | None = None) -> RecordingOutcome:
+    """Replay one recording and describe it for the history. Runs on a worker; never raises (the reason
+    of any failure is the outcome's, one line), so one bad recording cannot stop a fleet."""
+    started = time.perf_counter()
+    where = Path(path)
+
+    def outcome(status, reason, record, summary):
+        return RecordingOutcome(str(path), status, reason, record, summary, _peak_rss_mb(),
+                                time.perf_counter() - started)
+
+    try:
+        recording_id, size = recording_identity(where)
+    except AccelCalibrationError as error:
+        return outcome("failed", str(error), None, f"failed     {path}: {error}")
+    identity = {"recording_id": recording_id, "path": str(where), "size_bytes": size,
+                "package_version": _package_version()}
+    replay = None
+    try:
+        replay = _replay(path, settings)
+    except AccelCalibrationError as error:
+        reason = str(error)
+    except Exception as error:  # the task boundary: report, never take the fleet down
+        first = str(error).splitlines()[0] if str(error) else ""
+        reason = f"{path}: internal error ({type(error).__name__}: {first})"
+    else:
+        reason = None
+    vehicle, vehicle_source = _vehicle(where, replay, vehicle_rule)
+    if replay is None:
+        record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor="",
+                               status="failed", reason=reason)
+        return outcome("failed", reason, record, _line(record, where.name))
+
+    result = replay.result
+    calibration = replay.calibration if replay.calibration is not None else getattr(result, "calibration", None)
+    temperatures = [p.temperature_degc for p in replay.poses if p.temperature_degc is not None]
+    status = "calibrated" if replay.calibration is not None else "refused"
+    values: dict[str, Any] = {
+        "imu_topic": replay.imu_topic, "frame_id": replay.frame_id or None,
+        "start_ns": _start_ns(where, replay), "duration_s": float(replay.duration_s),
+        "messages": int(replay.messages),
+        "temperature_min_degc": min(temperatures) if temperatures else None,
+        "temperature_max_degc": max(temperatures) if temperatures else None,
+    }
+    if result is not None:
+        values["poses"] = int(result.poses) if result.poses else len(replay.poses)
+        values["outliers"] = _count(getattr(result, "outliers", None))
+        values["model"] = result.model
+    if calibration is not None:  # refused by a gate: the numbers are kept, marked refused
+        quality = calibration.quality
+        values.update(
+            model=calibration.model, gravity=calibration.gravity,
+            bias=tuple(float(v) for v in calibration.bias),
+            bias_sigma=None if calibration.bias_sigma is None else tuple(float(v) for v in calibration.bias_sigma),
+            matrix=tuple(float(v) for v in calibration.matrix.ravel()),
+            matrix_sigma=(None if calibration.matrix_sigma is None
+                          else tuple(float(v) for v in calibration.matrix_sigma.ravel())),
+            residual_rms_mg=None if quality is None else quality.residual_rms_mg,
+            residual_max_mg=None if quality is None else quality.residual_max_mg,
+            condition_number=None if quality is None else quality.condition_number,
+            reference_temperature_degc=calibration.reference_temperature_degc,
+            temperature_model=None if calibration.temperature is None else calibration.temperature.kind,
+        )
+    reason = None if status == "calibrated" else f"{path}: {replay.problem}"
+    # The sensor as the recording names it: a ULog's device id, a bag's frame_id, else the stream read.
+    sensor = getattr(getattr(replay, "recording", None), "sensor_id", "") or replay.frame_id or replay.imu_topic
+    record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor=sensor,
+                           status=status, reason=reason, **values)
+    return outcome(status, reason, record, _line(record, where.name))
+
+
+# --- running many ----------------------------------------------------------------------------------------
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextlib.contextmanager
+def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
+    """A Dask LocalCluster of `workers` processes (default one per core), one thread each (replay is Python
+    and numpy, bound by the GIL), its HTTP server on a free port (8787 may be another cluster's), quiet;
+    closed with the block. Workers are forked from a
+    fork server that has Dask imported once (Dask's own test suite does this): a cluster starts and stops
+    seconds sooner than with fresh interpreters, which matters for `replay --jobs` of a few bags."""
+    import multiprocessing
+
+    import dask
+    from distributed import LocalCluster
+
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    with dask.config.set({"distributed.worker.multiprocessing-method": method}):
+        if method == "forkserver":
+            from distributed.utils import get_mp_context
+
+            # Dask sets the fork server's imports once per process; ours join them, so each worker starts
+            # with the replay (numpy, scipy, the readers) already imported. No effect once the server runs.
+            get_mp_context().set_forkserver_preload(["distributed", *FORK_SERVER_PRELOAD])
+        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR, **options)
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A Dask client: of the cluster at `scheduler`, or of a local cluster of `workers` processes that
+    lives as long as the block."""
+    from distributed import Client
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError, ValueError) as error:
+            raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({error}); start one with "
+                             "'dask scheduler' and 'dask worker tcp://HOST:8786'") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    with local_cluster(workers) as cluster:
+        client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
+
+
+def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple], label: str = "recordings"
+              ) -> Iterator[tuple[int, Any, str | None]]:
+    """Submit `function(*job)` for every job and yield (index, result, None) as each finishes, or
+    (index, None, one-line reason) when its task raised or its worker died; a progress bar counts them."""
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    futures = [client.submit(function, *job, pure=False) for job in jobs]
+    index_of = {future.key: i for i, future in enumerate(futures)}
+    with tqdm(total=len(futures), unit=label.rstrip("s"), desc=label, disable=None, file=sys.stderr) as bar:
+        for future in as_completed(futures):
+            i = index_of[future.key]
+            try:
+                yield i, future.result(), None
+            except Exception as error:  # the task's exception, re-raised here, or a lost worker
+                text = str(error).splitlines()
+                yield i, None, f"{type(error).__name__}: {text[0] if text else ''}"
+            finally:
+                future.release()
+                bar.update(1)
+
+
+def map_on_local_cluster(function: Callable[..., Any], jobs: Sequence[tuple], workers: int,
+                         failed: Callable[[tuple, str], Any]) -> list[Any]:
+    """`function(*job)` for every job on a local cluster of `workers` processes, results in job order
+    (`failed(job, reason)` stands in for a task that raised). What `accel-calib replay --jobs` runs."""
+    results: list[Any] = [None] * len(jobs)
+    with dask_client(workers=min(workers, len(jobs))) as client:
+        for i, result, error in run_tasks(client, function, jobs, label="bags"):
+            results[i] = failed(jobs[i], error) if error is not None else result
+    return results
+
+
+# --- the command -----------------------------------------------------------------------------------------
+
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    parser = commands.add_parser(
+        "fleet", help="recalibrate many recordings on a Dask cluster into the calibration history",
+        description="Replay every recording (rosbag2 directories; .mcap, .db3, .ulg, .csv files; directories "
+                    "are searched) on a Dask cluster and write one row per recording into the calibration "
+                    "history. Exit code 0 when every recording calibrated, 1 when some were refused or failed "
+                    "(each named on stderr in one line).")
+    parser.add_argument("recordings", nargs="+", metavar="RECORDING_OR_DIR")
+    parser.add_argument("--history", default=DEFAULT_HISTORY,
+                        help=f"history database: a SQLite file (default {DEFAULT_HISTORY}) or a SQLAlchemy URL, "
+                             "e.g. postgresql://user@host/calibrations")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="local cluster of this many worker processes (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                       help="join an existing Dask cluster instead (its workers must see the same paths)")
+    parser.add_argument("--vehicle", default=None, metavar="REGEX",
+                        help="rule mapping a recording's path to its vehicle, e.g. '/fleet/(?P<vehicle>[^/]+)/' "
+                             "(named group 'vehicle', else the first group, else the match; default: the "
+                             "recording's metadata, else the folder holding it)")
+    parser.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
+    parser.add_argument("--temperature-topic", default=None,
+                        help="sensor_msgs/Temperature topic (default: the only one)")
+    parser.add_argument("--params-file", default=None, help="ROS 2 parameters YAML: the node's settings")
+    parser.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
+                        help="one setting as the node takes it (repeatable)")
+    parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
+    parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    return parser
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    """The replay settings exactly as `accel-calib replay` builds them from the same options."""
+    from . import main
+
+    for flag in main.FLAG_PARAMETERS:
+        if not hasattr(args, flag):
+            setattr(args, flag, None)
+    if not hasattr(args, "jobs"):
+        args.jobs = 1
+    return main._replay_settings(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    if args.workers is not None and args.workers < 1:
+        raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
+    if args.vehicle is not None:
+        try:
+            re.compile(args.vehicle)
+        except re.error as error:
+            raise CalibrationError(f"--vehicle {args.vehicle!r}: not a regular expression ({error})") from None
+    settings = _settings(args)
+    recordings, problems = find_recordings(args.recordings)
+    for problem in problems:
+        print(f"accel-calib: error: {problem}", file=sys.stderr)
+    if not recordings:
+        raise FleetError("no recordings to calibrate")
+    counts = {"calibrated": 0, "refused": 0, "failed": 0}
+    written = 0
+    started = time.perf_counter()
+    with open_history(args.history) as history:
+        workers = None if args.scheduler else min(args.workers or default_workers(), len(recordings))
+        with dask_client(workers=workers, scheduler=args.scheduler) as client:
+            cores = sum(client.nthreads().values()) or 1
+            jobs = [(path, settings, args.vehicle) for path in recordings]
+            for i, outcome, error in run_tasks(client, calibrate_recording, jobs):
+                if error is not None:  # the worker itself was lost: no row (nothing known of it)
+                    outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
+                                               None, f"failed     {recordings[i]}: worker lost ({error})", None, 0.0)
+                if outcome.record is not None:
+                    try:
+                        written += history.write([outcome.record])
+                    except HistoryError as history_error:
+                        tqdm.write(f"accel-calib: error: {history_error}", file=sys.stderr)
+                        return 1
+                counts[outcome.status] += 1
+                if outcome.status == "calibrated":
+                    tqdm.write(outcome.summary)
+                else:
+                    tqdm.write(f"accel-calib: error: {outcome.reason}", file=sys.stderr)
+    elapsed = time.perf_counter() - started
+    per_minute = 60.0 * len(recordings) / elapsed if elapsed > 0 else float("inf")
+    print(f"{len(recordings)} recordings: {counts['calibrated']} calibrated, {counts['refused']} refused, "
+          f"{counts['failed']} failed; {written} rows written to {history.name}; {elapsed:.1f} s "
+          f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
+    return 0 if counts["calibrated"] == len(recordings) and not problems else 1

@@ -1,0 +1,117 @@
+"""accel-calib history: per sensor, bias and scale over time with their sigma, and the changes the
+sigmas do not explain (or that no healthy sensor makes). `accel-calib report --history` draws the
+same as a figure (`report_history`)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from ..core.calibration import MG
+from ..io.history import DriftFlag, DriftRule, HistoryRecord, drift_flags, open_history, sensor_series
+from .fleet import DEFAULT_HISTORY
+
+DRIFT_EXIT_CODE = 3  # drift flagged (1 stays "could not run")
+
+
+def add_drift_options(parser: argparse.ArgumentParser) -> None:
+    """The history selection and the drift rule, shared by `history` and `report --history`."""
+    defaults = DriftRule()
+    parser.add_argument("--vehicle", default=None, help="only this vehicle")
+    parser.add_argument("--sensor", default=None, help="only this sensor (its frame_id, else its IMU topic)")
+    parser.add_argument("--drift-k-sigma", "--k-sigma", dest="drift_k_sigma", type=float, default=defaults.k_sigma,
+                        help="flag a change larger than K times the combined sigma of the two calibrations, "
+                             f"|delta| > K sqrt(s1^2 + s2^2) (default {defaults.k_sigma:g})")
+    parser.add_argument("--max-bias-change", type=float, default=defaults.max_bias_change_mg, metavar="MG",
+                        help="flag a bias change beyond this whatever the sigmas, mg "
+                             f"(default {defaults.max_bias_change_mg:g})")
+    parser.add_argument("--max-scale-change", type=float, default=defaults.max_scale_change,
+                        help="flag a scale change beyond this whatever the sigmas, fraction "
+                             f"(default {defaults.max_scale_change:g})")
+
+
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    parser = commands.add_parser(
+        "history", help="bias and scale of each sensor over time, and where they moved",
+        description="Per sensor, the calibrations of the history database in time order (bias and scale with "
+                    "their 1-sigma) and the changes between consecutive ones that exceed what the sigmas "
+                    "explain or a plausibility bound. Exit code 0 when nothing moved, "
+                    f"{DRIFT_EXIT_CODE} when a change was flagged, 1 on an error.")
+    parser.add_argument("--history", default=DEFAULT_HISTORY,
+                        help=f"history database: SQLite file (default {DEFAULT_HISTORY}) or SQLAlchemy URL")
+    add_drift_options(parser)
+    return parser
+
+
+def _rule(args: argparse.Namespace) -> DriftRule:
+    return DriftRule(k_sigma=args.drift_k_sigma, max_bias_change_mg=args.max_bias_change,
+                     max_scale_change=args.max_scale_change)
+
+
+def _records(args: argparse.Namespace) -> list[HistoryRecord]:
+    from ..core.errors import CalibrationError
+
+    if "://" not in args.history and not Path(args.history).expanduser().is_file():
+        raise CalibrationError(f"{args.history}: no such history (write one with 'accel-calib fleet')")
+    with open_history(args.history) as history:
+        records = history.records(vehicle=args.vehicle, sensor=args.sensor)
+    if not records:
+        which = " ".join(f"{k} {v}" for k, v in (("vehicle", args.vehicle), ("sensor", args.sensor)) if v)
+        raise CalibrationError(f"{args.history}: no recordings{' of ' + which if which else ''}")
+    return records
+
+
+def _date(record: HistoryRecord) -> str:
+    return record.start.strftime("%Y-%m-%d %H:%M") if record.start is not None else "-"
+
+
+def _pm(values, sigmas, scale: float, digits: int, width: int) -> str:
+    out = []
+    for i, v in enumerate(values):
+        s = "" if sigmas is None else f"±{sigmas[i] * scale:.{digits}f}"
+        out.append(f"{v * scale:+.{digits}f}{s}".rjust(width))
+    return " ".join(out)
+
+
+def history_text(records: list[HistoryRecord], flags: list[DriftFlag]) -> str:
+    series = sensor_series(records)
+    lines = []
+    for (vehicle, sensor), rows in series.items():
+        lines.append(f"vehicle {vehicle} {sensor}: {len(rows)} calibration{'s' if len(rows) != 1 else ''}")
+        lines.append(f"  {'start (UTC)':16s} {'poses':>5s} {'rms mg':>6s}  "
+                     f"{'bias x, y, z (mg ± 1 sigma)':^44s}  {'scale x, y, z (diag M ± 1 sigma)':^62s}  recording")
+        for row in rows:
+            lines.append(f"  {_date(row):16s} {row.poses or 0:5d} {row.residual_rms_mg or 0:6.2f}  "
+                         f"{_pm(row.bias, row.bias_sigma, 1 / MG, 2, 14)}  "
+                         f"{_pm(row.scale, row.scale_sigma, 1.0, 6, 20)}  {Path(row.path).name}")
+    other = [r for r in records if r.status != "calibrated"]
+    if other:
+        lines.append(f"not calibrated: {len(other)} recording{'s' if len(other) != 1 else ''}")
+        for row in other:
+            lines.append(f"  {row.status:8s} {row.vehicle} {row.sensor or '-'} {_date(row)} {row.reason}")
+    if flags:
+        lines.append(f"{len(flags)} change{'s' if len(flags) != 1 else ''} flagged:")
+        lines.extend("  " + flag.message() for flag in flags)
+    else:
+        lines.append("no change beyond what the sigmas explain")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    rule = _rule(args)
+    records = _records(args)
+    flags = drift_flags(records, rule)
+    print(history_text(records, flags))
+    return DRIFT_EXIT_CODE if flags else 0
+
+
+def report_history(args: argparse.Namespace) -> int:
+    """`accel-calib report --history DB -o fig.png`: one panel per sensor."""
+    from ..io.history_figure import write_history_figure
+
+    rule = _rule(args)
+    records = _records(args)
+    flags = drift_flags(records, rule)
+    write_history_figure(records, flags, args.output)
+    print(f"history report {args.output} ({len(sensor_series(records))} sensors, {len(flags)} changes flagged)")
+    return 0

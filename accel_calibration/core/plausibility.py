@@ -1,0 +1,142 @@
+"""Is a calibration fit to be put in force? What a calibration file must meet before the node, `apply` or
+`report` use it: a well-formed file can still mirror the axes, contradict its model's name, or hold a
+temperature block that drives the bias or the gain out of the gates somewhere in its calibrated range.
+Each refusal is one line naming what is wrong."""
+from __future__ import annotations
+
+import numpy as np
+
+from .calibration import Calibration
+from .errors import CalibrationError
+
+# MEMS gyro zero-rate offsets are below ~0.35 rad/s (MPU-6050: +-20 deg/s); 1 rad/s leaves margin.
+MAX_GYRO_BIAS_RADPS = 1.0
+# Beyond any MEMS part's operating range (-40..125 degC); also keeps the polynomial in floating range.
+PLAUSIBLE_TEMPERATURE_DEGC = (-100.0, 200.0)
+# An entry this far from the structure's zero is a hand edit or another model, not rounding.
+STRUCTURE_TOLERANCE = 1e-12
+_TEMPERATURE_STEPS = 241  # grid over the calibrated range, every 0.5 degC over 120 degC
+
+
+def structure_problem(calibration: Calibration) -> str | None:
+    """The model's name and its parameters agree: `six` has a diagonal M, `sphere9` a lower-triangular
+    one, `reference15` (and only it) a quadratic term."""
+    matrix = calibration.matrix
+    scale = float(np.abs(matrix).max())
+    tolerance = STRUCTURE_TOLERANCE * scale
+    if calibration.model == "six":
+        off = matrix - np.diag(np.diag(matrix))
+        if np.abs(off).max() > tolerance:
+            return "model six has a diagonal matrix, but this one has off-diagonal entries"
+    elif calibration.model == "sphere9":
+        if np.abs(np.triu(matrix, 1)).max() > tolerance:
+            return "model sphere9 has a lower-triangular matrix, but this one has entries above the diagonal"
+    if calibration.model == "reference15" and calibration.quadratic is None:
+        return "model reference15 needs its quadratic term, and this file has none"
+    if calibration.model != "reference15" and calibration.quadratic is not None:
+        return f"model {calibration.model} has no quadratic term, but this file has one"
+    return None
+
+
+def _orientation_problem(matrix: np.ndarray, what: str) -> str | None:
+    """det M > 0, and not near zero relative to the rows' own size (no absolute limit: raw counts give
+    a tiny M)."""
+    row_size = np.abs(matrix).max(axis=1)
+    if not (np.all(np.isfinite(row_size)) and np.all(row_size > 0)):
+        return f"{what} has a zero or non-finite row: it would collapse the measurement"
+    det = float(np.linalg.det(matrix / row_size[:, None]))  # scale-free; |det| <= 3^1.5
+    if not np.isfinite(det):
+        return f"{what} is not finite"
+    if det < -1e-12:
+        return f"{what} is mirrored (det M < 0): it would swap the handedness of the axes"
+    if det <= 1e-12:
+        return f"{what} is singular (det M = 0): it would collapse the measurement"
+    return None
+
+
+def _gate_problem(bias: np.ndarray, matrix: np.ndarray, max_bias_mps2: float, scale_band: tuple[float, float],
+                  where: str) -> str | None:
+    """The bias and scale gates of core/gates.py at one point (bias (3,), M (3, 3))."""
+    worst_bias = float(np.max(np.abs(bias)))
+    if not worst_bias <= max_bias_mps2:
+        return f"gate bias: |b| {worst_bias:.4g} m/s^2{where} above the plausible {max_bias_mps2:g} m/s^2"
+    lo, hi = scale_band
+    gains = np.linalg.norm(matrix, axis=1)  # correction gain of each axis (row of M)
+    outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+    if outside:
+        return f"gate scale: correction gain {', '.join(outside)}{where} outside {lo:g}..{hi:g}"
+    return None
+
+
+def effective_terms(calibration: Calibration, temperatures_degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(b_eff (T, 3), M_eff (T, 3, 3)): the affine map a_true = M_eff (a_raw - b_eff) that best matches
+    the correction at each temperature over raw inputs of +-1 g per axis (the secant at 1 g), whatever
+    the temperature model's form: the gates judge what the correction does, not its coefficients."""
+    g = calibration.gravity
+    probes = np.vstack([g * np.eye(3), -g * np.eye(3)])  # (6, 3): each axis up and down
+    count = len(temperatures_degc)
+    raw = np.tile(probes, (count, 1))
+    corrected = calibration.apply(raw, np.repeat(temperatures_degc, len(probes))).reshape(count, 6, 3)
+    up, down = corrected[:, :3, :], corrected[:, 3:, :]
+    matrices = np.transpose((up - down) / (2 * g), (0, 2, 1))  # column j: d out / d raw_j
+    centre = (up + down).mean(axis=1) / 2  # output at zero input, averaged over the axes
+    bias = -np.linalg.solve(matrices, centre[:, :, None])[:, :, 0]
+    return bias, matrices
+
+
+def _temperature_problem(calibration: Calibration, max_bias_mps2: float,
+                         scale_band: tuple[float, float]) -> str | None:
+    model = calibration.temperature
+    assert model is not None
+    lo, hi = model.range_degc
+    low_limit, high_limit = PLAUSIBLE_TEMPERATURE_DEGC
+    if not (low_limit <= lo <= hi <= high_limit):
+        return (f"temperature block: calibrated range {lo:.4g}..{hi:.4g} degC is not a sensor's "
+                f"({low_limit:g}..{high_limit:g} degC)")
+    if not low_limit <= model.reference_degc <= high_limit:
+        return f"temperature block: reference temperature {model.reference_degc:.4g} degC is not a sensor's"
+    grid = np.linspace(lo, hi, _TEMPERATURE_STEPS)
+    try:
+        with np.errstate(all="ignore"):  # absurd coefficients overflow: caught as non-finite below
+            bias, matrices = effective_terms(calibration, grid)
+            finite = bool(np.all(np.isfinite(bias)) and np.all(np.isfinite(matrices)))
+    except (CalibrationError, np.linalg.LinAlgError):
+        finite = False
+    if not finite:
+        return "temperature block: its correction is not finite (or collapses) within its calibrated range"
+    for k, temperature in enumerate(grid):
+        where = f" at {temperature:.1f} degC"
+        problem = (_orientation_problem(matrices[k], f"the correction{where}")
+                   or _gate_problem(bias[k], matrices[k], max_bias_mps2, scale_band, where))
+        if problem is not None:
+            return "temperature block: " + problem
+    return None
+
+
+def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0,
+                         scale_band: tuple[float, float] = (0.9, 1.1),
+                         max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS) -> str | None:
+    """None when the calibration may be put in force, else the first problem, one line. The bias and
+    scale gates take the node's settings (`max_bias_mps2`, `scale_min`, `scale_max`); with a
+    temperature model they must hold over the whole calibrated range, not only at T_ref."""
+    problem = structure_problem(calibration) or _orientation_problem(calibration.matrix, "the matrix M")
+    if problem is not None:
+        return problem
+    if calibration.temperature is not None:
+        problem = _temperature_problem(calibration, max_bias_mps2, scale_band)
+    else:
+        problem = _gate_problem(calibration.bias, calibration.matrix, max_bias_mps2, scale_band, "")
+    if problem is not None:
+        return problem
+    if calibration.gyro_bias_radps is not None:
+        worst = float(np.max(np.abs(calibration.gyro_bias_radps)))
+        if not worst <= max_gyro_bias_radps:
+            return (f"gyro bias {worst:.4g} rad/s is beyond any MEMS gyro's zero-rate offset "
+                    f"(plausible up to {max_gyro_bias_radps:g} rad/s)")
+    if calibration.quadratic is not None:
+        # q a^2 at 1 g beyond 10 % of g is not a quadratic error but another model (e.g. a file in g).
+        worst = float(np.max(np.abs(calibration.quadratic))) * calibration.gravity
+        if not worst <= 0.1:
+            return f"quadratic term {worst * 100:.3g} % of g at 1 g: implausible for an accelerometer"
+    return None
+

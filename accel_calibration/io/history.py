@@ -1,0 +1,428 @@
+"""The calibration history: one row per recording in a SQL database (SQLAlchemy 2 Core), and the rule
+that says when a sensor's calibration moved more than its uncertainty explains.
+
+SQLite by default (one file, no server), any SQLAlchemy URL for a shared database (PostgreSQL). A row is
+keyed by the recording's content identity (`recording_identity`), so writing the same recording again
+updates its row instead of adding one, wherever the recording was moved or copied to. Writers may run
+in many processes at once: every write is one transaction, an upsert (INSERT .. ON CONFLICT DO UPDATE),
+and SQLite runs in WAL mode with a busy timeout, so concurrent writers wait for each other instead of
+failing or corrupting the file.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import math
+import re
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.calibration import MG
+from ..core.errors import AccelCalibrationError
+
+SCHEMA_VERSION = 1
+SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up
+_IDENTITY_BYTES = 1 << 16  # head and tail of each storage file that go into the identity hash
+AXES = "xyz"
+STATUSES = ("calibrated", "refused", "failed")
+
+
+class HistoryError(AccelCalibrationError):
+    """io: the history database cannot be opened, read or written; one line naming it."""
+
+
+@dataclass(frozen=True)
+class HistoryRecord:
+    """What the history keeps of one recording. SI units (bias m/s^2) unless the name says otherwise;
+    times are UTC nanoseconds of the recording's own clock (its first IMU header stamp)."""
+
+    recording_id: str  # content identity (recording_identity), the row's unique key
+    path: str  # where it was read from, resolved
+    size_bytes: int
+    vehicle: str
+    vehicle_source: str  # "rule" (--vehicle), "metadata" (recorded in the recording) or "folder"
+    sensor: str  # the IMU's frame_id, else its topic
+    status: str  # calibrated | refused | failed
+    reason: str | None = None  # why refused or failed, one line
+    imu_topic: str | None = None
+    frame_id: str | None = None
+    start_ns: int | None = None
+    duration_s: float | None = None
+    messages: int | None = None
+    model: str | None = None
+    gravity: float | None = None
+    bias: tuple[float, float, float] | None = None
+    bias_sigma: tuple[float, float, float] | None = None
+    matrix: tuple[float, ...] | None = None  # M row by row (9)
+    matrix_sigma: tuple[float, ...] | None = None
+    residual_rms_mg: float | None = None
+    residual_max_mg: float | None = None
+    condition_number: float | None = None
+    poses: int | None = None
+    outliers: int | None = None  # poses the fit set aside, where the fit reports them
+    temperature_min_degc: float | None = None
+    temperature_max_degc: float | None = None
+    reference_temperature_degc: float | None = None
+    temperature_model: str | None = None
+    package_version: str | None = None
+    written_at: str | None = None  # UTC, ISO 8601; set when written
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise HistoryError(f"status must be one of {', '.join(STATUSES)}, got {self.status!r}")
+
+    @property
+    def scale(self) -> tuple[float, float, float] | None:
+        """Diagonal of M: the correction gain per axis."""
+        return None if self.matrix is None else (self.matrix[0], self.matrix[4], self.matrix[8])
+
+    @property
+    def scale_sigma(self) -> tuple[float, float, float] | None:
+        m = self.matrix_sigma
+        return None if m is None else (m[0], m[4], m[8])
+
+    @property
+    def start(self) -> _dt.datetime | None:
+        if self.start_ns is None:
+            return None
+        return _dt.datetime.fromtimestamp(self.start_ns / 1e9, tz=_dt.UTC)
+
+
+def recording_identity(path: str | Path) -> tuple[str, int]:
+    """(content identity, total size in bytes) of a recording: a file, or a directory (rosbag2) whose
+    files all count. The identity hashes each file's name, size, first and last 64 KiB (cheap on a
+    1 GB bag, and distinct for any two recordings: headers, stamps and index records differ), so it
+    does not depend on where the recording lies. Raises HistoryError naming the path when unreadable."""
+    path = Path(path)
+    try:
+        files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+        digest = hashlib.sha256()
+        total = 0
+        for file in files:
+            size = file.stat().st_size
+            total += size
+            digest.update(f"{file.relative_to(path) if file != path else file.suffix}\0{size}\0".encode())
+            with open(file, "rb") as stream:
+                digest.update(stream.read(_IDENTITY_BYTES))
+                if size > _IDENTITY_BYTES:
+                    stream.seek(max(_IDENTITY_BYTES, size - _IDENTITY_BYTES))
+                    digest.update(stream.read(_IDENTITY_BYTES))
+    except OSError as error:
+        raise HistoryError(f"{path}: cannot read the recording ({error.strerror or error})") from None
+    return digest.hexdigest()[:40], total
+
+
+# --- the database -----------------------------------------------------------------------------------
+
+def _tables() -> tuple[Any, Any, Any]:
+    from sqlalchemy import JSON, BigInteger, Column, Float, Integer, MetaData, String, Table, Text
+
+    short, text, real, whole = String(200), Text, Float, Integer
+    kinds = {"recording_id": String(64), "path": text, "size_bytes": BigInteger, "vehicle": short,
+             "vehicle_source": String(16), "sensor": short, "status": String(16), "reason": text,
+             "imu_topic": text, "frame_id": text, "start_ns": BigInteger, "duration_s": real, "messages": whole,
+             "model": String(32), "gravity": real, "bias": JSON, "bias_sigma": JSON, "matrix": JSON,
+             "matrix_sigma": JSON, "residual_rms_mg": real, "residual_max_mg": real, "condition_number": real,
+             "poses": whole, "outliers": whole, "temperature_min_degc": real, "temperature_max_degc": real,
+             "reference_temperature_degc": real, "temperature_model": String(32), "package_version": String(64),
+             "written_at": String(40)}
+    required = {"path", "size_bytes", "vehicle", "vehicle_source", "sensor", "status"}
+    metadata = MetaData()
+    info = Table("history_info", metadata,
+                 Column("key", String(64), primary_key=True),
+                 Column("value", Text, nullable=False))
+    columns = [Column(f.name, kinds[f.name], primary_key=f.name == "recording_id",
+                      nullable=f.name != "recording_id" and f.name not in required)
+               for f in fields(HistoryRecord)]
+    calibrations = Table("calibrations", metadata, *columns)
+    return metadata, info, calibrations
+
+
+def _url(target: str) -> Any:
+    """A SQLAlchemy URL from a URL or a plain file path (SQLite)."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    if "://" in target:
+        try:
+            return make_url(target)
+        except ArgumentError:
+            raise HistoryError(f"{target}: not a database URL (e.g. postgresql://user@host/db) "
+                               "or a file path") from None
+    path = Path(target).expanduser().resolve()
+    if path.is_dir():
+        raise HistoryError(f"{target}: is a directory; give a database file, "
+                           f"e.g. {Path(target) / 'calibrations.sqlite'}")
+    if not path.parent.is_dir():
+        raise HistoryError(f"{target}: directory {path.parent} does not exist")
+    return make_url(f"sqlite:///{path}")
+
+
+def _one_line(error: BaseException) -> str:
+    original = getattr(error, "orig", None) or error
+    text = str(original).strip().splitlines()
+    return f"{type(original).__name__}: {text[0] if text else ''}"
+
+
+class History:
+    """An open history database. `with open_history(...) as history:`; every method is one transaction."""
+
+    def __init__(self, target: str | Path):
+        from sqlalchemy import create_engine, event
+        from sqlalchemy.exc import SQLAlchemyError
+
+        self.target = str(target)
+        url = _url(self.target)
+        self.name = url.render_as_string(hide_password=True) if "://" in self.target else self.target
+        self._metadata, self._info, self._table = _tables()
+        try:
+            if url.get_backend_name() == "sqlite":
+                # timeout: the driver's busy timeout, which also covers switching the journal to WAL.
+                self.engine = create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_S})
+
+                @event.listens_for(self.engine, "connect")
+                def _sqlite_pragmas(connection: Any, _record: Any) -> None:
+                    cursor = connection.cursor()
+                    cursor.execute("PRAGMA journal_mode=WAL")  # readers never block the writer
+                    cursor.execute("PRAGMA synchronous=NORMAL")  # WAL stays consistent on power loss
+                    cursor.close()
+            else:
+                self.engine = create_engine(url, pool_pre_ping=True)
+            self._create_schema()
+        except SQLAlchemyError as error:
+            raise HistoryError(f"{self.name}: cannot open the history ({_one_line(error)})") from None
+        except ImportError as error:  # a URL whose driver is not installed (psycopg, ...)
+            raise HistoryError(f"{self.name}: database driver not installed ({error})") from None
+
+    def _create_schema(self) -> None:
+        from sqlalchemy import select
+        from sqlalchemy.schema import CreateIndex, CreateTable, Index
+
+        # IF NOT EXISTS: many processes may open a new file at once; checking first would race.
+        with self.engine.begin() as connection:
+            for table in (self._info, self._table):
+                connection.execute(CreateTable(table, if_not_exists=True))
+            for columns in (("vehicle", "sensor", "start_ns"),):
+                index = Index("ix_calibrations_" + "_".join(columns), *(self._table.c[c] for c in columns))
+                connection.execute(CreateIndex(index, if_not_exists=True))
+            stored = connection.execute(select(self._info.c.value).where(self._info.c.key == "schema_version")
+                                        ).scalar_one_or_none()
+            if stored is None:
+                self._upsert(connection, self._info, [{"key": "schema_version", "value": str(SCHEMA_VERSION)}],
+                             "key", update=False)
+            elif not stored.isdigit() or int(stored) > SCHEMA_VERSION:
+                raise HistoryError(f"{self.name}: history schema {stored} is newer than this accel_calibration "
+                                   f"reads ({SCHEMA_VERSION}); upgrade the package")
+
+    @staticmethod
+    def _upsert(connection: Any, table: Any, rows: list[dict[str, Any]], key: str, update: bool = True) -> None:
+        name = connection.dialect.name
+        if name in ("sqlite", "postgresql"):
+            if name == "sqlite":
+                from sqlalchemy.dialects.sqlite import insert
+            else:
+                from sqlalchemy.dialects.postgresql import insert
+            statement = insert(table)
+            if update:
+                statement = statement.on_conflict_do_update(
+                    index_elements=[table.c[key]],
+                    set_={c.name: statement.excluded[c.name] for c in table.columns if c.name != key})
+            else:
+                statement = statement.on_conflict_do_nothing(index_elements=[table.c[key]])
+            connection.execute(statement, rows)
+            return
+        # Other databases: replace inside the same transaction (the caller's), which is atomic there too.
+        keys = [row[key] for row in rows]
+        if update:
+            connection.execute(table.delete().where(table.c[key].in_(keys)))
+            connection.execute(table.insert(), rows)
+        else:
+            have = {r[0] for r in connection.execute(table.select().with_only_columns(table.c[key])
+                                                     .where(table.c[key].in_(keys)))}
+            fresh = [row for row in rows if row[key] not in have]
+            if fresh:
+                connection.execute(table.insert(), fresh)
+
+    def write(self, records: Iterable[HistoryRecord]) -> int:
+        """Insert or update (by recording_id) in one transaction; returns rows written."""
+        from sqlalchemy.exc import SQLAlchemyError
+
+        now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+        rows = []
+        for record in records:
+            row = asdict(record)
+            row["written_at"] = row["written_at"] or now
+            for name in ("bias", "bias_sigma", "matrix", "matrix_sigma"):
+                if row[name] is not None:
+                    row[name] = [float(v) for v in row[name]]
+            for name, value in row.items():  # NaN is not JSON and not portable SQL: store NULL
+                if isinstance(value, float) and not math.isfinite(value):
+                    row[name] = None
+            rows.append(row)
+        if not rows:
+            return 0
+        try:
+            with self.engine.begin() as connection:
+                self._upsert(connection, self._table, rows, "recording_id")
+        except SQLAlchemyError as error:
+            raise HistoryError(f"{self.name}: cannot write the history ({_one_line(error)})") from None
+        return len(rows)
+
+    def records(self, vehicle: str | None = None, sensor: str | None = None) -> list[HistoryRecord]:
+        """Rows in time order (start, then path), optionally of one vehicle and/or sensor."""
+        from sqlalchemy import select
+        from sqlalchemy.exc import SQLAlchemyError
+
+        table = self._table
+        query = select(table)
+        if vehicle is not None:
+            query = query.where(table.c.vehicle == vehicle)
+        if sensor is not None:
+            query = query.where(table.c.sensor == sensor)
+        query = query.order_by(table.c.vehicle, table.c.sensor, table.c.start_ns, table.c.path)
+        try:
+            with self.engine.connect() as connection:
+                rows = connection.execute(query).mappings().all()
+        except SQLAlchemyError as error:
+            raise HistoryError(f"{self.name}: cannot read the history ({_one_line(error)})") from None
+        out = []
+        for row in rows:
+            values = dict(row)
+            for name in ("bias", "bias_sigma", "matrix", "matrix_sigma"):
+                if values[name] is not None:
+                    values[name] = tuple(float(v) for v in values[name])
+            out.append(HistoryRecord(**values))
+        return out
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    def __enter__(self) -> History:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
+def open_history(target: str | Path) -> History:
+    """A history database: a file path (SQLite, created when missing) or a SQLAlchemy URL."""
+    return History(target)
+
+
+# --- when a calibration moved -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class DriftRule:
+    """A change between consecutive calibrations of one sensor is flagged when it exceeds what their
+    sigmas explain, |delta| > k_sigma * sqrt(s1^2 + s2^2), or a plausibility bound whatever the sigmas."""
+
+    k_sigma: float = 5.0
+    max_bias_change_mg: float = 50.0  # a healthy MEMS part's bias does not jump this much between flights
+    max_scale_change: float = 0.01  # nor its gain by 1 %
+
+    def __post_init__(self) -> None:
+        for name in ("k_sigma", "max_bias_change_mg", "max_scale_change"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise HistoryError(f"{name} must be a positive number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class DriftFlag:
+    vehicle: str
+    sensor: str
+    quantity: str  # "bias" or "scale"
+    axis: str
+    change: float  # after - before: m/s^2 for bias, unitless for scale
+    sigmas: float  # |change| / sqrt(s1^2 + s2^2); inf when both sigmas are zero or unknown
+    by_sigma: bool
+    by_bound: bool
+    before: HistoryRecord
+    after: HistoryRecord
+
+    def message(self) -> str:
+        """'vehicle uav07 imu0: bias z moved 18 mg (6.2 sigma) between 2026-11-02 and 2026-11-09'."""
+        amount = (f"{abs(self.change) / MG:.3g} mg" if self.quantity == "bias"
+                  else f"{abs(self.change) * 100:.3g} %")
+        sigma = f"{self.sigmas:.1f} sigma" if math.isfinite(self.sigmas) else "no sigma"
+        why = "" if self.by_sigma else ", beyond the plausibility bound"
+        first, second = _when(self.before, self.after)
+        return (f"vehicle {self.vehicle} {self.sensor}: {self.quantity} {self.axis} moved {amount} "
+                f"({sigma}{why}) between {first} and {second}")
+
+
+def _when(before: HistoryRecord, after: HistoryRecord) -> tuple[str, str]:
+    a, b = before.start, after.start
+    if a is None or b is None:
+        return Path(before.path).name, Path(after.path).name
+    form = "%Y-%m-%d" if a.date() != b.date() else "%Y-%m-%d %H:%M"
+    if a.strftime(form) == b.strftime(form):
+        form = "%Y-%m-%d %H:%M:%S"
+    return a.strftime(form), b.strftime(form)
+
+
+def sensor_series(records: Iterable[HistoryRecord]) -> dict[tuple[str, str], list[HistoryRecord]]:
+    """Calibrated rows per (vehicle, sensor), each in time order (rows without a start last, by path)."""
+    series: dict[tuple[str, str], list[HistoryRecord]] = {}
+    for record in records:
+        if record.status == "calibrated" and record.bias is not None and record.matrix is not None:
+            series.setdefault((record.vehicle, record.sensor), []).append(record)
+    for rows in series.values():
+        rows.sort(key=lambda r: (r.start_ns is None, r.start_ns or 0, r.path))
+    return dict(sorted(series.items()))
+
+
+def _pairs(values: Sequence[float], sigmas: Sequence[float] | None) -> Iterator[tuple[float, float]]:
+    yield from zip(values, sigmas if sigmas is not None else [math.nan] * len(values))
+
+
+def drift_flags(records: Iterable[HistoryRecord], rule: DriftRule | None = None) -> list[DriftFlag]:
+    """Every change between consecutive calibrations of a sensor that the rule flags (bias and scale,
+    per axis). Refused and failed recordings are not compared."""
+    rule = rule or DriftRule()
+    flags = []
+    for (vehicle, sensor), rows in sensor_series(records).items():
+        for before, after in zip(rows, rows[1:]):
+            quantities = (("bias", before.bias, before.bias_sigma, after.bias, after.bias_sigma,
+                           rule.max_bias_change_mg * MG),
+                          ("scale", before.scale, before.scale_sigma, after.scale, after.scale_sigma,
+                           rule.max_scale_change))
+            for quantity, v1, s1, v2, s2, bound in quantities:
+                if v1 is None or v2 is None:  # sensor_series keeps rows with both; for the type checker
+                    continue
+                for axis, (a, sa), (b, sb) in zip(AXES, _pairs(v1, s1), _pairs(v2, s2)):
+                    change = b - a
+                    combined = math.hypot(sa, sb) if math.isfinite(sa) and math.isfinite(sb) else math.nan
+                    if math.isfinite(combined) and combined > 0:
+                        sigmas = abs(change) / combined
+                    else:
+                        sigmas = math.inf if change != 0 else 0.0
+                    by_sigma = math.isfinite(combined) and combined > 0 and abs(change) > rule.k_sigma * combined
+                    by_bound = abs(change) > bound
+                    if by_sigma or by_bound:
+                        flags.append(DriftFlag(vehicle, sensor, quantity, axis, change, sigmas, by_sigma, by_bound,
+                                               before, after))
+    return flags
+
+
+def vehicle_from_rule(pattern: re.Pattern[str], path: str) -> str | None:
+    """The vehicle a --vehicle rule finds in a path: its `vehicle` group, else its first group, else
+    the whole match; None when it does not match."""
+    match = pattern.search(path)
+    if match is None:
+        return None
+    if "vehicle" in pattern.groupindex:
+        found = match.group("vehicle")
+    elif pattern.groups:
+        found = match.group(1)
+    else:
+        found = match.group(0)
+    return found or None
+
+
+def as_mg(values: Sequence[float] | np.ndarray | None) -> np.ndarray | None:
+    return None if values is None else np.asarray(values, dtype=float) / MG

@@ -1,0 +1,204 @@
+"""accel-calib fleet on a real Dask cluster (2 worker processes, started once for the module) into a
+real SQLite history: the rows equal the per-recording replays, a broken recording among good ones,
+re-runs, and the drift flag on simulated sensors."""
+from __future__ import annotations
+
+import math
+import shutil
+import sqlite3
+
+import numpy as np
+import pytest
+
+from accel_calibration.bag.bag_io import write_session_bag
+from accel_calibration.bag.replay import replay_bag
+from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
+from accel_calibration.cli.fleet import _vehicle, find_recordings, local_cluster, run_tasks
+from accel_calibration.cli.main import main
+from accel_calibration.core.calibration import MG
+from accel_calibration.io.history import open_history
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+WEEK_NS = 7 * 86_400 * 10**9
+START_NS = 1_793_577_600 * 10**9  # 2026-11-02 00:00 UTC
+STEP_MG = 6.0  # sensor B's bias z between its two flights: far beyond its sigma, far below any bound
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """One local cluster for the module: the fleet joins it with --scheduler (starting one costs seconds)."""
+    with local_cluster(2) as cluster:
+        yield cluster.scheduler_address
+
+
+def _flight(path, errors, seed, start_ns, storage, poses=14):
+    rng = np.random.default_rng(seed)
+    imu = SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.0, move_s=0.8, rate_hz=100.0, seed=seed)
+    samples = imu.samples()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if storage == "csv":
+        columns = np.column_stack([samples.accel_raw, samples.gyro_raw, samples.temperature_degc])
+        rows = [f"{start_ns + t},{','.join(repr(float(v)) for v in row)}" for t, row in zip(samples.t_ns, columns)]
+        path.write_text("t_ns,ax,ay,az,gx,gy,gz,temperature\n" + "\n".join(rows) + "\n")
+    elif storage == "ulog":
+        t_us = (start_ns + samples.t_ns) // 1000
+        write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, samples.accel_raw, samples.gyro_raw))])
+    else:
+        write_session_bag(path, samples, start_ns=start_ns, storage=storage)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """uav07: sensor A, stable over two flights; uav08: sensor B, bias z steps between its two flights;
+    uav09: a too-short session (refused) and a file that is no recording (failed)."""
+    root = tmp_path_factory.mktemp("fleet")
+    sensor_a = SensorErrors.mpu6050_like(np.random.default_rng(70), noise_mps2=0.02)
+    sensor_b = SensorErrors.mpu6050_like(np.random.default_rng(80), noise_mps2=0.02)
+    stepped = SensorErrors(bias_mps2=sensor_b.bias_mps2 + [0.0, 0.0, STEP_MG * MG], matrix=sensor_b.matrix,
+                           noise_mps2=sensor_b.noise_mps2, gyro_bias_radps=sensor_b.gyro_bias_radps,
+                           gyro_noise_radps=sensor_b.gyro_noise_radps)
+    _flight(root / "uav07" / "flight1", sensor_a, 1, START_NS, "mcap")
+    _flight(root / "uav07" / "flight2", sensor_a, 2, START_NS + WEEK_NS, "sqlite3")
+    _flight(root / "uav08" / "flight1", sensor_b, 3, START_NS, "sqlite3")
+    _flight(root / "uav08" / "flight2", stepped, 4, START_NS + WEEK_NS, "mcap")
+    _flight(root / "uav09" / "short", sensor_a, 5, START_NS, "mcap", poses=4)
+    _flight(root / "uav10" / "bench.csv", sensor_a, 6, START_NS, "csv")  # every format the replay reads
+    _flight(root / "uav11" / "flight.ulg", sensor_b, 7, START_NS, "ulog")
+    (root / "uav09" / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)  # cut short after the magic
+    truth = {"uav07/flight1": (sensor_a,), "uav07/flight2": (sensor_a,), "uav08/flight1": (sensor_b,),
+             "uav08/flight2": (sensor_b,), "uav10/bench.csv": (sensor_a,), "uav11/flight.ulg": (sensor_b,)}
+    return root, truth
+
+
+def _fleet(root, scheduler, db, capsys, *extra):
+    code = main(["fleet", str(root), "--scheduler", scheduler, "--history", str(db), *extra])
+    return code, capsys.readouterr()
+
+
+def test_history_after_a_fleet_run_equals_the_per_recording_replays(fleet, scheduler, tmp_path, capsys):
+    root, truth = fleet
+    db = tmp_path / "calibrations.sqlite"
+    code, out = _fleet(root, scheduler, db, capsys)
+    assert code == 1  # one refused, one failed
+    errors = out.err.strip().splitlines()
+    assert len(errors) == 2 and "Traceback" not in out.err
+    assert any("uav09/short" in e and "too few static poses" in e for e in errors)
+    assert any("uav09/broken.mcap" in e and "not a readable rosbag2" in e for e in errors)
+    assert "8 recordings: 6 calibrated, 1 refused, 1 failed; 8 rows written" in out.out
+
+    with open_history(db) as history:
+        rows = {row.path: row for row in history.records()}
+    assert len(rows) == 8
+    for name in ("uav07/flight1", "uav07/flight2", "uav08/flight1", "uav08/flight2", "uav10/bench.csv",
+                 "uav11/flight.ulg"):
+        row = rows[str((root / name).resolve())]
+        replayed = replay_bag(root / name)  # in this process: the same session, the same numbers
+        cal = replayed.calibration
+        assert row.status == "calibrated" and row.reason is None
+        assert (row.vehicle, row.vehicle_source) == (name.split("/")[0], "folder")
+        if "." not in name:
+            assert (row.sensor, row.imu_topic) == ("imu_link", "/imu/data_raw")
+        else:  # no frame_id: the stream read names the sensor
+            assert row.sensor == replayed.imu_topic == row.imu_topic
+        np.testing.assert_array_equal(row.bias, cal.bias)
+        np.testing.assert_array_equal(row.bias_sigma, cal.bias_sigma)
+        np.testing.assert_array_equal(np.reshape(row.matrix, (3, 3)), cal.matrix)
+        np.testing.assert_array_equal(np.reshape(row.matrix_sigma, (3, 3)), cal.matrix_sigma)
+        assert row.poses == cal.quality.poses >= 12 and row.residual_rms_mg == cal.quality.residual_rms_mg
+        assert row.messages == replayed.messages and row.model == "sphere9"
+        if not name.endswith(".ulg"):  # (this ULog has no temperature)
+            assert row.temperature_min_degc == row.temperature_max_degc == pytest.approx(25.0)
+        assert row.start_ns == (START_NS + WEEK_NS if name.endswith("2") else START_NS)
+        # And right: within 4 sigma of the simulated sensor (flight 2 of uav08 has the stepped bias).
+        expected = truth[name][0].bias_mps2 + ([0, 0, STEP_MG * MG] if name == "uav08/flight2" else 0)
+        assert np.all(np.abs(np.array(row.bias) - expected) <= 4 * np.array(row.bias_sigma))
+        assert max(row.bias_sigma) < 0.5 * MG
+    refused = rows[str((root / "uav09" / "short").resolve())]
+    assert refused.status == "refused" and "too few static poses" in refused.reason and refused.sensor == "imu_link"
+    failed = rows[str((root / "uav09" / "broken.mcap").resolve())]
+    assert failed.status == "failed" and failed.bias is None and "\n" not in failed.reason
+
+
+def test_a_rerun_updates_rows_and_a_copied_recording_is_the_same_one(fleet, scheduler, tmp_path, capsys):
+    root, _ = fleet
+    db = tmp_path / "h.sqlite"
+    _fleet(root / "uav07", scheduler, db, capsys)
+    with sqlite3.connect(db) as raw:
+        first = raw.execute("SELECT recording_id, bias, written_at FROM calibrations ORDER BY path").fetchall()
+    copy = tmp_path / "archive" / "uav07_flight1"
+    shutil.copytree(root / "uav07" / "flight1", copy)
+    code, out = _fleet(root / "uav07", scheduler, db, capsys)
+    assert code == 0 and "2 recordings: 2 calibrated" in out.out and out.err == ""
+    code, out = _fleet(copy, scheduler, db, capsys, "--vehicle", r"archive/(?P<vehicle>uav\d+)_")
+    assert code == 0
+    with sqlite3.connect(db) as raw:
+        again = raw.execute("SELECT recording_id, bias, vehicle, vehicle_source, path FROM calibrations "
+                            "ORDER BY recording_id").fetchall()
+    assert len(again) == 2 == len(first)  # no duplicates: keyed by content
+    assert sorted(r[:2] for r in again) == sorted(r[:2] for r in first)
+    moved = [r for r in again if r[4] == str(copy.resolve())]
+    assert len(moved) == 1 and moved[0][2:4] == ("uav07", "rule")
+
+
+def test_the_drift_flag_fires_on_the_stepped_sensor_only(fleet, scheduler, tmp_path, capsys):
+    root, _ = fleet
+    db = tmp_path / "h.sqlite"
+    _fleet(root, scheduler, db, capsys)
+    assert main(["history", "--history", str(db)]) == 3
+    out = capsys.readouterr().out
+    flagged = [line.strip() for line in out.splitlines() if " moved " in line]
+    with open_history(db) as history:
+        b1, b2 = history.records(vehicle="uav08")
+    change_mg = (b2.bias[2] - b1.bias[2]) / MG
+    sigmas = abs(b2.bias[2] - b1.bias[2]) / math.hypot(b1.bias_sigma[2], b2.bias_sigma[2])
+    assert abs(change_mg - STEP_MG) < 1.0 and sigmas > 10
+    assert flagged == [f"vehicle uav08 imu_link: bias z moved {abs(change_mg):.3g} mg ({sigmas:.1f} sigma) "
+                       "between 2026-11-02 and 2026-11-09"]
+    assert main(["history", "--history", str(db), "--vehicle", "uav07"]) == 0  # the stable sensor stays quiet
+    assert "no change beyond what the sigmas explain" in capsys.readouterr().out
+
+
+def test_a_failing_task_is_one_reason_and_the_others_finish(scheduler):
+    from distributed import Client
+
+    with Client(scheduler) as client:
+        results = {i: (value, error) for i, value, error in run_tasks(client, math.sqrt, [(4.0,), (-1.0,), (9.0,)])}
+    assert results == {0: (2.0, None), 1: (None, "ValueError: math domain error"), 2: (3.0, None)}
+
+
+def test_recordings_are_found_once_and_bag_directories_are_not_searched(fleet, tmp_path):
+    root, _ = fleet
+    found, problems = find_recordings([str(root), str(root / "uav07" / "flight1"), str(tmp_path / "absent")])
+    names = [p.split(str(root.resolve()) + "/")[1] for p in found]
+    assert names == ["uav07/flight1", "uav07/flight2", "uav08/flight1", "uav08/flight2", "uav09/broken.mcap",
+                     "uav09/short", "uav10/bench.csv", "uav11/flight.ulg"]
+    assert problems == [f"{tmp_path / 'absent'}: no such file or directory"]
+    (tmp_path / "empty").mkdir()
+    assert find_recordings([str(tmp_path / "empty")])[1][0].endswith("no recordings in it (rosbag2 directories, "
+                                                                     ".mcap, .db3, .ulg, .csv)")
+
+
+def test_vehicle_comes_from_the_rule_then_the_recording_then_its_folder(tmp_path):
+    bag = tmp_path / "fleet" / "hangar2" / "2026-11-02"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  custom_data: {vehicle: uav42}\n")
+    assert _vehicle(bag, object(), r"fleet/(?P<vehicle>hangar\d)") == ("hangar2", "rule")
+    assert _vehicle(bag, object(), r"nomatch(\d)") == ("uav42", "metadata")
+    assert _vehicle(bag, None, None) == ("hangar2", "folder")  # not read: nothing recorded is known
+
+    class UlogLike:
+        sys_name = "PX4 uav11"
+    assert _vehicle(tmp_path / "log.ulg", UlogLike(), None) == ("PX4 uav11", "metadata")
+
+
+def test_fleet_refuses_bad_options_in_one_line(fleet, tmp_path, capsys):
+    root, _ = fleet
+    for args, message in [(["--workers", "0"], "--workers must be at least 1"),
+                          (["--vehicle", "(unclosed"], "not a regular expression"),
+                          (["--history", str(tmp_path / "no" / "h.sqlite")], "does not exist"),
+                          (["-p", "min_poses:=3"], "min_poses")]:
+        assert main(["fleet", str(root / "uav07"), *args]) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, (args, err)
+    assert main(["fleet", str(tmp_path / "absent"), "--history", str(tmp_path / "h.sqlite")]) == 1
+    assert capsys.readouterr().err.splitlines()[-1].endswith("no recordings to calibrate")
