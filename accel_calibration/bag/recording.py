@@ -133,35 +133,46 @@ def _bar(path, total, unit: str, progress: bool):
 
 
 def _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy) -> Recording:
-    from .replay import ReplaySettings, _read_fast, _read_with_rosbags
+    from .bag_io import metadata_topics
 
-    topics = ReplaySettings(imu_topic=imu_topic, temperature_topic=temperature_topic)
     if kind == "rosbag2" and not Path(path).is_dir():
         raise RecordingError(f"{path}: not a directory; a single storage file is --format mcap or sqlite3")
     loaded = None
     if not for_copy:
-        loaded = _read_fast(path, topics, progress) if kind == "rosbag2" else _read_file_fast(path, topics, progress)
-    if loaded is None:
-        loaded = _read_with_rosbags(path, topics, progress)
+        # Storage read directly; topics from metadata.yaml (a directory) or rosbags' reader (one file).
+        infos = metadata_topics(path) if kind == "rosbag2" else _file_topics(path)
+        if infos is not None:
+            loaded = _read_fast(path, infos, imu_topic, temperature_topic, progress)
+    if loaded is None:  # anything unexpected: rosbags, message by message
+        loaded = _read_with_rosbags(path, imu_topic, temperature_topic, progress)
     imu, temperatures, temperature_name = loaded
     return Recording(str(path), kind, imu.topic, imu.t_ns, imu.accel, imu.gyro, temperatures, temperature_name,
                      frame_id=imu.frame_id, source=imu)
 
 
-def _read_file_fast(path, topics, progress):
-    """A single .mcap/.db3 file: topics and counts from rosbags' reader, messages straight from the file."""
-    from .bag_io import IMU, TEMPERATURE, TopicInfo, choose_topic, open_reader, read_fast
-    from .replay import _no_imu
+def _no_imu(path, connections) -> RecordingError:
+    have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in connections})) or "no topics"
+    return RecordingError(f"{path}: no sensor_msgs/msg/Imu topic; the bag has {have}")
+
+
+def _file_topics(path):
+    from .bag_io import TopicInfo, open_reader
 
     reader = open_reader(path)
     try:
-        infos = [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
+        return [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
     finally:
         reader.close()
-    imu_topic = choose_topic(infos, IMU, topics.imu_topic, "imu", path)
+
+
+def _read_fast(path, infos, imu_name, temperature_name, progress):
+    """Messages straight from the storage; None when that cannot be trusted (rosbags then)."""
+    from .bag_io import IMU, TEMPERATURE, choose_topic, read_fast
+
+    imu_topic = choose_topic(infos, IMU, imu_name, "imu", path)
     if imu_topic is None:
         raise _no_imu(path, infos)
-    temperature_topic = choose_topic(infos, TEMPERATURE, topics.temperature_topic, "temperature", path)
+    temperature_topic = choose_topic(infos, TEMPERATURE, temperature_name, "temperature", path)
     bar = _bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), "msg", progress)
     try:
         read = read_fast(path, imu_topic, temperature_topic, bar)
@@ -171,6 +182,27 @@ def _read_file_fast(path, topics, progress):
     if read is None:
         return None
     return read[0], read[1], temperature_topic.topic if temperature_topic else None
+
+
+def _read_with_rosbags(path, imu_name, temperature_name, progress):
+    from .bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
+
+    reader = open_reader(path)
+    try:
+        imu_connection = choose_topic(reader.connections, IMU, imu_name, "imu", path)
+        if imu_connection is None:
+            raise _no_imu(path, reader.connections)
+        temperature_connection = choose_topic(reader.connections, TEMPERATURE, temperature_name, "temperature", path)
+        total = imu_connection.msgcount + (temperature_connection.msgcount if temperature_connection else 0)
+        bar = _bar(path, total, "msg", progress)
+        try:
+            imu, temperatures = read_imu_and_temperature(reader, imu_connection, temperature_connection, path, bar)
+        finally:
+            if bar is not None:
+                bar.close()
+    finally:
+        reader.close()
+    return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
 def _read_ulog(path, instance, progress) -> Recording:

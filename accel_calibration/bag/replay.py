@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -166,64 +165,6 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
         pose_status=status,
         temperature_timeout_s=s.session.temperature_timeout_s,
     )
-
-
-def _progress_bar(path, total, progress):
-    if not progress:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, unit="msg", desc=Path(path).name, leave=False, disable=None)
-
-
-def _no_imu(path, connections):
-    have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in connections})) or "no topics"
-    return ReplayError(f"{path}: no sensor_msgs/msg/Imu topic; the bag has {have}")
-
-
-def _read_fast(path, s: ReplaySettings, progress):
-    """Storage files read directly, topics from metadata.yaml; None when that cannot be trusted."""
-    from .bag_io import IMU, TEMPERATURE, choose_topic, metadata_topics, read_fast
-
-    if not Path(path).is_dir():
-        return None
-    topics = metadata_topics(path)
-    if topics is None:
-        return None
-    imu_topic = choose_topic(topics, IMU, s.imu_topic, "imu", path)
-    if imu_topic is None:
-        raise _no_imu(path, topics)
-    temperature_topic = choose_topic(topics, TEMPERATURE, s.temperature_topic, "temperature", path)
-    bar = _progress_bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), progress)
-    try:
-        read = read_fast(path, imu_topic, temperature_topic, bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    if read is None:
-        return None
-    return read[0], read[1], temperature_topic.topic if temperature_topic else None
-
-
-def _read_with_rosbags(path, s: ReplaySettings, progress):
-    from .bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
-
-    reader = open_reader(path)
-    try:
-        imu_connection = choose_topic(reader.connections, IMU, s.imu_topic, "imu", path)
-        if imu_connection is None:
-            raise _no_imu(path, reader.connections)
-        temperature_connection = choose_topic(reader.connections, TEMPERATURE, s.temperature_topic, "temperature", path)
-        total = imu_connection.msgcount + (temperature_connection.msgcount if temperature_connection else 0)
-        bar = _progress_bar(path, total, progress)
-        try:
-            imu, temperatures = read_imu_and_temperature(reader, imu_connection, temperature_connection, path, bar)
-        finally:
-            if bar is not None:
-                bar.close()
-    finally:
-        reader.close()
-    return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
 def corrected_accel(accel: np.ndarray, temps: np.ndarray | None, calibration: Calibration
