@@ -1,7 +1,8 @@
 """Gauss-Newton sphere fit against scipy.optimize.least_squares on 24 poses, measured in the same run.
 
 Both solve the same problem (sphere9, same analytic Jacobian, same start, tight tolerances) and must
-land on the same optimum; the figure is the ratio of their median times. Target: >= 5x.
+land on the same optimum; the figures are ratios of median times. Target (issue 13): the whole fit()
+>= 5x faster than the same fit() with least_squares as its solver; the solver alone is printed too.
 """
 import sys
 import timeit
@@ -55,8 +56,8 @@ def main() -> int:
         print(f"seed {seed}: gauss_newton {t_ours:7.1f} us ({a.iterations} it) | least_squares {t_scipy:7.1f} us "
               f"({b.nfev} evals) | ratio {t_scipy / t_ours:4.1f}x | whole fit() {t_fit:6.1f} us "
               f"(with scipy: {t_fit_scipy / t_fit:3.1f}x slower)")
-    print(f"solver speed-up over scipy.optimize.least_squares on 24 poses: median {np.median(ratios_solver):.1f}x "
-          f"(target >= 5x); whole fit(): {np.median(ratios_fit):.1f}x")
+    print(f"whole fit() on 24 poses vs the same fit() with scipy.optimize.least_squares: median "
+          f"{np.median(ratios_fit):.1f}x (target >= 5x); the solvers alone: median {np.median(ratios_solver):.1f}x")
     return 0
 
 

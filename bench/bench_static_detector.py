@@ -1,12 +1,51 @@
 """Per-sample cost of StaticDetector.update (the node calls it per message), against a bare sliding-window
-mean/variance over a deque (the cheapest O(1) detector core), measured in the same run."""
+mean/variance over a deque (the cheapest O(1) detector core), measured in the same run.
+
+Then the batch detector (StaticDetector.process, CalibrationSession.add_recording's path) on the imu_tk
+Xsens recording, against the frozen copy of it from before the issue-13 speed work
+(bench/_batch_detector_before.py), same data, same run, interleaved, best of many. Target: >= 2x.
+"""
+import gzip
 import sys
 import time
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 
 from accel_calibration.core.static_detector import StaticDetector
+from accel_calibration.core.static_detector_batch import detect_batch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _batch_detector_before  # noqa: E402  (the frozen peer, beside this file)
+
+IMU_TK = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "imu_tk"
+
+
+def bench_batch() -> None:
+    if not IMU_TK.exists():
+        print(f"bench_static_detector: {IMU_TK} not found (../shared beside the clone); batch part skipped")
+        return
+    # As test/test_static_detector.py loads it: Xsens MTi, 100 Hz, raw counts.
+    accel = np.loadtxt(gzip.open(IMU_TK / "xsens_acc.txt.gz"))
+    gyro = np.loadtxt(gzip.open(IMU_TK / "xsens_gyro.txt.gz"))
+    t, a, g = (accel[:, 0] * 1e9).astype(np.int64), accel[:, 1:], gyro[:, 1:]
+    new_poses = detect_batch(StaticDetector(), t, a, g)[0]
+    before_poses = _batch_detector_before.detect_batch(StaticDetector(), t, a, g)[0]
+    same = len(new_poses) == len(before_poses) and all(
+        np.array_equal(p.accel_mps2, q.accel_mps2) and p.start_ns == q.start_ns and p.end_ns == q.end_ns
+        for p, q in zip(new_poses, before_poses))
+    new = before = float("inf")
+    for _ in range(40):  # interleaved, best of: the machine is shared and noisy
+        start = time.perf_counter()
+        _batch_detector_before.detect_batch(StaticDetector(), t, a, g)
+        before = min(before, time.perf_counter() - start)
+        start = time.perf_counter()
+        detect_batch(StaticDetector(), t, a, g)
+        new = min(new, time.perf_counter() - start)
+    print(f"batch detector on imu_tk Xsens ({len(t)} samples, {len(new_poses)} poses, "
+          f"{'same poses' if same else 'POSES DIFFER'} as before): {new * 1e3:.1f} ms, before {before * 1e3:.1f} ms; "
+          f"{before / new:.2f}x faster (target >= 2x)")
 
 
 def main() -> int:
@@ -41,6 +80,7 @@ def main() -> int:
     print(f"StaticDetector.update: {ours:.2f} us/sample (accel + gyro + temperature, 1 kHz stream); "
           f"bare one-channel deque variance: {bare:.2f} us/sample; ratio {ours / bare:.1f}x")
     print(f"at 2 kHz that is {ours * 2000 / 1e4:.2f} % of a core")
+    bench_batch()
     return 0
 
 

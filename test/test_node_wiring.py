@@ -98,6 +98,18 @@ def test_two_sigints_in_quick_succession_exit_0(tmp_path, tester, node_process):
     assert "Traceback" not in node.log()
 
 
+def test_sigints_until_it_has_exited_still_exit_0(tmp_path, tester, node_process):
+    """SIGINT every few ms until the process is gone: some land in Python's finalisation, which puts
+    SIG_DFL back for the handlers it installed (exit -2 before the fix, every time)."""
+    node = node_process(tmp_path / "cal.yaml")
+    tester.wait_ready()
+    while node.process.poll() is None:
+        node.process.send_signal(signal.SIGINT)
+        tester.spin_until(lambda: node.process.poll() is not None, 0.003, poll_s=0.001)
+    assert node.process.returncode == 0, node.log()
+    assert "Traceback" not in node.log()
+
+
 @pytest.mark.parametrize("args, says", [
     (["-p", "gravity:=10"], "gravity must be a floating-point number (write 10.0)"),
     (["-p", "min_poses:=3.5"], "min_poses must be an integer"),

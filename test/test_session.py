@@ -299,3 +299,27 @@ def test_gyro_range_default_is_2000_deg_per_s():
     assert session.counters.gyro_out_of_range == 0
     session.add_sample(2_000_000, 0.0, 0.0, 9.8, 0.0, -40.0, 0.0)
     assert session.counters.gyro_out_of_range == 1
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(batches=st.lists(st.integers(1, 5), min_size=1, max_size=16))
+def test_the_verdict_depends_on_the_poses_alone_not_on_the_refits_before_it(batches):
+    """The node's worker refits (warm-started) as poses arrive, as many times as the machine's load lets
+    it; replay fits once. /calibrate must give the same calibration bit for bit either way."""
+    _, samples = stream(seed=6)
+    poses = CalibrationSession().add_recording(samples.t_ns, samples.accel_raw, samples.gyro_raw)
+    replayed, live = CalibrationSession(), CalibrationSession()
+    for pose in poses:
+        replayed.add_pose(pose)
+    i = 0
+    for size in batches * 4:  # poses absorbed in batches of any size, a refit after each
+        for pose in poses[i:i + size]:
+            live.add_pose(pose)
+        i += size
+        live.refit()
+    for pose in poses[i:]:
+        live.add_pose(pose)
+    a, b = replayed.calibrate(), live.calibrate()
+    assert a.success and b.success, (a.message, b.message)
+    np.testing.assert_array_equal(a.calibration.bias, b.calibration.bias)
+    np.testing.assert_array_equal(a.calibration.matrix, b.calibration.matrix)

@@ -10,6 +10,7 @@ field name, or refused; and a metadata.yaml whose types disagree with the storag
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -265,11 +266,39 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
     temperatures = None
     if temperature_topic is not None:
-        temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
+        temperatures = _fixed_temperatures(found[temperature_topic.topic])
+        if temperatures is None:
+            temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
     return imu, temperatures
 
 
-def decode_temperatures(raws: list, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
+def _fixed_temperatures(raws) -> tuple[np.ndarray, np.ndarray] | None:
+    """(stamps ns, degC) of standard little-endian sensor_msgs/Temperature messages read at their fixed
+    offsets, as decode_imus does; None when any message is otherwise (decode_temperatures then says which)."""
+    from .mcap_scan import PackedMessages
+
+    if not isinstance(raws, PackedMessages) or len(raws) == 0:
+        return None
+    stamps = np.empty(len(raws), dtype=np.int64)
+    values = np.empty(len(raws))
+    for length in np.unique(raws.lengths):
+        index = np.flatnonzero(raws.lengths == length)
+        block = raws.block(index)
+        if length < 16 or not (block[:, 1] == 1).all():
+            return None
+        string_length = block[:, 12:16].copy().view("<u4").ravel()
+        if not np.all(string_length == string_length[0]):
+            return None
+        temperature = 4 + ((12 + int(string_length[0]) + 7) // 8) * 8  # doubles align to 8 in the body
+        if temperature + 16 != length:  # temperature, variance: nothing else may follow
+            return None
+        sec = block[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
+        stamps[index] = sec * 1_000_000_000 + block[:, 8:12].copy().view("<u4").ravel().astype(np.int64)
+        values[index] = block[:, temperature:temperature + 8].copy().view("<f8").ravel()
+    return stamps, values
+
+
+def decode_temperatures(raws: Sequence, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
     """(stamps ns, degC) of sensor_msgs/Temperature messages; a message that does not decode is one
     BagError naming it."""
     stamps = np.empty(len(raws), dtype=np.int64)
@@ -330,11 +359,16 @@ def _imu_by_name(raw, index: int, path, deserialize) -> tuple[int, tuple, tuple,
     return stamp, accel, gyro, frame_id
 
 
-def decode_imus(raws: list, path, deserialize, fixed_layout: bool = True
+def decode_imus(raws: Sequence, path, deserialize, fixed_layout: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
     """`fixed_layout`: the messages are the standard sensor_msgs/msg/Imu, so fields sit at known offsets
     (the bulk path); False reads every message through `deserialize` by field name."""
-    lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
+    from .mcap_scan import PackedMessages  # payload matrices straight from the storage: no join
+
+    if isinstance(raws, PackedMessages):
+        lengths = raws.lengths
+    else:
+        lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
     t = np.empty(len(raws), dtype=np.int64)
     accel = np.empty((len(raws), 3))
     gyro = np.empty((len(raws), 3))
@@ -344,7 +378,11 @@ def decode_imus(raws: list, path, deserialize, fixed_layout: bool = True
     frame_id = ""
     for length in np.unique(lengths):
         index = np.flatnonzero(lengths == length)
-        block = np.frombuffer(b"".join([raws[i] for i in index]), dtype=np.uint8).reshape(len(index), int(length))
+        if isinstance(raws, PackedMessages):
+            block = raws.block(index)
+        else:
+            joined = b"".join([raws[int(i)] for i in index])
+            block = np.frombuffer(joined, dtype=np.uint8).reshape(len(index), int(length))
         layout = None
         if fixed_layout and length >= 16:
             little = block[:, 1] == 1
@@ -356,7 +394,7 @@ def decode_imus(raws: list, path, deserialize, fixed_layout: bool = True
         if layout is None:
             # Big-endian, unusual or another definition: deserialize one by one (rare; correctness first).
             for i in index:
-                t[i], accel[i], gyro[i], message_frame = _imu_by_name(raws[i], int(i), path, deserialize)
+                t[i], accel[i], gyro[i], message_frame = _imu_by_name(raws[int(i)], int(i), path, deserialize)
                 frame_id = frame_id or message_frame
             group_of[index] = -1
             continue
@@ -412,29 +450,32 @@ def _reader_is_standard(reader) -> bool:
         return False
 
 
-def _scan_sqlite(path, topics, progress=None) -> dict[str, list] | None:
-    """{topic: [data, ...]} straight from rosbag2's sqlite3 tables (one query per file), or None when
-    the layout is not the expected one (the caller falls back to rosbags)."""
+def _scan_sqlite(path, topics, progress=None) -> dict | None:
+    """{topic: PackedMessages} straight from rosbag2's sqlite3 tables (one SELECT of the data column
+    per topic and file, in the order rosbag2 readers give, joined into one buffer), or None when the
+    layout or the values are not the expected ones (the caller falls back to rosbags)."""
     import sqlite3
 
-    out = {topic: [] for topic in topics}
+    from .mcap_scan import PackedMessages
+
+    payloads: dict[str, list] = {topic: [] for topic in topics}
     try:
         for file in [Path(path)] if Path(path).is_file() else sorted(Path(path).glob("*.db3")):
             connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
             try:
                 ids = dict(connection.execute("SELECT id, name FROM topics").fetchall())
                 for topic_id, name in ids.items():
-                    if name in out:
+                    if name in payloads:
                         rows = connection.execute("SELECT data FROM messages WHERE topic_id = ? ORDER BY timestamp, id",
                                                   (topic_id,)).fetchall()
-                        out[name].extend(row[0] for row in rows)
+                        payloads[name].extend([data for (data,) in rows])
                         if progress is not None:
                             progress.update(len(rows))
             finally:
                 connection.close()
-    except sqlite3.Error:
+        return {topic: PackedMessages.from_payloads(payloads[topic]) for topic in topics}
+    except (sqlite3.Error, TypeError, ValueError):  # a data value that is not a blob: damage, rosbags says how
         return None
-    return out
 
 
 def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarray) -> int:

@@ -1,7 +1,8 @@
-"""Fast read of chosen topics from an MCAP rosbag2 file: chunk by chunk, one tight loop over the
-message records, no per-message objects. For bag replay, which is bound by reading; anything this
-does not know (an unknown compression, a malformed record) returns None and the caller falls back to
-rosbags' reader. Messages come in file order (replay sorts by header stamp anyway).
+"""Fast read of chosen topics from an MCAP rosbag2 file: chunk by chunk, a loop over runs of like
+records (not over records), payloads gathered with numpy, no per-message objects. For bag replay,
+which is bound by reading; anything this does not know (an unknown compression, a malformed record)
+returns None and the caller falls back to rosbags' reader. Messages come in log_time order, as rosbag2
+readers give them (replay sorts by header stamp anyway).
 
 Format: https://mcap.dev/spec -- records are opcode u8, length u64, body; Schema 0x03 (id u16, name
 string, encoding string, data u32 + bytes), Channel 0x04 (id u16, schema u16, topic string, ...),
@@ -14,7 +15,10 @@ stated size (no decompression bomb), and a chunk that does not decompress to it 
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from pathlib import Path
+
+import numpy as np
 
 MAGIC = b"\x89MCAP0\r\n"
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
@@ -97,14 +101,14 @@ def _recorded(channels, meta) -> dict[str, tuple[str, str, str]]:
     return found
 
 
-def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dict[str, list] | None:
+def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dict[str, PackedMessages] | None:
     """{topic: [message data, ...]} for the wanted topics, or None when this file needs rosbags (or is
     damaged: rosbags then says how). `schemas`, when given, is filled with {topic: (message type,
     encoding, definition)} as recorded in the file's Schema and Channel records."""
     files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
     wanted = set(topics)
-    out = {topic: [] for topic in wanted}
-    times = {topic: [] for topic in wanted}  # log_time of each message: the order rosbag2 readers give
+    out: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}  # runs of payloads, file order
+    times: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}  # log_times: rosbag2 readers' order
     meta: dict = {"schemas": {}, "channel_schema": {}}
     try:
         for file in files:
@@ -147,39 +151,147 @@ def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dic
                 schemas.update(_recorded(channels, meta))
     except (struct.error, IndexError, ValueError, OSError, _ChunkError):
         return None
-    for topic, stamps in times.items():
-        if any(later < earlier for earlier, later in zip(stamps, stamps[1:])):
-            order = sorted(range(len(stamps)), key=stamps.__getitem__)  # stable, as rosbags merges by log_time
-            out[topic] = [out[topic][i] for i in order]
-    return out
+    return {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
+
+
+class PackedMessages(Sequence):
+    """Message payloads of one topic, kept as the uint8 matrices of runs of equal-length records (no
+    per-message objects), in file order, then stably sorted by log_time when the file was not. A
+    Sequence of bytes for callers that want one message at a time; decode_imus takes `block()`."""
+
+    def __init__(self, runs: list[np.ndarray], log_times: list[np.ndarray]):
+        self._runs = runs
+        counts = np.array([run.shape[0] for run in runs], dtype=np.int64)
+        widths = np.array([run.shape[1] for run in runs], dtype=np.int64)
+        self._starts = np.concatenate([[0], np.cumsum(counts)])
+        file_lengths = np.repeat(widths, counts)
+        times = np.concatenate(log_times) if log_times else np.empty(0, dtype=np.uint64)
+        self._order: np.ndarray | None = None
+        if np.any(times[1:] < times[:-1]):
+            self._order = np.argsort(times, kind="stable")  # as rosbags merges by log_time
+        self.lengths = file_lengths if self._order is None else file_lengths[self._order]
+        self._by_width: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def from_payloads(cls, payloads: list) -> PackedMessages:
+        """From a list of bytes already in order (one SELECT of a sqlite3 table): one joined buffer per
+        run of equal lengths (one run for a usual recording)."""
+        lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=len(payloads))
+        bounds = [0, *(np.flatnonzero(np.diff(lengths)) + 1).tolist(), len(payloads)]
+        runs = [np.frombuffer(b"".join(payloads[a:b]), dtype=np.uint8).reshape(b - a, int(lengths[a]))
+                for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        return cls(runs, [])
+
+    def __len__(self) -> int:
+        return int(self._starts[-1])
+
+    def _file_index(self, i: int) -> int:
+        return int(self._order[i]) if self._order is not None else i
+
+    def __getitem__(self, i):  # type: ignore[override]
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        f = self._file_index(i)
+        run = int(np.searchsorted(self._starts, f, side="right")) - 1
+        return self._runs[run][f - int(self._starts[run])].tobytes()
+
+    def __iter__(self):
+        if self._order is None:
+            for run in self._runs:
+                for row in run:
+                    yield row.tobytes()
+        else:
+            yield from (self[i] for i in range(len(self)))
+
+    def block(self, index: np.ndarray) -> np.ndarray:
+        """(len(index), width) uint8 matrix of the messages at `index` (all of one length)."""
+        width = int(self.lengths[index[0]])
+        if width not in self._by_width:
+            same = [run for run in self._runs if run.shape[1] == width]
+            matrix = same[0] if len(same) == 1 else np.concatenate(same)
+            row_in_matrix = np.full(len(self), -1, dtype=np.int64)
+            for run, start in zip(self._runs, self._starts[:-1]):
+                if run.shape[1] == width:
+                    row_in_matrix[start:start + run.shape[0]] = -2  # mark; numbered below in file order
+            marked = np.flatnonzero(row_in_matrix == -2)
+            row_in_matrix[marked] = np.arange(len(marked))
+            self._by_width[width] = (matrix, row_in_matrix)
+        matrix, row_in_matrix = self._by_width[width]
+        file_index = self._order[index] if self._order is not None else index
+        rows = row_in_matrix[file_index]
+        if len(rows) == len(matrix) and np.array_equal(rows, np.arange(len(matrix))):
+            return matrix
+        return matrix[rows]
+
+
+_RUN_PROBE_MAX = 1 << 14  # records compared at once when looking for the end of a run
 
 
 def _scan_records(buf, channels, wanted, out, times, meta=None) -> int:
-    """Collect message data of wanted topics from a run of records; returns messages seen."""
+    """Collect message data of wanted topics from a run of records; returns messages seen. Records
+    come in runs (same opcode, length and channel: a topic's messages between other topics'), so each
+    run is found with numpy on a strided view and its payloads copied as one matrix. A record that
+    does not fit in `buf` is damage (ValueError)."""
+    data = np.frombuffer(buf, dtype=np.uint8)
     pos, end, seen = 0, len(buf), 0
     u64, u16 = _U64.unpack_from, _U16.unpack_from
-    targets = {}
+    probes: dict[int, int] = {}  # channel: records to compare next time (twice its last run)
+    found: dict[str, list[tuple[int, int, int, int]]] = {}  # topic: [(first record, records, stride, width)]
     while pos < end:
+        if pos + 9 > end:
+            raise ValueError("record header beyond its chunk")
         op = buf[pos]
         length = u64(buf, pos + 1)[0]
         body = pos + 9
-        if op == 0x05:
-            seen += 1
-            channel_id = u16(buf, body)[0]
-            target = targets.get(channel_id)
-            if target is None and channel_id in channels:
-                topic = channels[channel_id]
-                target = targets[channel_id] = (out[topic], times[topic]) if topic in wanted else False
-            if target is not None and target is not False:
-                target[0].append(buf[body + 22:body + length])
-                target[1].append(u64(buf, body + 6)[0])
-        elif op == 0x04:
-            _channel(buf, body, channels, meta)
-            targets.clear()
-        elif op == 0x03 and meta is not None:
-            _schema(buf, body, meta)
-        pos = body + length
+        if body + length > end:
+            raise ValueError("record beyond its chunk")
+        if op != 0x05:
+            if op == 0x04:
+                _channel(buf, body, channels, meta)
+            elif op == 0x03 and meta is not None:
+                _schema(buf, body, meta)
+            pos = body + length
+            continue
+        if length < 22:
+            raise ValueError("message record shorter than its header")
+        stride = 9 + length
+        channel_id = u16(buf, body)[0]
+        count = min((end - pos) // stride, probes.get(channel_id, 16))
+        if count < 2 or buf[pos:pos + 11] != buf[pos + stride:pos + stride + 11]:
+            run = 1  # a lone record (another topic's, at a lower rate): no numpy for it
+        else:
+            heads = np.ndarray((count, 11), dtype=np.uint8, buffer=data, offset=pos, strides=(stride, 1))
+            differs = np.flatnonzero((heads != heads[0]).any(axis=1))
+            run = int(differs[0]) if len(differs) else count
+        probes[channel_id] = min(_RUN_PROBE_MAX, max(16, 2 * run))
+        seen += run
+        topic = channels.get(channel_id)
+        if topic is not None and topic in wanted:
+            found.setdefault(topic, []).append((pos, run, stride, length - 22))
+        pos += run * stride
+    for topic, runs in found.items():
+        firsts, counts, strides, _ = np.array(runs, dtype=np.int64).T
+        within = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+        starts = np.repeat(firsts, counts) + np.repeat(strides, counts) * within
+        times[topic].append(_gather(data, starts + 15, 8).view("<u8").ravel())
+        widths = {width for *_, width in runs}
+        if len(widths) == 1:  # the usual case: one matrix for the chunk's messages of this topic
+            out[topic].append(_gather(data, starts + 31, widths.pop()))
+        else:  # lengths vary: one matrix per run keeps file order
+            out[topic].extend(np.ndarray((count, width), dtype=np.uint8, buffer=data, offset=first + 31,
+                                         strides=(stride, 1)).copy() for first, count, stride, width in runs)
     return seen
+
+
+def _gather(data: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
+    """(len(starts), width) copy of data[start:start + width] for each start (all inside data)."""
+    if width == 0:
+        return np.zeros((len(starts), 0), dtype=np.uint8)
+    return np.lib.stride_tricks.sliding_window_view(data, width)[starts]
 
 
 def recorded_types(file) -> dict[str, tuple[str, str, str]] | None:

@@ -11,9 +11,11 @@ matrix with that pose added), spoken as faces: "turn x down", "turn x and y down
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dsyevd as syevd
 
 from .calibration import MG
 from .models import SphereModel, matrix_entries
@@ -46,22 +48,43 @@ def missing_directions(directions: np.ndarray) -> list[str]:
 
 def angular_spread_deg(directions: np.ndarray) -> float:
     """Largest angle between any pose direction and the mean direction."""
-    mean = directions.mean(axis=0)
-    norm = np.linalg.norm(mean)
+    mean = directions.sum(axis=0) / len(directions)
+    norm = math.sqrt(float(mean @ mean))
     if norm < 1e-9:
         return 180.0
-    cosines = np.clip(directions @ (mean / norm), -1.0, 1.0)
-    return float(np.degrees(np.arccos(cosines.min())))
+    # Scalar math on the one smallest cosine: this runs on every fit.
+    return math.degrees(math.acos(min(max(float((directions @ (mean / norm)).min()), -1.0), 1.0)))
 
 
 def scaled_condition_number(jacobian: np.ndarray) -> float:
     """Condition number of J^T J after Jacobi scaling (unit diagonal), so parameter units don't count."""
-    normal = jacobian.T @ jacobian
+    return normal_condition_number(jacobian.T @ jacobian)
+
+
+def normal_condition_number(normal: np.ndarray) -> float:
+    """scaled_condition_number from the normal matrix J^T J itself (when the caller has it already)."""
     diag = np.sqrt(normal.diagonal())
     if np.any(diag == 0) or not np.all(np.isfinite(normal)):
         return float("inf")
     eigenvalues = np.linalg.eigvalsh(normal / np.outer(diag, diag))  # symmetric: cheaper than an SVD
     return float(eigenvalues[-1] / eigenvalues[0]) if eigenvalues[0] > 0 else float("inf")
+
+
+def condition_and_inverse(normal: np.ndarray) -> tuple[float, np.ndarray | None]:
+    """normal_condition_number and the inverse of the normal matrix from one eigendecomposition of the
+    Jacobi-scaled matrix (what a fit needs for its observability check, sigma and leverages). The
+    inverse is None where the condition number is infinite."""
+    diag = np.sqrt(normal.diagonal())
+    if (diag == 0).any() or not np.isfinite(normal).all():
+        return float("inf"), None
+    outer = np.outer(diag, diag)
+    # LAPACK's syevd directly (what numpy's eigh calls): on a 9 x 9 matrix numpy's wrapper costs more
+    # than the decomposition, and this runs on every fit.
+    eigenvalues, vectors, info = syevd(normal / outer, lower=1)
+    if info != 0 or not eigenvalues[0] > 0:
+        return float("inf"), None
+    inverse: np.ndarray = ((vectors / eigenvalues) @ vectors.T) / outer
+    return float(eigenvalues[-1] / eigenvalues[0]), inverse
 
 
 def describe_missing(missing: list[str]) -> str:

@@ -8,6 +8,7 @@ False, message saying what is missing), never raised: finite poses of the right 
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -24,6 +25,7 @@ from .coverage import (
     SigmaBounds,
     Uncertainty,
     angular_spread_deg,
+    condition_and_inverse,
     describe_missing,
     inverse_normal,
     missing_directions,
@@ -116,6 +118,9 @@ class FitResult:
     poses: int = 0  # fitted (outliers not counted)
     outliers: tuple[Outlier, ...] = ()  # poses left out, by their index into the input
     uncertainty: Uncertainty | None = None  # sphere models: what the sigma gate and its advice use
+    # Leverage of each pose fitted (sphere fits without a temperature model): lets the outlier test
+    # see at once that no pose can be one, without forming the Jacobian and its inverse again.
+    leverage: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def outlier_indices(self) -> tuple[int, ...]:
@@ -184,7 +189,7 @@ def _as_points(accel: ArrayLike | Sequence[Pose], name: str) -> np.ndarray:
         raise CalibrationError(f"{name} must be an N x 3 array of numbers") from None
     if array.ndim != 2 or array.shape[1] != 3:
         raise CalibrationError(f"{name} must be an N x 3 array, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
+    if not np.isfinite(array).all():
         bad = int(np.flatnonzero(~np.all(np.isfinite(array), axis=1))[0])
         raise CalibrationError(f"{name} has a non-finite value (row {bad})")
     return array
@@ -346,6 +351,12 @@ def _leave_out_outliers(fit_poses: Callable[[np.ndarray | None], FitResult], acc
     budget = int(options.max_fraction * n)
     if options.threshold_mg <= 0 or budget < 1 or not first.success or first.calibration is None:
         return first
+    if first.leverage is not None and len(first.leverage) == n:
+        # Cheap bound first: the candidates' linearised deleted residuals from the fit's own residuals and
+        # leverages. None near the threshold (margin far above rounding): clean data, the first fit stands.
+        h = np.clip(first.leverage, 0.0, 1.0 - 1e-9)
+        if float(np.max(np.abs(first.residuals_mg) / (1.0 - h))) < options.threshold_mg * (1.0 - 1e-6):
+            return first
     keep = np.ones(n, dtype=bool)
     current = first
 
@@ -495,11 +506,13 @@ def _with_uncertainty(result: FitResult, accel: np.ndarray, temps: np.ndarray | 
 
 
 def _uncertainty(model: str, bias: np.ndarray, matrix: np.ndarray, gravity: float, rows: np.ndarray,
-                 residuals: np.ndarray, size: int) -> Uncertainty | None:
+                 residuals: np.ndarray, size: int, normal: np.ndarray | None = None) -> Uncertainty | None:
+    """`normal`: rows^T rows when the caller has it already."""
     dof = len(residuals) - size
     variance = float(residuals @ residuals) / dof if dof > 0 else float("nan")
-    normal = rows.T @ rows
-    if not np.all(np.isfinite(normal)):
+    if normal is None:
+        normal = rows.T @ rows
+    if not np.isfinite(normal).all():
         return None
     return Uncertainty(model, bias, matrix, gravity, normal, variance)
 
@@ -557,15 +570,15 @@ def _broken_reason(broken: str, solution: LeastSquaresSolution) -> str:
 def _not_finite(**arrays: np.ndarray | None) -> str | None:
     """Name of the first array with a NaN or infinite entry (None when all are finite)."""
     for name, array in arrays.items():
-        if array is not None and not np.all(np.isfinite(array)):
+        if array is not None and not np.isfinite(array).all():
             return name.replace("_", " ")
     return None
 
 
 def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
     return Quality(
-        residual_rms_mg=float(np.sqrt(np.mean(residuals_mg**2))),
-        residual_max_mg=float(np.max(np.abs(residuals_mg))),
+        residual_rms_mg=math.sqrt(float(residuals_mg @ residuals_mg) / len(residuals_mg)),
+        residual_max_mg=float(np.abs(residuals_mg).max()),
         poses=len(residuals_mg),
         condition_number=float(condition),
     )
@@ -591,16 +604,20 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     n = len(accel)
     if initial is not None:
         bias0, matrix0 = initial.bias, initial.matrix
+        x0 = model.project(bias0, matrix0)
     else:
         bias0, matrix0 = seed_sphere(accel, gravity)
+        # The seed's M is diagonal and positive: already in every sphere model's form (what project's QR
+        # would return, without it).
+        x0 = model.pack(bias0, np.abs(matrix0))
     directions = (accel - bias0) @ matrix0.T
-    lengths = np.linalg.norm(directions, axis=1)
-    if not np.all(lengths > 0):
+    lengths = np.sqrt(np.einsum("ij,ij->i", directions, directions))
+    if not (lengths > 0).all():
         row = int(np.flatnonzero(~(lengths > 0))[0])
         return FitResult(False, f"pose {row} reads {accel[row].tolist()}, exactly the starting estimate of the bias, "
                          "so it has no direction: drop it if it is a dropped or zeroed sample", name, poses=n)
     directions /= lengths[:, None]
-    if not np.all(np.isfinite(directions)):
+    if not np.isfinite(directions).all():
         return _numerical_failure(accel, None, "the starting point overflows", model=name)
     missing = tuple(missing_directions(directions))
     spread = angular_spread_deg(directions)
@@ -613,10 +630,12 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
             missing_directions=missing,
             poses=n,
         )
-    solution = gauss_newton(
-        lambda p: model.residual_and_jacobian(p, accel, gravity), model.project(bias0, matrix0)
-    )
-    condition = scaled_condition_number(solution.jacobian)
+    solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, gravity), x0)
+    # One normal matrix (the solver's, when it formed it at the solution) for the condition number,
+    # sigma, the uncertainty and the outlier leverages.
+    jacobian = solution.jacobian
+    normal = solution.normal if solution.normal is not None else jacobian.T @ jacobian
+    condition, inverse = condition_and_inverse(normal)
     residuals_mg = solution.residuals / MG
     common: dict[str, Any] = dict(
         model=name,
@@ -653,11 +672,15 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     bias, matrix = model.unpack(solution.x)
     if not np.linalg.det(matrix) > 0:
         return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
-    stds = _standard_deviations(solution, n)
+    if inverse is None:  # an infinite condition number fails the observability check above
+        return _numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
+    stds = np.sqrt(np.abs(np.diag(inverse)) * (2.0 * solution.cost / (n - model.size)))
     if _not_finite(uncertainties=stds):
         return _numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
     _, matrix_sigma = model.unpack(stds)
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
+    uncertainty = _uncertainty(name, bias, matrix, gravity, jacobian, residuals_mg * MG, model.size, normal)
+    leverage = np.einsum("ij,jk,ik->i", jacobian, inverse, jacobian)
     calibration = Calibration(
         bias=bias,
         matrix=matrix,
@@ -669,7 +692,8 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
         frame_id=frame_id,
         reference_temperature_degc=ref_temperature,
     )
-    return FitResult(True, solution.message, calibration=calibration, sigma=sigma, **common)
+    return FitResult(True, solution.message, calibration=calibration, sigma=sigma, uncertainty=uncertainty,
+                     leverage=leverage, **common)
 
 
 def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity: float,

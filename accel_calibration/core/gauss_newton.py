@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dposv as posv
 
 ResidualFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -18,6 +19,20 @@ def _finite(jacobian: np.ndarray) -> bool:
     """Whether every entry is finite, in one reduction: the sum of squares is NaN or inf otherwise
     (and then J^T J, which it is the trace of, would overflow too)."""
     return math.isfinite(float(np.vdot(jacobian, jacobian)))
+
+
+def _solve(system: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """system^-1 rhs for a normal matrix: Cholesky (LAPACK posv called directly; numpy's wrapper costs
+    more than the solve at this size), else LU, else least squares when it is singular."""
+    _, step, info = posv(system, rhs)
+    if info == 0:
+        solution: np.ndarray = step
+        return solution
+    try:
+        return np.linalg.solve(system, rhs)
+    except np.linalg.LinAlgError:
+        least: np.ndarray = np.linalg.lstsq(system, rhs, rcond=None)[0]
+        return least
 
 
 @dataclass(frozen=True)
@@ -29,6 +44,9 @@ class LeastSquaresSolution:
     iterations: int
     success: bool
     message: str
+    # J^T J at x when the solver formed it there (converged), so that sigma, the condition number and
+    # the outlier leverages reuse it instead of forming it again; None otherwise.
+    normal: np.ndarray | None = None
 
 
 def gauss_newton(
@@ -65,17 +83,15 @@ def gauss_newton(
                 system = normal + damping * np.diag(normal.diagonal())
             else:
                 system = normal
-            try:
-                step = np.linalg.solve(system, -gradient)
-            except np.linalg.LinAlgError:
-                step = np.linalg.lstsq(system, -gradient, rcond=None)[0]
+            step = _solve(system, -gradient)
             # Converged when the step, or the cost decrease it promises (exact for Gauss-Newton near
             # the optimum), is below tolerance: no need to evaluate a point that changes nothing.
             predicted_decrease = -float(step @ gradient) - 0.5 * float(step @ (normal @ step))
             if not damping and predicted_decrease <= ftol * cost:
-                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
-            if not damping and float(step @ step) <= (xtol * (xtol + np.sqrt(x @ x))) ** 2:
-                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative step below xtol")
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol",
+                                            normal)
+            if not damping and float(step @ step) <= (xtol * (xtol + math.sqrt(float(x @ x)))) ** 2:
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative step below xtol", normal)
             x_new = x + step
             r_new, jac_new = residual_and_jacobian(x_new)
             cost_new = 0.5 * float(r_new @ r_new)
@@ -84,7 +100,8 @@ def gauss_newton(
                 break
             if usable and cost_new - cost <= ftol * cost:
                 # At the optimum to within rounding: no step can do better, so stop here.
-                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol")
+                return LeastSquaresSolution(x, cost, r, jac, iteration, True, "relative cost change below ftol",
+                                            normal)
             # The Gauss-Newton step overshot: damp it (Levenberg-Marquardt) and try again.
             damping = 1e-3 if damping == 0.0 else damping * 10.0
             if damping > 1e12:

@@ -252,10 +252,11 @@ class CalibrationSession:
             return "no temperature on the poses (imu/temperature silent or stale)"
         return temperature_span_problem(np.array(temps, dtype=float), self.settings.temperature)
 
-    def refit(self, extra_poses: Iterable[Pose] = ()) -> FitResult | None:
+    def refit(self, extra_poses: Iterable[Pose] = (), warm: bool = True) -> FitResult | None:
         """Fit the poses held (plus `extra_poses`, merged into a copy of the store, not kept), warm-started
-        from the last good fit; with the temperature model once the poses' temperature span allows it.
-        None while there are fewer poses than parameters. Never raises on poses the detector gives."""
+        from the last good fit unless `warm` is False; with the temperature model once the poses'
+        temperature span allows it. None while there are fewer poses than parameters. Never raises on
+        poses the detector gives."""
         extra = list(extra_poses)
         store = self.store
         if extra:
@@ -279,7 +280,7 @@ class CalibrationSession:
                 self.last_fit = result
                 return result
             # Not yet enough poses per temperature: the temperature-blind fit, said in progress.
-        initial = self.last_fit.calibration if self.last_fit is not None and self.last_fit.success else None
+        initial = self.last_fit.calibration if warm and self.last_fit is not None and self.last_fit.success else None
         if initial is not None and initial.temperature is not None:
             initial = initial.replace(temperature=None)
         result = fit(accel, model=self.model, gravity=gravity, initial=initial, outlier_options=outliers,
@@ -306,7 +307,9 @@ class CalibrationSession:
         problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
             return Verdict(False, "gate " + problem)
-        result = self.refit(extra)
+        # Cold: the verdict depends on the poses alone, not on how many warm refits the node's worker
+        # happened to run while they arrived (live and replay then agree exactly, whatever the load).
+        result = self.refit(extra, warm=False)
         refusal = None if result is None else self.gates.check(result)
         # Poses left out as outliers are said either way, counted from 1 as the node's log counts them.
         left_out = "" if result is None else "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)

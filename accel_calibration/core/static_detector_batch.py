@@ -54,83 +54,118 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
     centres = 10.0 ** (_LOG_MIN + (np.arange(_NBINS) + 0.5) / _BINS_PER_DECADE)
     if count < half_life:
         # No decay yet: the histogram at each query is a cumulative sum over query blocks.
-        block = np.searchsorted(query_adds, np.arange(1, count + 1), side="left")
+        block = (np.arange(count) + _QUERY_EVERY - 1) // _QUERY_EVERY  # the first query at or after each add
         counted = block < len(query_adds)  # adds after the last query never reach one
-        per_block = np.zeros((len(query_adds), _NBINS))
-        np.add.at(per_block, (block[counted], index[counted]), 1.0)
+        # Only the bins that were ever hit matter: empty bins below add nothing, and a hit needs counts.
+        low, high = int(index.min()), int(index.max()) + 1
+        width = high - low
+        per_block = np.bincount(block[counted] * width + (index[counted] - low),
+                                minlength=len(query_adds) * width).reshape(-1, width).astype(float)
         counts = np.cumsum(per_block, axis=0)
         running = np.cumsum(counts, axis=1)
         hit: np.ndarray = (running >= quantile * query_adds[:, None]) & (counts > 0)
-        values = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
+        values = np.where(hit.any(axis=1), centres[low:high][np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
         return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
+    # With decay: epoch by epoch (adds between two halvings), the queries of an epoch at once, each
+    # seeing the halved histogram carried in plus its epoch's adds so far. Counts are sums of halved
+    # integers, exact in floats, so the order of the additions does not change them.
     values = np.empty(len(query_adds))
-    counts = np.zeros(_NBINS)
-    total = 0.0
-    done = 0  # adds already in `counts`
-    for q, upto in enumerate(query_adds):
-        while done < upto:
-            next_decay = (done // half_life + 1) * half_life
-            stop = min(int(upto), next_decay)
-            counts += np.bincount(index[done:stop], minlength=_NBINS)
-            total += stop - done
-            done = stop
-            if done == next_decay:
-                counts *= 0.5
-                total *= 0.5
-        running = np.cumsum(counts)
-        hit = np.flatnonzero((running >= quantile * total) & (counts > 0))
-        values[q] = centres[hit[0]] if len(hit) else 10.0**_LOG_MAX
+    low, high = int(index.min()), int(index.max()) + 1  # only bins ever hit matter, as above
+    width, index, centres = high - low, index - low, centres[low:high]
+    base = np.zeros(width)
+    base_total = 0.0
+    epoch_of_query = query_adds // half_life  # halvings done by each query (after add `upto`)
+    for epoch in range(count // half_life + 1):
+        begin = epoch * half_life
+        end = min(count, begin + half_life)
+        chosen = np.flatnonzero(epoch_of_query == epoch)
+        if len(chosen):
+            upto = query_adds[chosen]
+            block = np.searchsorted(upto, np.arange(begin, end) + 1, side="left")  # its first query
+            counted = block < len(chosen)
+            per_block = np.bincount(block[counted] * width + index[begin:end][counted],
+                                    minlength=len(chosen) * width).reshape(-1, width).astype(float)
+            counts = base + np.cumsum(per_block, axis=0)
+            total = base_total + (upto - begin).astype(float)
+            running = np.cumsum(counts, axis=1)
+            hit = (running >= quantile * total[:, None]) & (counts > 0)
+            values[chosen] = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
+        if end == begin + half_life:  # the halving after this epoch's last add
+            base = (base + np.bincount(index[begin:end], minlength=width)) * 0.5
+            base_total = (base_total + (end - begin)) * 0.5
     return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
 
 
-def _window_variance(values: np.ndarray, start: np.ndarray, segment_first: np.ndarray,
-                     full: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Total variance (sum over axes) and mean of values[start_i .. i] for each full window i (0 elsewhere:
-    never used), about each segment's median.
+def _window_variance(channels: list[np.ndarray], start: np.ndarray, segment_first: np.ndarray,
+                     full: np.ndarray, mean_of: tuple[int, ...] = (0,)) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per channel (accel, gyro: n x 3 each): total variance (sum over axes) and mean of values[start_i .. i]
+    for each full window i (0 elsewhere: never used; the mean only for the channels in `mean_of`), about
+    each segment's median.
 
     Blocks are as long as the shortest full window, so every full window holds a block boundary; it
     is summed from pieces that lie inside it: the end of the block holding its first sample, whole
     blocks between (only for a window longer than the shortest), the start of the block holding its
-    last sample.
+    last sample. All channels go through one pass, laid out column-major (4 sums per channel) so the
+    running sums run along contiguous memory; cumsum adds in order, so the sums are the row-major ones.
     """
-    n_rows = len(values)
-    variance = np.zeros(n_rows)
-    mean = np.zeros((n_rows, 3))
+    n_rows = len(channels[0])
+    n_cols = 4 * len(channels)
     windows = np.flatnonzero(full)  # index of each full window's last sample
     if not len(windows):
-        return variance, mean
+        return [(np.zeros(n_rows), np.zeros((n_rows, 3))) for _ in channels]
     first = start[windows]
     block = int((windows - first).min()) + 1
-    reference = np.empty_like(values)
     firsts = np.flatnonzero(segment_first == np.arange(n_rows))
-    for begin, end in zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]):
-        # Median, not the first sample: a glitch there would leave every window far from its reference.
-        reference[begin:end] = np.median(values[begin:end], axis=0)
-    shifted = values - reference
-    rows = np.column_stack([shifted, np.einsum("ij,ij->i", shifted, shifted)])  # x y z |x|^2
+    bounds = list(zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]))
     blocks = -(-n_rows // block)
-    padded: np.ndarray = np.zeros((blocks * block, 4))
-    padded[:n_rows] = rows
-    padded = padded.reshape(blocks, block, 4)
-    prefix = np.cumsum(padded, axis=1).reshape(-1, 4)  # from the block's first row to this one
-    suffix = np.cumsum(padded[:, ::-1], axis=1)[:, ::-1].reshape(-1, 4)  # from this row to the block's last
-    totals = np.vstack([padded.sum(axis=1), np.zeros((1, 4))])
+    padded_rows = blocks * block
+    columns = np.empty((n_cols, padded_rows))  # per channel: x y z |x|^2
+    columns[:, n_rows:] = 0.0  # the padding of the last block
+    references = []
+    for c, values in enumerate(channels):
+        reference = np.empty_like(values)
+        for begin, end in bounds:
+            # Median, not the first sample: a glitch there would leave every window far from its reference.
+            for axis in range(3):  # column by column: the same medians, faster than axis=0 on rows of 3
+                reference[begin:end, axis] = np.median(values[begin:end, axis])
+        shifted = values - reference
+        references.append(reference)
+        columns[4 * c:4 * c + 3, :n_rows] = shifted.T
+        columns[4 * c + 3, :n_rows] = np.einsum("ij,ij->i", shifted, shifted)
+    prefix = np.cumsum(columns.reshape(n_cols, blocks, block), axis=2)  # from the block's first row to this one
+    totals = np.concatenate([prefix[:, :, -1], np.zeros((n_cols, 1))], axis=1)
+    prefix = prefix.reshape(n_cols, -1)
+    # From a row to its block's last, summed backwards: running sums over the reversed rows (row r is
+    # reversed row padded_rows - 1 - r; block boundaries coincide since padded_rows is whole blocks).
+    backwards = np.cumsum(columns[:, ::-1].reshape(n_cols, blocks, block), axis=2).reshape(n_cols, -1)
 
     boundary = windows // block * block  # the last block boundary at or before the window's last row
-    sums = prefix[windows].copy()  # [boundary, last]
-    head = np.flatnonzero(boundary > first)  # the window starts before that boundary
-    sums[head] += suffix[first[head]]  # [first, end of its block]
+    contiguous = windows[-1] - windows[0] + 1 == len(windows)  # the usual case: full from some row on
+    upto_last = prefix[:, windows[0]:windows[-1] + 1] if contiguous else np.take(prefix, windows, axis=1)
+    head_mask = boundary > first  # the window starts before that boundary
+    head = np.flatnonzero(head_mask)
+    suffix = np.take(backwards, padded_rows - 1 - first, axis=1)  # [first, end of its block]
+    if len(head) == len(windows):
+        sums = np.add(upto_last, suffix, out=suffix)  # [boundary, last] + [first, end of its block]
+    else:
+        sums = upto_last + np.where(head_mask, suffix, 0.0)
     first_block, last_block = first[head] // block + 1, boundary[head] // block
     between = first_block < last_block  # whole blocks in between
     if between.any():
         pairs = np.column_stack([first_block[between], last_block[between]]).reshape(-1)
-        sums[head[between]] += np.add.reduceat(totals, pairs, axis=0)[::2]
+        sums[:, head[between]] += np.add.reduceat(totals, pairs, axis=1)[:, ::2]
 
     count = windows - first + 1
-    s1, s2 = sums[:, :3], sums[:, 3]
-    variance[windows] = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
-    mean[windows] = reference[windows] + s1 / count[:, None]
-    return variance, mean
+    results = []
+    for c in range(len(channels)):
+        variance = np.zeros(n_rows)
+        mean = np.zeros((n_rows, 3))
+        s1, s2 = sums[4 * c:4 * c + 3].T, sums[4 * c + 3]
+        variance[windows] = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
+        if c in mean_of:
+            mean[windows] = references[c][windows] + s1 / count[:, None]
+        results.append((variance, mean))
+    return results
 
 
 def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -138,7 +173,8 @@ def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
     axes; the first row of the recording has none), as update() counts them."""
     repeat = np.zeros(len(values), dtype=np.int64)
     if len(values) > 1:
-        repeat[1:] = np.all(values[1:] == values[:-1], axis=1)
+        same = values[1:] == values[:-1]
+        repeat[1:] = same[:, 0] & same[:, 1] & same[:, 2]  # faster than all(axis=1) over 3 columns
     running = np.concatenate([[0], np.cumsum(repeat)])
     return np.asarray(running[1:] - running[start])
 
@@ -157,36 +193,49 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     sample start a new window). `flush` False: the interval open at the end is dropped too."""
     d = detector
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
-    a_all = np.asarray(accel, dtype=float).reshape(-1, 3)
-    g_all = None if gyro is None else np.asarray(gyro, dtype=float).reshape(-1, 3)
+    # Contiguous rows (a column slice of a loaded table is not): every pass below runs faster on them.
+    a_all = np.ascontiguousarray(np.asarray(accel, dtype=float).reshape(-1, 3))
+    g_all = None if gyro is None else np.ascontiguousarray(np.asarray(gyro, dtype=float).reshape(-1, 3))
     temp_all = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).reshape(-1)
     if temp_all is not None:
         with np.errstate(invalid="ignore"):
             # NaN, inf or absurd: that sample has no temperature, as in update()
             temp_all = np.where(np.abs(temp_all) <= _HARD_LIMIT, temp_all, np.nan)
     with np.errstate(invalid="ignore"):
-        # As update(): NaN/inf or beyond the limit on any axis rejects the sample (NaN compares False).
-        valid = np.all(np.abs(a_all) <= d._accel_max, axis=1)
-        finite = np.all(np.isfinite(a_all), axis=1)
-        if g_all is not None:
-            valid &= np.all(np.abs(g_all) <= d._gyro_max, axis=1)
-            finite &= np.all(np.isfinite(g_all), axis=1)
-    out_of_range = int(np.count_nonzero(finite & ~valid))
-    t_f = t_all[valid]
-    previous_max = np.concatenate([[np.iinfo(np.int64).min], np.maximum.accumulate(t_f)[:-1]]) if len(t_f) else t_f
-    accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
+        # As update(): NaN/inf or beyond the limit on any axis rejects the sample (NaN propagates through
+        # max and compares False).
+        if np.abs(a_all).max(initial=0.0) <= d._accel_max and (
+                g_all is None or np.abs(g_all).max(initial=0.0) <= d._gyro_max):
+            valid = np.ones(len(a_all), bool)  # the usual recording: one reduction each says all are valid
+        else:
+            valid = np.abs(a_all).max(axis=1, initial=0.0) <= d._accel_max
+            if g_all is not None:
+                valid &= np.abs(g_all).max(axis=1, initial=0.0) <= d._gyro_max
+    invalid = np.flatnonzero(~valid)  # few: finiteness is checked on these only
+    finite = np.all(np.isfinite(a_all[invalid]), axis=1)
+    if g_all is not None:
+        finite &= np.all(np.isfinite(g_all[invalid]), axis=1)
+    out_of_range = int(np.count_nonzero(finite))
+    t_f = t_all[valid] if len(invalid) else t_all
+    in_order = len(t_f) < 2 or bool(np.all(t_f[1:] > t_f[:-1]))
+    if in_order:  # the usual recording: every valid stamp after the previous one
+        accepted = np.ones(len(t_f), bool)
+    else:
+        previous_max = np.concatenate([[np.iinfo(np.int64).min], np.maximum.accumulate(t_f)[:-1]])
+        accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
     rejected = len(t_all) - int(accepted.sum())
     keep = np.flatnonzero(valid)[accepted]
+    everything = len(keep) == len(t_all)  # nothing rejected: the arrays as given, without copies
     dropped = None
     if drop is not None:
         # A discard before a rejected sample still applies to the next accepted one.
         marked = np.concatenate([[0], np.cumsum(np.asarray(drop, dtype=bool).reshape(-1))])
         upto = marked[keep + 1]
         dropped = (upto - np.concatenate([[0], upto[:-1]])) > 0
-    t = t_all[keep]
-    a = a_all[keep]
-    g = None if g_all is None else g_all[keep]
-    temps = None if temp_all is None else temp_all[keep]
+    t = t_all if everything else t_all[keep]
+    a = a_all if everything else a_all[keep]
+    g = None if g_all is None else g_all if everything else g_all[keep]
+    temps = None if temp_all is None else temp_all if everything else temp_all[keep]
     n = len(t)
     if n == 0:
         return [], rejected, out_of_range
@@ -200,8 +249,9 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     # Windows mostly of repeated samples are no evidence of the noise (update(): 2 * repeats <= n).
     accel_evidence = 2 * _repeats_in_window(a, start) <= count
     gyro_evidence = None if g is None else 2 * _repeats_in_window(g, start) <= count
-    accel_var, accel_mean = _window_variance(a, start, segment_first, full)
-    gyro_var = None if g is None else _window_variance(g, start, segment_first, full)[0]
+    window_stats = _window_variance([a] if g is None else [a, g], start, segment_first, full)
+    accel_var, accel_mean = window_stats[0]
+    gyro_var = None if g is None else window_stats[1][0]
     # A window whose mean is no gravity (a dead sensor's quiet zeros) does not teach the floor either.
     plausible = np.einsum("ij,ij->i", accel_mean, accel_mean) >= d._min_magnitude_squared
     accel_evidence &= plausible

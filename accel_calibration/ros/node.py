@@ -671,6 +671,11 @@ def main(args: list[str] | None = None) -> int:
             node.close()
             node.destroy_node()
         rclpy.try_shutdown()
+        # Python's finalisation puts SIG_DFL back for every handler it installed, so a second SIGINT
+        # in the last milliseconds (a terminal under ros2 launch) would kill the process (-2): ignored
+        # handlers are left alone, and there is nothing left to stop.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
     return 0
 
 
