@@ -50,3 +50,21 @@ def tester(ros):
     client = CalibrationClient()
     yield client
     client.destroy()
+
+
+@pytest.fixture
+def node_process():
+    """Start calibration_node processes with `start(...)` (NodeProcess arguments); every one is
+    stopped at the end whatever the test did."""
+    from msg_tools.node_process import NodeProcess
+
+    started = []
+
+    def start(*args, **kwargs):
+        node = NodeProcess(*args, **kwargs)
+        started.append(node)
+        return node
+
+    yield start
+    for node in started:
+        node.stop()

@@ -13,7 +13,6 @@ import pytest
 import yaml
 
 from accel_calibration import load_calibration
-from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 pytestmark = pytest.mark.ros
@@ -26,21 +25,6 @@ def good_session(seed=11, poses=16):
     rng = np.random.default_rng(seed + 1)
     return errors, SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0,
                                 seed=seed)
-
-
-@pytest.fixture
-def node_process():
-    """Start nodes with `start(...)`; every one is stopped at the end whatever the test did."""
-    started = []
-
-    def start(*args, **kwargs):
-        node = NodeProcess(*args, **kwargs)
-        started.append(node)
-        return node
-
-    yield start
-    for node in started:
-        node.stop()
 
 
 def test_calibrate_too_early_then_a_session_then_calibrate_reset_calibrate(tmp_path, tester, node_process):

@@ -10,26 +10,11 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 
 from accel_calibration.core.session import CalibrationSession
-from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, SyntheticSamples, spread_orientations
 
 pytestmark = pytest.mark.ros
 START_NS = 1_700_000_000 * 10**9
 DWELL_S, MOVE_S, RATE_HZ = 2.5, 1.0, 200.0
-
-
-@pytest.fixture
-def node_process():
-    started = []
-
-    def start(*args, **kwargs):
-        node = NodeProcess(*args, **kwargs)
-        started.append(node)
-        return node
-
-    yield start
-    for node in started:
-        node.stop()
 
 
 def part(samples, first, stop):

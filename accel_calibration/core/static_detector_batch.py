@@ -25,10 +25,24 @@ from .pose import Pose
 from .static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
 
 if TYPE_CHECKING:
-    from .static_detector import StaticDetector
+    from .static_detector import StaticDetector, _VarianceFloor
 
 _QUERY_EVERY = 64
 
+
+
+def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndarray, warm_full: np.ndarray,
+                      floor: _VarianceFloor, fixed: float | None, k_sigma: float, rise_var: float,
+                      cap: float) -> np.ndarray:
+    """One channel's stillness threshold at each full window: the fixed one, or k_sigma x the learned
+    floor bounded above the quietest floor seen and by the absolute cap; NaN while still learning."""
+    if fixed is not None:
+        return np.full(len(full_index), fixed)
+    # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
+    values = _floor_values(np.where(evidence, var, np.nan)[full_index], floor.quantile, floor.half_life)
+    bounded = np.minimum(values, _quietest(values, warm_full) * rise_var)
+    with np.errstate(invalid="ignore"):
+        return np.where(warm_full, np.minimum(k_sigma * bounded, cap), np.nan)
 
 def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
     """The floor value in force after each window, as _VarianceFloor would give it (it skips non-finite
@@ -265,25 +279,11 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     gyro_limit = np.full(n, np.nan)
     warm = full_time >= d._warmup_ns
     warm_full = warm[full_index]
-    # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
-    floor_a = _floor_values(np.where(accel_evidence, accel_var, np.nan)[full_index], d._accel_floor.quantile,
-                            d._accel_floor.half_life)
-    if d.accel_var_threshold is not None:
-        accel_limit[full_index] = d.accel_var_threshold
-    else:
-        bounded = np.minimum(floor_a, _quietest(floor_a, warm_full) * d._rise_var)
-        with np.errstate(invalid="ignore"):
-            accel_limit[full_index] = np.where(warm_full, np.minimum(d.k_sigma * bounded, d._accel_cap), np.nan)
+    accel_limit[full_index] = _limit_per_window(accel_var, accel_evidence, full_index, warm_full, d._accel_floor,
+                                                d.accel_var_threshold, d.k_sigma, d._rise_var, d._accel_cap)
     if gyro_var is not None and gyro_evidence is not None:  # there is a gyro
-        floor_g = _floor_values(np.where(gyro_evidence, gyro_var, np.nan)[full_index], d._gyro_floor.quantile,
-                                d._gyro_floor.half_life)
-        if d.gyro_var_threshold is not None:
-            gyro_limit[full_index] = d.gyro_var_threshold
-        else:
-            bounded = np.minimum(floor_g, _quietest(floor_g, warm_full) * d._rise_var)
-            with np.errstate(invalid="ignore"):
-                gyro_limit[full_index] = np.where(warm_full, np.minimum(d.gyro_k_sigma * bounded, d._gyro_cap),
-                                                  np.nan)
+        gyro_limit[full_index] = _limit_per_window(gyro_var, gyro_evidence, full_index, warm_full, d._gyro_floor,
+                                                   d.gyro_var_threshold, d.gyro_k_sigma, d._rise_var, d._gyro_cap)
     learning = full & np.isnan(accel_limit)
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
