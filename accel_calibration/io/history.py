@@ -186,10 +186,18 @@ class History:
 
                 @event.listens_for(self.engine, "connect")
                 def _sqlite_pragmas(connection: Any, _record: Any) -> None:
+                    connection.isolation_level = None  # transactions begun below, not by the driver
                     cursor = connection.cursor()
                     cursor.execute("PRAGMA journal_mode=WAL")  # readers never block the writer
                     cursor.execute("PRAGMA synchronous=NORMAL")  # WAL stays consistent on power loss
                     cursor.close()
+
+                @event.listens_for(self.engine, "begin")
+                def _write_lock_first(connection: Any) -> None:
+                    # A deferred transaction that reads and then writes cannot wait for another writer
+                    # (SQLite answers "database is locked" at once); taking the write lock at BEGIN
+                    # makes concurrent writers queue on the busy timeout instead.
+                    connection.exec_driver_sql("BEGIN IMMEDIATE")
             else:
                 self.engine = create_engine(url, pool_pre_ping=True)
             self._create_schema()
