@@ -217,6 +217,10 @@ class StaticDetector:
         self._accel_quietest = _INF
         self._gyro_quietest = _INF
         self.pose_segments: list[int] = []  # after process(): the segment (between breaks) of each pose
+        # Between process() calls on parts of one recording: the rows still needed (BatchCarry) and the
+        # clocks' layout (the current segment's offset, the latest virtual stamp).
+        self._batch_carry: Any = None
+        self._layout: tuple[int, int] | None = None
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -503,35 +507,56 @@ class StaticDetector:
 
     def process(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
                 temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
-                flush: bool = True) -> list[Pose]:
+                flush: bool = True, final: bool = True) -> list[Pose]:
         """A whole recording at once (bag replay, CLI): the poses update() would give sample by sample
         followed by flush(), computed with array operations (window sums from sums within blocks, the noise
         floor's histogram queried at the same points, the interval rules applied per run of still
-        samples). Needs a fresh detector. Agreement with update() is tested; window variances differ
-        only by rounding (~1e-12 relative).
+        samples). Needs a fresh detector, or one whose last process() call had `final` False. Agreement
+        with update() is tested; window variances differ only by rounding (~1e-12 relative).
 
         `breaks` (one per sample, optional): RESTART where restart() comes before the sample (a clock
         re-synchronised), DISCARD where discard() does (collection paused since the previous sample).
         Each segment runs on a clock of its own, laid end to end with a gap longer than a window.
-        `flush` False: the interval still open at the end is dropped (collection paused there)."""
+        `flush` False: the interval still open at the end is dropped (collection paused there).
+        `final` False: a part of a recording, more follows in the next call (same gyro and temperature
+        presence); the interval open at its end stays open. A long recording goes through in parts of
+        bounded memory with the poses of one call. `pose_segments` then numbers the segments from the one
+        in force when the call began (0)."""
         from .static_detector_batch import detect_batch
 
-        if self._last_ns is not None or self._full_time_ns:
+        continuing = self._batch_carry is not None or self._layout is not None
+        if not continuing and (self._last_ns is not None or self._full_time_ns):
             raise CalibrationError("process() needs a fresh StaticDetector (this one has seen samples)")
         t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
         marks = None if breaks is None else np.asarray(breaks, dtype=np.int64).reshape(-1)
         if marks is not None and len(marks) != len(t):
             raise CalibrationError(f"breaks must have one entry per sample ({len(t)}), got {len(marks)}")
-        if marks is None or not np.any(marks[1:]):  # a break before the first sample changes nothing
-            poses, rejected, out_of_range = detect_batch(self, t, accel, gyro, temperature_degc, flush=flush)
+        if marks is not None and not continuing:
+            marks = marks.copy()
+            marks[:1] = 0  # a break before the first sample changes nothing
+        if self._layout is None and (marks is None or not np.any(marks)):
+            poses, rejected, out_of_range = detect_batch(self, t, accel, gyro, temperature_degc, flush=flush,
+                                                         final=final)
             self.pose_segments = [0] * len(poses)
         else:
-            laid = self._end_to_end(t, marks)
-            if laid is None:  # the clocks laid end to end would not fit in int64 ns: per sample instead
-                return self.process_streaming(t, accel, gyro, temperature_degc, marks, flush)
-            virtual, segment_starts, offsets = laid
+            if marks is None:
+                marks = np.zeros(len(t), dtype=np.int64)
+            previous = self._layout
+            if previous is None and self._batch_carry is not None:  # parts so far on their own clock
+                previous = (0, int(self._batch_carry.t[-1]))
+            laid = self._end_to_end(t, marks, previous)
+            if laid is None:  # the clocks laid end to end would not fit in int64 ns
+                if not continuing and final:
+                    return self.process_streaming(t, accel, gyro, temperature_degc, marks, flush)
+                # Part of a long recording whose stamps reach the ends of int64: what is open is lost.
+                self._batch_carry, self._layout = None, None
+                self.rejected_samples += len(t)
+                self.pose_segments = []
+                return []
+            virtual, segment_starts, offsets, self._layout = laid
             drop = marks == DISCARD
-            poses, rejected, out_of_range = detect_batch(self, virtual, accel, gyro, temperature_degc, drop, flush)
+            poses, rejected, out_of_range = detect_batch(self, virtual, accel, gyro, temperature_degc, drop, flush,
+                                                         final)
             shifted, segments = [], []
             for pose in poses:
                 segment = int(np.searchsorted(segment_starts, pose.start_ns, side="right")) - 1
@@ -539,31 +564,46 @@ class StaticDetector:
                 shifted.append(replace(pose, start_ns=pose.start_ns - offset, end_ns=pose.end_ns - offset))
                 segments.append(segment)
             poses, self.pose_segments = shifted, segments
+        if final:
+            self._layout = None
         self.rejected_samples += rejected
         self.rejected_out_of_range += out_of_range
         return poses
 
-    def _end_to_end(self, t: np.ndarray, marks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _end_to_end(self, t: np.ndarray, marks: np.ndarray, previous: tuple[int, int] | None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]] | None:
         """Stamps of segments (split before each marked sample) laid end to end, each starting a window
         and a nanosecond after everything before it: (stamps, first virtual stamp of each segment, the
-        offset added to each segment). None when that does not fit in int64."""
-        cuts = np.flatnonzero(marks)
-        bounds = [0, *[int(c) for c in cuts if c > 0], len(t)]
+        offset added to each segment, (the last offset, the latest virtual stamp) for a next part). The
+        first segment continues `previous` (offset, latest stamp) of the part before, when given. None
+        when that does not fit in int64."""
+        cuts = [int(c) for c in np.flatnonzero(marks) if c > 0 or previous is not None]
+        bounds = [0, *cuts, len(t)]
         virtual = np.empty_like(t)
         starts, offsets = [], []
-        top: int | None = None  # the latest virtual stamp so far
-        for first, stop in zip(bounds[:-1], bounds[1:]):
+        top: int | None = None if previous is None else previous[1]  # the latest virtual stamp so far
+        for index, (first, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
             segment = t[first:stop]
-            low, high = int(segment.min()), int(segment.max())
-            base = low if top is None else top + self._window_ns + 1
-            offset = base - low
-            top = base + (high - low)
-            if top > _INT64_MAX or not -_INT64_MAX <= offset <= _INT64_MAX:
-                return None
+            if index == 0 and previous is not None:  # the segment in force before this part goes on
+                offset = previous[0]
+                base = -_INT64_MAX - 1  # every pose before the first mark belongs to it
+                if len(segment):
+                    high = int(segment.max()) + offset
+                    if high > _INT64_MAX or int(segment.min()) + offset < -_INT64_MAX:
+                        return None
+                    top = high if top is None else max(top, high)
+            else:
+                low, high = int(segment.min()), int(segment.max())
+                base = low if top is None else top + self._window_ns + 1
+                offset = base - low
+                top = base + (high - low)
+                if top > _INT64_MAX or not -_INT64_MAX <= offset <= _INT64_MAX:
+                    return None
             virtual[first:stop] = segment + np.int64(offset)
             starts.append(base)
             offsets.append(offset)
-        return virtual, np.array(starts, dtype=np.int64), np.array(offsets, dtype=np.int64)
+        assert top is not None  # some segment had rows, or a previous part did
+        return virtual, np.array(starts, dtype=np.int64), np.array(offsets, dtype=np.int64), (offsets[-1], top)
 
     # ---------------------------------------------------------------- internals
     def _clear_window(self) -> None:

@@ -16,6 +16,7 @@ summed within its block only, so a window's sums hold nothing but its own sample
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,70 +34,75 @@ _QUERY_EVERY = 64
 
 def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndarray, warm_full: np.ndarray,
                       floor: _VarianceFloor, fixed: float | None, k_sigma: float, rise_var: float,
-                      cap: float) -> np.ndarray:
+                      cap: float, quietest: float) -> tuple[np.ndarray, float]:
     """One channel's stillness threshold at each full window: the fixed one, or k_sigma x the learned
-    floor bounded above the quietest floor seen and by the absolute cap; NaN while still learning."""
-    if fixed is not None:
-        return np.full(len(full_index), fixed)
+    floor bounded above the quietest floor seen and by the absolute cap; NaN while still learning.
+    `floor` is advanced past these windows; `quietest` is the lowest floor seen before them, returned
+    updated."""
     # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
-    values = _floor_values(np.where(evidence, var, np.nan)[full_index], floor.quantile, floor.half_life)
-    bounded = np.minimum(values, _quietest(values, warm_full) * rise_var)
+    # The floor is learned under a fixed threshold too, as update() learns it (diagnostics show it).
+    values = _floor_values(np.where(evidence, var, np.nan)[full_index], floor)
+    lowest = _quietest(values, warm_full, quietest)
+    quietest = float(lowest[-1]) if len(lowest) else quietest
+    if fixed is not None:
+        return np.full(len(full_index), fixed), quietest
+    bounded = np.minimum(values, lowest * rise_var)
     with np.errstate(invalid="ignore"):
-        return np.where(warm_full, np.minimum(k_sigma * bounded, cap), np.nan)
+        limit = np.where(warm_full, np.minimum(k_sigma * bounded, cap), np.nan)
+    return limit, quietest
 
-def _floor_values(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
-    """The floor value in force after each window, as _VarianceFloor would give it (it skips non-finite
-    variances, which finite sums inside the guard cannot give; NaN until the first add)."""
+
+def _floor_values(variances: np.ndarray, floor: _VarianceFloor) -> np.ndarray:
+    """The floor value in force after each window, as _VarianceFloor.add per window would give it (it
+    skips non-finite variances, which finite sums inside the guard cannot give; NaN until the first
+    add), starting from `floor`'s state and leaving `floor` as those adds would."""
+    before = np.nan if floor.value is None else floor.value
     finite = np.isfinite(variances)
     if not finite.all():
-        values = _floor_values_of_adds(variances[finite], quantile, half_life)
+        values = _floor_values_of_adds(variances[finite], floor)
         last_add = np.cumsum(finite) - 1
-        return np.where(last_add >= 0, values[np.maximum(last_add, 0)] if len(values) else np.nan, np.nan)
-    return _floor_values_of_adds(variances, quantile, half_life)
+        return np.where(last_add >= 0, values[np.maximum(last_add, 0)] if len(values) else np.nan, before)
+    return _floor_values_of_adds(variances, floor)
 
 
-def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int) -> np.ndarray:
-    """The floor value in force after each add."""
+def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.ndarray:
+    """The floor value in force after each add, from `floor`'s state (its histogram, the adds since its
+    last query and last halving), which is advanced to after the last add.
+
+    Epoch by epoch (adds between two halvings), the queries of an epoch at once, each seeing the halved
+    histogram carried in plus its epoch's adds so far. Counts are sums of halved integers, exact in
+    floats, so the order of the additions does not change them: the values are _VarianceFloor's."""
     count = len(variances)
     if count == 0:
         return np.zeros(0)
+    quantile, half_life = floor.quantile, floor.half_life
     with np.errstate(divide="ignore", invalid="ignore"):
         index = np.floor((np.log10(variances) - _LOG_MIN) * _BINS_PER_DECADE)
     index = np.where(variances <= 0.0, 0, np.clip(np.nan_to_num(index, nan=0.0), 0, _NBINS - 1)).astype(np.int64)
-    # Queries after add 1, 65, 129, ... (1-based); decays after add 200000, 400000, ...
-    query_adds = np.arange(1, count + 1, _QUERY_EVERY)
-    centres = 10.0 ** (_LOG_MIN + (np.arange(_NBINS) + 0.5) / _BINS_PER_DECADE)
-    if count < half_life:
-        # No decay yet: the histogram at each query is a cumulative sum over query blocks.
-        block = (np.arange(count) + _QUERY_EVERY - 1) // _QUERY_EVERY  # the first query at or after each add
-        counted = block < len(query_adds)  # adds after the last query never reach one
-        # Only the bins that were ever hit matter: empty bins below add nothing, and a hit needs counts.
-        low, high = int(index.min()), int(index.max()) + 1
-        width = high - low
-        per_block = np.bincount(block[counted] * width + (index[counted] - low),
-                                minlength=len(query_adds) * width).reshape(-1, width).astype(float)
-        counts = np.cumsum(per_block, axis=0)
-        running = np.cumsum(counts, axis=1)
-        hit: np.ndarray = (running >= quantile * query_adds[:, None]) & (counts > 0)
-        values = np.where(hit.any(axis=1), centres[low:high][np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
-        return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
-    # With decay: epoch by epoch (adds between two halvings), the queries of an epoch at once, each
-    # seeing the halved histogram carried in plus its epoch's adds so far. Counts are sums of halved
-    # integers, exact in floats, so the order of the additions does not change them.
+    # add() queries after the first add ever, then every _QUERY_EVERY adds; it halves every half_life adds
+    # (before the query of the same add). Numbered 1.. within these adds.
+    first_query = 1 if floor.value is None else _QUERY_EVERY - floor._since_query
+    query_adds = np.arange(first_query, count + 1, _QUERY_EVERY)
+    halvings = np.arange(half_life - floor._since_decay, count + 1, half_life)
+    carried = np.asarray(floor.counts, dtype=float)
+    hit_bins = np.flatnonzero(carried)
+    # Only bins ever hit matter: empty bins below add nothing, and a hit needs counts.
+    low = int(min(index.min(), hit_bins.min() if len(hit_bins) else _NBINS))
+    high = int(max(index.max(), hit_bins.max() if len(hit_bins) else -1)) + 1
+    width, index = high - low, index - low
+    centres = 10.0 ** (_LOG_MIN + (np.arange(low, high) + 0.5) / _BINS_PER_DECADE)
+    base = carried[low:high].copy()
+    base_total = float(floor.total)
     values = np.empty(len(query_adds))
-    low, high = int(index.min()), int(index.max()) + 1  # only bins ever hit matter, as above
-    width, index, centres = high - low, index - low, centres[low:high]
-    base = np.zeros(width)
-    base_total = 0.0
-    epoch_of_query = query_adds // half_life  # halvings done by each query (after add `upto`)
-    for epoch in range(count // half_life + 1):
-        begin = epoch * half_life
-        end = min(count, begin + half_life)
+    epoch_of_query = np.searchsorted(halvings, query_adds, side="right")  # halvings done by each query
+    epoch_starts = np.concatenate([[0], halvings])  # an epoch holds the adds after its start, to the next
+    for epoch, begin in enumerate(epoch_starts.tolist()):
+        end = int(epoch_starts[epoch + 1]) if epoch + 1 < len(epoch_starts) else count
         chosen = np.flatnonzero(epoch_of_query == epoch)
         if len(chosen):
             upto = query_adds[chosen]
             block = np.searchsorted(upto, np.arange(begin, end) + 1, side="left")  # its first query
-            counted = block < len(chosen)
+            counted = block < len(chosen)  # adds after the last query never reach one
             per_block = np.bincount(block[counted] * width + index[begin:end][counted],
                                     minlength=len(chosen) * width).reshape(-1, width).astype(float)
             counts = base + np.cumsum(per_block, axis=0)
@@ -104,10 +110,23 @@ def _floor_values_of_adds(variances: np.ndarray, quantile: float, half_life: int
             running = np.cumsum(counts, axis=1)
             hit = (running >= quantile * total[:, None]) & (counts > 0)
             values[chosen] = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
-        if end == begin + half_life:  # the halving after this epoch's last add
-            base = (base + np.bincount(index[begin:end], minlength=width)) * 0.5
-            base_total = (base_total + (end - begin)) * 0.5
-    return values[(np.arange(1, count + 1) - 1) // _QUERY_EVERY]
+        base = base + np.bincount(index[begin:end], minlength=width)
+        base_total += end - begin
+        if epoch + 1 < len(epoch_starts):  # the halving after this epoch's last add
+            base *= 0.5
+            base_total *= 0.5
+    previous = np.nan if floor.value is None else floor.value
+    latest_query = np.searchsorted(query_adds, np.arange(1, count + 1), side="right") - 1
+    per_add = np.where(latest_query >= 0, values[np.maximum(latest_query, 0)] if len(values) else np.nan, previous)
+    # The state add() would leave.
+    carried[low:high] = base
+    floor.counts = carried.tolist()
+    floor.total = base_total
+    floor._since_decay = floor._since_decay + count if not len(halvings) else count - int(halvings[-1])
+    floor._since_query = floor._since_query + count if not len(query_adds) else count - int(query_adds[-1])
+    if len(values):
+        floor.value = float(values[-1])
+    return np.asarray(per_add)
 
 
 def _window_variance(channels: list[np.ndarray], start: np.ndarray, segment_first: np.ndarray,
@@ -193,19 +212,44 @@ def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
     return np.asarray(running[1:] - running[start])
 
 
-def _quietest(floor: np.ndarray, warm: np.ndarray) -> np.ndarray:
-    """The lowest floor value in force after warm-up so far (inf before), per full window."""
+def _quietest(floor: np.ndarray, warm: np.ndarray, before: float = math.inf) -> np.ndarray:
+    """The lowest floor value in force after warm-up so far (`before`: the lowest before these windows),
+    per full window."""
     candidates = np.where(warm & ~np.isnan(floor), floor, np.inf)
+    if len(candidates):
+        candidates[0] = min(candidates[0], before)
     return np.asarray(np.minimum.accumulate(candidates)) if len(candidates) else candidates
+
+
+@dataclass
+class BatchCarry:
+    """What a detect_batch call leaves for the next part of the same recording (final=False): the rows
+    the next windows and the open interval still need (accepted rows: stamps, accel, gyro, temperature)
+    and where in them the open interval began and last grew. The floors, the quietest floors, the
+    full-window time and the warm-up's loudest windows live on the detector, as update() keeps them."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray | None
+    temperature: np.ndarray | None
+    opened: int | None
+    last: int
 
 
 def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
                  temperature_degc: ArrayLike | None = None,
-                 drop: ArrayLike | None = None, flush: bool = True) -> tuple[list[Pose], int, int]:
+                 drop: ArrayLike | None = None, flush: bool = True, final: bool = True) -> tuple[list[Pose], int, int]:
     """(poses, rejected samples, of which finite but out of range). `drop` (per sample, optional): the
     interval open before this sample is dropped, not emitted (discard(); the stamps must then make this
-    sample start a new window). `flush` False: the interval open at the end is dropped too."""
+    sample start a new window). `flush` False: the interval open at the end is dropped too.
+
+    `final` False: more of the same recording follows (a later call, with the same gyro/temperature
+    presence); the interval open at the end stays open and the rows it and the next windows need are kept
+    on the detector (BatchCarry), so the parts give the poses one call would (window variances to
+    rounding: their sums are taken over other blocks)."""
     d = detector
+    carry: BatchCarry | None = d._batch_carry
+    d._batch_carry = None
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     # Contiguous rows (a column slice of a loaded table is not): every pass below runs faster on them.
     a_all = np.ascontiguousarray(np.asarray(accel, dtype=float).reshape(-1, 3))
@@ -231,11 +275,13 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         finite &= np.all(np.isfinite(g_all[invalid]), axis=1)
     out_of_range = int(np.count_nonzero(finite))
     t_f = t_all[valid] if len(invalid) else t_all
-    in_order = len(t_f) < 2 or bool(np.all(t_f[1:] > t_f[:-1]))
+    latest = np.iinfo(np.int64).min if carry is None else int(carry.t[-1])  # the last accepted stamp
+    in_order = len(t_f) == 0 or (int(t_f[0]) > latest and bool(np.all(t_f[1:] > t_f[:-1])))
     if in_order:  # the usual recording: every valid stamp after the previous one
         accepted = np.ones(len(t_f), bool)
     else:
-        previous_max = np.concatenate([[np.iinfo(np.int64).min], np.maximum.accumulate(t_f)[:-1]])
+        previous_max = np.concatenate([[latest], np.maximum.accumulate(t_f)[:-1]])
+        previous_max[1:] = np.maximum(previous_max[1:], latest)
         accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
     rejected = len(t_all) - int(accepted.sum())
     keep = np.flatnonzero(valid)[accepted]
@@ -250,8 +296,22 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     a = a_all if everything else a_all[keep]
     g = None if g_all is None else g_all if everything else g_all[keep]
     temps = None if temp_all is None else temp_all if everything else temp_all[keep]
+    # The rows kept from the part before come first; the interval rules run over the new rows only.
+    context = 0
+    if carry is not None:
+        context = len(carry.t)
+        t = np.concatenate([carry.t, t])
+        a = np.concatenate([carry.accel, a])
+        g = None if g is None or carry.gyro is None else np.concatenate([carry.gyro, g])
+        temps = None if temps is None or carry.temperature is None else np.concatenate([carry.temperature, temps])
+        if dropped is not None:
+            dropped = np.concatenate([np.zeros(context, bool), dropped])
     n = len(t)
-    if n == 0:
+    if n == context:  # nothing new
+        if carry is not None:
+            d._batch_carry = carry
+            if final:
+                return _finish(d, [], carry, t, a, g, temps, flush), rejected, out_of_range
         return [], rejected, out_of_range
 
     window_ns, trim_ns = d._window_ns, int(d.trim_s * 1e9)
@@ -260,6 +320,7 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     start = np.maximum(np.searchsorted(t, t - window_ns, side="right"), segment_first)
     count = np.arange(n) - start + 1
     full = ((t - t[start]) >= d._full_ns) & (count >= 5)
+    full[:context] = False  # decided in the part before
     # Windows mostly of repeated samples are no evidence of the noise (update(): 2 * repeats <= n).
     accel_evidence = 2 * _repeats_in_window(a, start) <= count
     gyro_evidence = None if g is None else 2 * _repeats_in_window(g, start) <= count
@@ -272,18 +333,21 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     if gyro_evidence is not None:
         gyro_evidence &= plausible
     dt = np.concatenate([[0], np.diff(t)])
-    full_time = np.cumsum(np.where(full & accel_evidence, dt, 0))
+    full_time = d._full_time_ns + np.cumsum(np.where(full & accel_evidence, dt, 0))
+    d._full_time_ns = int(full_time[-1])
 
     full_index = np.flatnonzero(full)
     accel_limit = np.full(n, np.nan)
     gyro_limit = np.full(n, np.nan)
     warm = full_time >= d._warmup_ns
     warm_full = warm[full_index]
-    accel_limit[full_index] = _limit_per_window(accel_var, accel_evidence, full_index, warm_full, d._accel_floor,
-                                                d.accel_var_threshold, d.k_sigma, d._rise_var, d._accel_cap)
+    accel_limit[full_index], d._accel_quietest = _limit_per_window(
+        accel_var, accel_evidence, full_index, warm_full, d._accel_floor, d.accel_var_threshold, d.k_sigma,
+        d._rise_var, d._accel_cap, d._accel_quietest)
     if gyro_var is not None and gyro_evidence is not None:  # there is a gyro
-        gyro_limit[full_index] = _limit_per_window(gyro_var, gyro_evidence, full_index, warm_full, d._gyro_floor,
-                                                   d.gyro_var_threshold, d.gyro_k_sigma, d._rise_var, d._gyro_cap)
+        gyro_limit[full_index], d._gyro_quietest = _limit_per_window(
+            gyro_var, gyro_evidence, full_index, warm_full, d._gyro_floor, d.gyro_var_threshold, d.gyro_k_sigma,
+            d._rise_var, d._gyro_cap, d._gyro_quietest)
     learning = full & np.isnan(accel_limit)
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
@@ -292,41 +356,21 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     poses: list[Pose] = []
 
     def emit(opened: int, last: int, trim_end: bool) -> None:
-        first_time = t[start[opened]] + trim_ns
-        k0 = int(np.searchsorted(t, first_time, side="left"))
-        k0 = max(k0, int(start[opened]))
-        k1 = int(np.searchsorted(t, t[last] - trim_ns, side="right")) - 1 if trim_end else last
-        k1 = min(k1, last)
-        if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
-            return
-        rows = a[k0:k1 + 1]
-        temperature = spread = None
-        if temps is not None:
-            known = temps[k0:k1 + 1][~np.isnan(temps[k0:k1 + 1])]
-            if len(known):
-                temperature, spread = float(known.mean()), float(known.max() - known.min())
-        poses.append(Pose(
-            accel_mps2=rows.mean(axis=0),
-            accel_cov=np.cov(rows, rowvar=False),
-            samples=k1 - k0 + 1,
-            start_ns=int(t[k0]),
-            end_ns=int(t[k1]),
-            gyro_radps=None if g is None else g[k0:k1 + 1].mean(axis=0),
-            temperature_degc=temperature,
-            temperature_spread_degc=spread,
-        ))
+        _emit(poses, d, t, a, g, temps, start, opened, last, trim_end, trim_ns)
 
     # The interval rules, applied per run of samples in the same state (runs break at gaps and at
     # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
     state = np.where(~full, 0, np.where(learning, 1, np.where(still, 2, 3)))
-    boundary = np.flatnonzero(np.concatenate([[True], (state[1:] != state[:-1]) | gaps[1:]]))
+    changes = (state[context + 1:] != state[context:-1]) | gaps[context + 1:]
+    boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
     ends = np.concatenate([boundary[1:], [n]]) - 1
-    opened: int | None = None  # index that opened the current interval
-    last = 0  # the last sample added to it (read only while one is open)
-    warmup_open = d.accel_var_threshold is None
-    loudest_accel = loudest_gyro = 0.0
+    opened: int | None = None if carry is None else carry.opened  # index that opened the current interval
+    last = 0 if carry is None else carry.last  # the last sample added to it (read only while one is open)
+    warmup = d._warmup_max  # the loudest windows of the warm-up, until the threshold is known
+    loudest_accel, loudest_gyro = (0.0, 0.0) if warmup is None else warmup
+    warmup_open = warmup is not None
     max_pose_ns = int(d.max_pose_s * 1e9) if math.isfinite(d.max_pose_s) else None
-    for first, final in zip(boundary.tolist(), ends.tolist()):
+    for first, final_row in zip(boundary.tolist(), ends.tolist()):
         if gaps[first] and opened is not None:
             if dropped is None or not dropped[first]:
                 emit(opened, last, True)
@@ -335,12 +379,12 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         if kind == 0:
             continue
         if kind == 1:
-            loudest_accel = max(loudest_accel, float(accel_var[first:final + 1].max()))
+            loudest_accel = max(loudest_accel, float(accel_var[first:final_row + 1].max()))
             if gyro_var is not None:
-                loudest_gyro = max(loudest_gyro, float(gyro_var[first:final + 1].max()))
+                loudest_gyro = max(loudest_gyro, float(gyro_var[first:final_row + 1].max()))
             if opened is None:
                 opened = first
-            last = final
+            last = final_row
             continue
         if warmup_open:
             warmup_open = False
@@ -358,15 +402,68 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         if opened is None:
             opened = last = first
             i = first + 1
-        while i <= final:
+        while i <= final_row:
             limit = None if max_pose_ns is None else t[start[opened]] + max_pose_ns
-            split = final + 1 if limit is None else max(i, int(np.searchsorted(t, limit, side="left")))
-            if split > final:
-                last = final
+            split = final_row + 1 if limit is None else max(i, int(np.searchsorted(t, limit, side="left")))
+            if split > final_row:
+                last = final_row
                 break
             emit(opened, split, True)
             opened = last = split
             i = split + 1
+    d._warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
+    # What the next part needs: the window of the last row (the next rows' windows start no earlier), and
+    # the open interval from its window's first row (emit trims from there).
+    keep_from = int(start[n - 1]) if opened is None else min(int(start[n - 1]), int(start[opened]))
+    left = BatchCarry(t[keep_from:].copy(), a[keep_from:].copy(), None if g is None else g[keep_from:].copy(),
+                      None if temps is None else temps[keep_from:].copy(),
+                      None if opened is None else opened - keep_from, max(last - keep_from, 0))
+    if not final:
+        d._batch_carry = left
+        return poses, rejected, out_of_range
+    return _finish(d, poses, left, t, a, g, temps, flush, opened, last, start, trim_ns), rejected, out_of_range
+
+
+def _finish(d: StaticDetector, poses: list[Pose], carry: BatchCarry, t: np.ndarray, a: np.ndarray,
+            g: np.ndarray | None, temps: np.ndarray | None, flush: bool, opened: int | None = None,
+            last: int = 0, start: np.ndarray | None = None, trim_ns: int = 0) -> list[Pose]:
+    """The end of the recording: the interval still open is a pose when `flush` (it was not moving)."""
+    d._batch_carry = None
+    if start is None:  # no new rows came: the open interval is the carried one
+        opened = carry.opened
+        last = carry.last
+        trim_ns = int(d.trim_s * 1e9)
+        segment_first = np.zeros(len(t), dtype=np.int64)
+        start = np.maximum(np.searchsorted(t, t - d._window_ns, side="right"), segment_first)
     if opened is not None and flush:
-        emit(opened, last, False)
-    return poses, rejected, out_of_range
+        _emit(poses, d, t, a, g, temps, start, opened, last, False, trim_ns)
+    return poses
+
+
+def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
+          temps: np.ndarray | None, start: np.ndarray, opened: int, last: int, trim_end: bool, trim_ns: int) -> None:
+    """The interval opened at row `opened` (its window's first row gives the start, trimmed) up to row
+    `last` (trimmed at the end when motion ended it) as a pose, when long enough."""
+    first_time = t[start[opened]] + trim_ns
+    k0 = int(np.searchsorted(t, first_time, side="left"))
+    k0 = max(k0, int(start[opened]))
+    k1 = int(np.searchsorted(t, t[last] - trim_ns, side="right")) - 1 if trim_end else last
+    k1 = min(k1, last)
+    if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
+        return
+    rows = a[k0:k1 + 1]
+    temperature = spread = None
+    if temps is not None:
+        known = temps[k0:k1 + 1][~np.isnan(temps[k0:k1 + 1])]
+        if len(known):
+            temperature, spread = float(known.mean()), float(known.max() - known.min())
+    poses.append(Pose(
+        accel_mps2=rows.mean(axis=0),
+        accel_cov=np.cov(rows, rowvar=False),
+        samples=k1 - k0 + 1,
+        start_ns=int(t[k0]),
+        end_ns=int(t[k1]),
+        gyro_radps=None if g is None else g[k0:k1 + 1].mean(axis=0),
+        temperature_degc=temperature,
+        temperature_spread_degc=spread,
+    ))

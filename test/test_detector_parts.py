@@ -1,0 +1,108 @@
+"""A long recording goes through the batch detector in parts of bounded memory (process(final=False)
+then a final part): whatever the cut points, the poses are those of one call and of update() sample by
+sample; the detector's learned state (floors, quietest floors, warm-up) is what update() leaves."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_static_detector import assert_same_poses, streams
+
+from accel_calibration.core.static_detector import DISCARD, RESTART, StaticDetector
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+DAY_NS = 86_400 * 10**9
+FAST = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def in_parts(detector: StaticDetector, cuts, t_ns, accel, gyro=None, temperature_degc=None, breaks=None,
+             flush=True):
+    """process() over the parts between `cuts` (sorted row indices), the last one final."""
+    bounds = [0, *cuts, len(t_ns)]
+    poses, segments, offset = [], [], 0
+    for k, (first, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
+        part = slice(first, stop)
+        final = k == len(bounds) - 2
+        got = detector.process(t_ns[part], accel[part], None if gyro is None else gyro[part],
+                               None if temperature_degc is None else temperature_degc[part],
+                               None if breaks is None else breaks[part], flush=flush, final=final)
+        poses += got
+        # pose_segments counts from the segment in force when the part began
+        segments += [offset + s for s in detector.pose_segments]
+        if breaks is not None:
+            offset += int(np.count_nonzero(breaks[part][(1 if first == 0 else 0):]))
+    return poses, segments
+
+
+def assert_close_or_none(got, expected):
+    assert [g is None for g in got] == [e is None for e in expected]
+    for g, e in zip(got, expected):
+        if e is not None:
+            assert g == pytest.approx(e, rel=1e-9)
+
+
+def cut_points(data, n):
+    return sorted(set(data.draw(st.lists(st.integers(1, n - 1), min_size=1, max_size=8))))
+
+
+@pytest.mark.parametrize("name, stream, options", list(streams()), ids=lambda v: v if isinstance(v, str) else "")
+@FAST
+@given(data=st.data())
+def test_parts_give_the_poses_of_one_call(name, stream, options, data):
+    n = len(stream["t_ns"])
+    cuts = cut_points(data, n)
+    whole_detector, parts_detector, stream_detector = (StaticDetector(**options) for _ in range(3))
+    whole = whole_detector.process(**stream)
+    parts, _ = in_parts(parts_detector, cuts, **stream)
+    assert_same_poses(parts, whole)
+    assert_same_poses(parts, stream_detector.process_streaming(**stream))
+    assert parts_detector.rejected_samples == whole_detector.rejected_samples
+    # The learned state is the one update() leaves: the floors, the quietest floors, the thresholds.
+    assert_close_or_none(parts_detector.thresholds, stream_detector.thresholds)
+    assert_close_or_none(parts_detector.quietest_floors, stream_detector.quietest_floors)
+    assert parts_detector._accel_floor.counts == stream_detector._accel_floor.counts
+
+
+@FAST
+@given(data=st.data())
+def test_parts_with_restarts_and_discards(data):
+    rng = np.random.default_rng(data.draw(st.integers(0, 1000)))
+    errors = SensorErrors(noise_mps2=0.02, gyro_noise_radps=0.002)
+    s = SyntheticImu(errors, spread_orientations(6, rng), dwell_s=3.0, move_s=1.0, rate_hz=100.0,
+                     seed=data.draw(st.integers(0, 1000))).samples()
+    t = s.t_ns.copy()
+    breaks = np.zeros(len(t), dtype=np.int64)
+    for _ in range(data.draw(st.integers(1, 5))):
+        i = data.draw(st.integers(0, len(t) - 1))
+        kind = data.draw(st.sampled_from([RESTART, DISCARD]))
+        breaks[i] = kind
+        if kind == RESTART:  # a clock that starts over, anywhere
+            t[i:] += data.draw(st.integers(-2 * DAY_NS, 2 * DAY_NS))
+    cuts = cut_points(data, len(t))
+    if data.draw(st.booleans()):  # a cut exactly at a break
+        cuts = sorted(set(cuts) | {int(i) for i in np.flatnonzero(breaks) if i > 0})
+    flush = data.draw(st.booleans())
+    stream_detector, parts_detector = StaticDetector(), StaticDetector()
+    streamed = stream_detector.process_streaming(t, s.accel_raw, s.gyro_raw, breaks=breaks, flush=flush)
+    parts, segments = in_parts(parts_detector, cuts, t, s.accel_raw, s.gyro_raw, breaks=breaks, flush=flush)
+    assert [(p.start_ns, p.end_ns, p.samples) for p in parts] == [(p.start_ns, p.end_ns, p.samples) for p in streamed]
+    assert segments == stream_detector.pose_segments
+    assert parts_detector.rejected_samples == stream_detector.rejected_samples
+
+
+def test_a_floor_carried_across_its_halving():
+    """More windows than the floor's half-life (200k): the histogram halves inside a part and the parts
+    still give update()'s floor state exactly."""
+    rng = np.random.default_rng(7)
+    n = 450_000
+    t = np.arange(n, dtype=np.int64) * 1_000_000  # 1 kHz, 7.5 min, still
+    accel = np.array([0.0, 0.0, 9.80665]) + rng.normal(0, 0.02, (n, 3))
+    accel[200_000:260_000] += rng.normal(0, 0.5, (60_000, 3))  # a minute of vibration in the middle
+    whole_detector, parts_detector = StaticDetector(), StaticDetector()
+    whole = whole_detector.process(t, accel)
+    parts, _ = in_parts(parts_detector, [70_001, 199_999, 200_000, 333_333], t, accel)
+    assert_same_poses(parts, whole)
+    assert parts_detector._accel_floor.counts == whole_detector._accel_floor.counts
+    assert parts_detector._accel_floor.total == whole_detector._accel_floor.total
+    assert parts_detector.thresholds == whole_detector.thresholds
