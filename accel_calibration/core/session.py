@@ -170,40 +170,21 @@ class CalibrationSession:
         """A whole recording in arrival order: the poses `add_sample` per sample then `flush` would give
         (same screening, temperature filter and detector rules, with array operations). `collecting` (one
         bool per sample, optional): False where collection was paused (armed, flying), as if
-        `set_collecting` had been called at each change. Fresh session only."""
-        t = np.asarray(t_ns, dtype=np.int64)
-        accel = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
-        gyro = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
-        time_base = self.screen.time_base
-        keep, restart = self.screen.screen_arrays(t, accel, gyro)
-        paused = np.zeros(len(t), dtype=bool) if collecting is None else ~np.asarray(collecting, dtype=bool)
-        if self._pause_reasons:
-            paused[:] = True
-        self.counters.samples_paused += int(np.count_nonzero(keep & paused))
-        rows = np.flatnonzero(keep & ~paused)  # what the detector sees
-        # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
-        # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
-        breaks = np.zeros(len(rows), dtype=np.int64)
-        if len(rows):
-            previous = np.concatenate([[-1], rows[:-1]])
-            paused_before = np.concatenate([[0], np.cumsum(paused)])
-            jumps_before = np.concatenate([[0], np.cumsum(restart)])
-            breaks[jumps_before[rows + 1] > jumps_before[previous + 1]] = RESTART
-            breaks[paused_before[rows] > paused_before[previous + 1]] = DISCARD
-        temps = None
-        if temperature_stamps_ns is not None and temperature_degc is not None and len(temperature_stamps_ns):
-            rejected = self.temperature.rejected
-            temps, stale = self.temperature.series(temperature_stamps_ns, temperature_degc, t[rows])
-            self.counters.temperature_stale += stale
-            self.counters.temperature_bad += self.temperature.rejected - rejected
-        # Paused at the end: the interval then open was dropped when the pause began.
-        ends_paused = bool(len(rows) and np.any(paused[rows[-1] + 1:]))
-        poses = self.detector.process(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not ends_paused)
-        # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it).
-        bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1] if len(rows) else np.zeros(0, int)
-        segment_bases = bases[np.concatenate([[0], np.flatnonzero(breaks[1:]) + 1])] if len(rows) else bases
-        return [p for p, segment in zip(poses, self.detector.pose_segments)
-                if self._usable(p, int(segment_bases[segment])) is not None]
+        `set_collecting` had been called at each change. Fresh session only. The same as feeding it in
+        parts through `recording_feed` (it is done so, in parts of RecordingFeed.PART_ROWS)."""
+        has_temperature = temperature_stamps_ns is not None and temperature_degc is not None
+        feed = self.recording_feed(has_temperature=has_temperature)
+        if has_temperature:
+            feed.add_temperatures(temperature_stamps_ns, temperature_degc)  # type: ignore[arg-type]
+        feed.add_samples(t_ns, accel_mps2, gyro_radps, collecting)
+        return feed.finish()
+
+    def recording_feed(self, has_temperature: bool) -> RecordingFeed:
+        """A recording read in pieces (a bag streamed chunk by chunk): add samples and temperature readings
+        as they come, then `finish()` for the poses. Memory stays bounded by a part, whatever the length.
+        `has_temperature`: temperature readings will come (samples then wait for the readings of their
+        time). Fresh session only."""
+        return RecordingFeed(self, has_temperature)
 
     def _rejection(self, pose: Pose | None, time_base: int) -> str | None:
         """Why a still interval is no pose: 'frozen' (it overlaps a frozen run), 'implausible' (|mean|
@@ -387,3 +368,158 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
         accel = calibration.apply(accel)
     norms = np.linalg.norm(accel, axis=1)
     return accel / norms[:, None] if len(accel) else accel
+
+
+class RecordingFeed:
+    """One recording into a session in parts of PART_ROWS samples: the cut points depend only on the
+    sample count, so any reader's chunking gives the same, deterministic poses (and a recording shorter
+    than a part is one detector call). A part is processed once the temperature readings of its time have
+    come (readings after its last stamp), or when the temperature stream lags by MAX_LAG_PARTS parts.
+
+    Carried between parts: the screen's, temperature filter's and detector's own state, and whether a
+    pause or a clock re-synchronisation came after the last sample the detector saw. Poses are checked
+    against frozen runs at the end, when every run is known (a run found later may overlap a pose)."""
+
+    PART_ROWS = 1 << 17
+    MAX_LAG_PARTS = 8
+
+    def __init__(self, session: CalibrationSession, has_temperature: bool):
+        self.session = session
+        self.has_temperature = has_temperature
+        self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
+        self._buffered = 0
+        self._readings: list[tuple[np.ndarray, np.ndarray]] = []
+        self._latest_reading: int | None = None
+        self._paused_since = False  # a paused sample since the detector's last one
+        self._restart_since = False  # a clock re-synchronisation since the detector's last one
+        self._segment_base = session.screen.time_base  # the clock of the detector's current segment
+        self._found: list[tuple[Pose, int]] = []  # poses with the clock they were measured on
+        self.samples = 0
+
+    def add_temperatures(self, stamps_ns: np.ndarray, degc: np.ndarray) -> None:
+        stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+        if len(stamps):
+            self._readings.append((stamps, np.asarray(degc, dtype=float).reshape(-1)))
+            latest = int(stamps.max())
+            self._latest_reading = latest if self._latest_reading is None else max(latest, self._latest_reading)
+            self._run(final=False)
+
+    def add_samples(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
+                    collecting: np.ndarray | None = None) -> None:
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        if not len(t):
+            return
+        accel = np.asarray(accel_mps2, dtype=float).reshape(-1, 3)
+        gyro = np.asarray(gyro_radps, dtype=float).reshape(-1, 3)
+        self._samples.append((t, accel, gyro, None if collecting is None else np.asarray(collecting, bool).reshape(-1)))
+        self._buffered += len(t)
+        self.samples += len(t)
+        self._run(final=False)
+
+    def finish(self) -> list[Pose]:
+        """The end of the recording: the rest goes through, the interval open at the end ends."""
+        self._run(final=True)
+        return [pose for pose, base in self._found if self.session._usable(pose, base) is not None]
+
+    def _run(self, final: bool) -> None:
+        while self._buffered >= self.PART_ROWS:
+            t, accel, gyro, collecting = self._take(self.PART_ROWS)
+            waiting = (self.has_temperature and (self._latest_reading is None or self._latest_reading <= t.max())
+                       and self._buffered + len(t) < self.MAX_LAG_PARTS * self.PART_ROWS)
+            if waiting and not final:  # the readings of this part's time have not all come yet
+                self._samples.insert(0, (t, accel, gyro, collecting))
+                self._buffered += len(t)
+                return
+            self._part(t, accel, gyro, collecting, final=final and self._buffered == 0)
+        if final:
+            if self._buffered:
+                self._part(*self._take(self._buffered), final=True)
+            elif self.session.detector.continuing:
+                self._part(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), None, final=True)
+
+    def _take(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """The first `rows` buffered samples as arrays (joined from the pieces that came)."""
+        taken, count = [], 0
+        while count < rows:
+            piece = self._samples.pop(0)
+            need = rows - count
+            if len(piece[0]) > need:
+                self._samples.insert(0, tuple(None if x is None else x[need:] for x in piece))  # type: ignore[arg-type]
+                piece = tuple(None if x is None else x[:need] for x in piece)  # type: ignore[assignment]
+            taken.append(piece)
+            count += len(piece[0])
+        self._buffered -= count
+        if len(taken) == 1:
+            t, accel, gyro, collecting = taken[0]
+            return t, accel, gyro, collecting
+        masks = [c if c is not None else np.ones(len(p[0]), bool) for p, c in ((p, p[3]) for p in taken)]
+        any_mask = any(p[3] is not None for p in taken)
+        return (np.concatenate([p[0] for p in taken]), np.concatenate([p[1] for p in taken]),
+                np.concatenate([p[2] for p in taken]), np.concatenate(masks) if any_mask else None)
+
+    def _readings_upto(self, last_ns: int | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The buffered readings stamped at or before `last_ns` (all of them when None), taken out."""
+        if not self._readings:
+            return None
+        stamps = np.concatenate([r[0] for r in self._readings])
+        values = np.concatenate([r[1] for r in self._readings])
+        if last_ns is None:
+            self._readings = []
+            return stamps, values
+        now = stamps <= last_ns
+        self._readings = [(stamps[~now], values[~now])] if not now.all() else []
+        return stamps[now], values[now]
+
+    def _part(self, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray, collecting: np.ndarray | None,
+              final: bool) -> None:
+        session = self.session
+        detector = session.detector
+        fresh = not detector.continuing
+        time_base = session.screen.time_base
+        keep, restart = session.screen.screen_arrays(t, accel, gyro)
+        paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
+        if session._pause_reasons:
+            paused[:] = True
+        session.counters.samples_paused += int(np.count_nonzero(keep & paused))
+        rows = np.flatnonzero(keep & ~paused)  # what the detector sees
+        # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
+        # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
+        breaks = np.zeros(len(rows), dtype=np.int64)
+        if len(rows):
+            previous = np.concatenate([[-1], rows[:-1]])
+            paused_before = np.concatenate([[0], np.cumsum(paused)])
+            jumps_before = np.concatenate([[0], np.cumsum(restart)])
+            breaks[jumps_before[rows + 1] > jumps_before[previous + 1]] = RESTART
+            breaks[paused_before[rows] > paused_before[previous + 1]] = DISCARD
+            if self._restart_since and not breaks[0]:
+                breaks[0] = RESTART
+            if self._paused_since:
+                breaks[0] = DISCARD
+            self._paused_since = bool(np.any(paused[rows[-1] + 1:]))
+            self._restart_since = bool(np.any(restart[rows[-1] + 1:]))
+        else:
+            self._paused_since = self._paused_since or bool(np.any(paused))
+            self._restart_since = self._restart_since or bool(np.any(restart))
+        temps = None
+        if self.has_temperature:
+            # Always an array (NaN: no temperature yet): the detector's parts keep one presence.
+            readings = self._readings_upto(None if final or not len(t) else int(t.max()))
+            stamps, values = readings if readings is not None else (np.zeros(0, np.int64), np.zeros(0))
+            rejected = session.temperature.rejected
+            temps, stale = session.temperature.series(stamps, values, t[rows])
+            session.counters.temperature_stale += stale
+            session.counters.temperature_bad += session.temperature.rejected - rejected
+        # Paused at the end: the interval then open was dropped when the pause began.
+        poses = detector.process(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
+                                 final=final)
+        # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it): the
+        # segment in force when the part began, then one per break (the first part: from its first row).
+        bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1]
+        if fresh:
+            firsts = np.concatenate([[0], np.flatnonzero(breaks[1:]) + 1]) if len(rows) else np.zeros(0, int)
+            segment_bases = bases[firsts]
+        else:
+            segment_bases = np.concatenate([[self._segment_base], bases[np.flatnonzero(breaks)]])
+        if len(rows):
+            self._segment_base = int(bases[-1])
+        self._found += [(p, int(segment_bases[segment])) for p, segment in zip(poses, detector.pose_segments)]

@@ -43,9 +43,11 @@ class TemperatureFilter:
         return self.value
 
     def series(self, stamps_ns: ArrayLike, degc: ArrayLike, sample_t_ns: ArrayLike) -> tuple[np.ndarray, int]:
-        """For a recording: the held filtered temperature at each sample stamp (NaN when missing or
-        stale, as `at` says) and how many samples were stale. Readings are taken in stamp order, with the
-        same results as `update` one by one (to rounding, < 1e-12 degC) and the same state left behind."""
+        """For a recording (or the next part of one): the held filtered temperature at each sample stamp
+        (NaN when missing or stale, as `at` says) and how many samples were stale. Readings are taken in
+        stamp order after those already taken (the value held from them serves samples before the first
+        new one), with the same results as `update` one by one (to rounding, < 1e-12 degC) and the same
+        state left behind."""
         order = np.argsort(stamps_ns, kind="stable")
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)[order]
         values = np.asarray(degc, dtype=float).reshape(-1)[order]
@@ -54,10 +56,17 @@ class TemperatureFilter:
         kept, readings = stamps[plausible], values[plausible]
         sample_t_ns = np.asarray(sample_t_ns, dtype=np.int64)
         out = np.full(len(sample_t_ns), np.nan)
-        if not len(kept):
+        held = self.value is not None  # from readings taken before
+        if len(kept):
+            filtered = self._filter(kept, readings)
+            if held and self.stamp_ns <= kept[0]:  # (a reading older than the held one: in stamp order)
+                kept = np.concatenate([[self.stamp_ns], kept])
+                filtered = np.concatenate([[self.value], filtered])
+            self.value, self.stamp_ns = float(filtered[-1]), int(kept[-1])
+        elif held:
+            kept, filtered = np.array([self.stamp_ns], dtype=np.int64), np.array([self.value])
+        else:
             return out, 0
-        filtered = self._filter(kept, readings)
-        self.value, self.stamp_ns = float(filtered[-1]), int(kept[-1])
         index = np.searchsorted(kept, sample_t_ns, side="right") - 1
         have = index >= 0
         fresh = have & (sample_t_ns - kept[np.clip(index, 0, None)] <= self.timeout_ns)
