@@ -35,6 +35,9 @@ setup(
         "distributed",
         "SQLAlchemy>=2",
     ],
+    # A history on a shared PostgreSQL (--history postgresql://...): SQLAlchemy loads this driver for such
+    # URLs; nothing imports it otherwise. pip install accel_calibration[postgresql].
+    extras_require={"postgresql": ["psycopg[binary]>=3.1"]},
     zip_safe=True,
     maintainer="accel_calibration developers",
     maintainer_email="dev@accel-calibration.invalid",

@@ -93,7 +93,7 @@ def test_recording_identity_follows_content_not_location(tmp_path):
 # package once (an import per writer would cost seconds each on this machine; the writers are separate
 # processes all the same, each with its own engine, opened after the fork).
 WRITERS = """
-import multiprocessing, sys
+import multiprocessing, random, sys
 from accel_calibration.io.history import HistoryRecord, open_history
 
 db, writers, rounds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
@@ -104,11 +104,15 @@ def write(writer, barrier):
         with open_history(db) as history:
             barrier.wait(timeout=60)  # every writer starts at once
             for k in range(rounds):
-                # Overlapping keys between writers and rounds: each row is written by several at once.
-                history.write([HistoryRecord(recording_id=f"rec{n:02d}", path=f"/fleet/v/flight{n}", size_bytes=n,
-                                             vehicle="v", vehicle_source="folder", sensor="s", status="calibrated",
-                                             bias=(writer, k, n), matrix_sigma=(writer, 0, 0, 0, k, 0, 0, 0, n))
-                               for n in range(k % 5, 20, 3)])
+                # Overlapping keys between writers and rounds: each row is written by several at once,
+                # in a batch whose order differs between writers (where row locks are taken one by one,
+                # as on PostgreSQL, opposite orders would deadlock).
+                rows = [HistoryRecord(recording_id=f"rec{n:02d}", path=f"/fleet/v/flight{n}", size_bytes=n,
+                                      vehicle="v", vehicle_source="folder", sensor="s", status="calibrated",
+                                      bias=(writer, k, n), matrix_sigma=(writer, 0, 0, 0, k, 0, 0, 0, n))
+                        for n in range(k % 5, 20, 3)]
+                random.Random(1000 * writer + k).shuffle(rows)
+                history.write(rows)
     except BaseException:
         barrier.abort()  # the others stop waiting for this one
         raise

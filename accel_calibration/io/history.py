@@ -1,12 +1,15 @@
 """The calibration history: one row per recording in a SQL database (SQLAlchemy 2 Core), and the rule
 that says when a sensor's calibration moved more than its uncertainty explains.
 
-SQLite by default (one file, no server), any SQLAlchemy URL for a shared database (PostgreSQL). A row is
-keyed by the recording's content identity (`recording_identity`), so writing the same recording again
-updates its row instead of adding one, wherever the recording was moved or copied to. Writers may run
-in many processes at once: every write is one transaction, an upsert (INSERT .. ON CONFLICT DO UPDATE),
-and SQLite runs in WAL mode with a busy timeout, so concurrent writers wait for each other instead of
-failing or corrupting the file.
+SQLite by default (one file, no server), any SQLAlchemy URL for a shared database (PostgreSQL through
+psycopg 3; both tested on real databases). A row is keyed by the recording's content identity
+(`recording_identity`), so writing the same recording again updates its row instead of adding one,
+wherever the recording was moved or copied to. Writers may run in many processes at once: every write is
+one transaction, an upsert (INSERT .. ON CONFLICT DO UPDATE) of its rows in key order. SQLite runs in WAL
+mode with a busy timeout, so concurrent writers wait for each other instead of failing or corrupting the
+file; PostgreSQL locks rows, so key order keeps two writers from deadlocking, and the schema is created
+under an advisory lock (its CREATE .. IF NOT EXISTS alone races). Every float64 and int64 comes back as
+written from either.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote
 
 import numpy as np
 
@@ -26,6 +30,7 @@ from ..core.errors import AccelCalibrationError
 
 SCHEMA_VERSION = 1
 SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up
+_SCHEMA_LOCK = 0x616363656C5F6869  # PostgreSQL advisory lock key held while creating the schema ("accel_hi")
 _IDENTITY_BYTES = 1 << 16  # head and tail of each storage file that go into the identity hash
 AXES = "xyz"
 STATUSES = ("calibrated", "refused", "failed")
@@ -124,7 +129,8 @@ def _tables() -> tuple[Any, Any, Any]:
     short, text, real, whole = String(200), Text, Float, Integer
     kinds = {"recording_id": String(64), "path": text, "size_bytes": BigInteger, "vehicle": short,
              "vehicle_source": String(16), "sensor": short, "status": String(16), "reason": text,
-             "imu_topic": text, "frame_id": text, "start_ns": BigInteger, "duration_s": real, "messages": whole,
+             "imu_topic": text, "frame_id": text, "start_ns": BigInteger, "duration_s": real,
+             "messages": BigInteger,  # 2^31 messages are 25 days at 1 kHz; PostgreSQL's INTEGER is 32 bits
              "model": String(32), "gravity": real, "bias": JSON, "bias_sigma": JSON, "matrix": JSON,
              "matrix_sigma": JSON, "residual_rms_mg": real, "residual_max_mg": real, "condition_number": real,
              "poses": whole, "outliers": whole, "temperature_min_degc": real, "temperature_max_degc": real,
@@ -177,7 +183,8 @@ class History:
 
         self.target = str(target)
         url = _url(self.target)
-        self.name = url.render_as_string(hide_password=True) if "://" in self.target else self.target
+        # As the user wrote it (SQLAlchemy would URL-quote a socket path: host=%2Ftmp%2F..), password hidden.
+        self.name = unquote(url.render_as_string(hide_password=True)) if "://" in self.target else self.target
         self._metadata, self._info, self._table = _tables()
         try:
             if url.get_backend_name() == "sqlite":
@@ -198,6 +205,10 @@ class History:
                     # (SQLite answers "database is locked" at once); taking the write lock at BEGIN
                     # makes concurrent writers queue on the busy timeout instead.
                     connection.exec_driver_sql("BEGIN IMMEDIATE")
+            elif url.get_backend_name() == "postgresql":
+                # READ COMMITTED whatever the server's default: under it an upsert waits for a concurrent one
+                # on the same row and then applies; under a SERIALIZABLE default it would fail instead.
+                self.engine = create_engine(url, pool_pre_ping=True, isolation_level="READ COMMITTED")
             else:
                 self.engine = create_engine(url, pool_pre_ping=True)
             self._create_schema()
@@ -207,11 +218,15 @@ class History:
             raise HistoryError(f"{self.name}: database driver not installed ({error})") from None
 
     def _create_schema(self) -> None:
-        from sqlalchemy import select
+        from sqlalchemy import select, text
         from sqlalchemy.schema import CreateIndex, CreateTable, Index
 
-        # IF NOT EXISTS: many processes may open a new file at once; checking first would race.
+        # IF NOT EXISTS: many processes may open a new file at once; checking first would race. On
+        # PostgreSQL two concurrent CREATE .. IF NOT EXISTS still collide (unique violation in its catalog):
+        # there a transaction-scoped advisory lock makes them take turns.
         with self.engine.begin() as connection:
+            if connection.dialect.name == "postgresql":
+                connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
             for table in (self._info, self._table):
                 connection.execute(CreateTable(table, if_not_exists=True))
             for columns in (("vehicle", "sensor", "start_ns"),):
@@ -273,6 +288,9 @@ class History:
             rows.append(row)
         if not rows:
             return 0
+        # Key order: where a database locks rows one by one (PostgreSQL), writers that lock in the same order
+        # queue instead of deadlocking. Stable, so of one recording given twice the last one wins.
+        rows.sort(key=lambda row: row["recording_id"])
         try:
             with self.engine.begin() as connection:
                 self._upsert(connection, self._table, rows, "recording_id")
@@ -281,7 +299,9 @@ class History:
         return len(rows)
 
     def records(self, vehicle: str | None = None, sensor: str | None = None) -> list[HistoryRecord]:
-        """Rows in time order (start, then path), optionally of one vehicle and/or sensor."""
+        """Rows by vehicle and sensor, each in time order (rows without a start last), then by path;
+        optionally of one vehicle and/or sensor. Sorted here, not by the database: a server's collation
+        and its place for NULLs differ (PostgreSQL en_US: '/_c' < '/a' < '/B'); this is code point order."""
         from sqlalchemy import select
         from sqlalchemy.exc import SQLAlchemyError
 
@@ -291,7 +311,6 @@ class History:
             query = query.where(table.c.vehicle == vehicle)
         if sensor is not None:
             query = query.where(table.c.sensor == sensor)
-        query = query.order_by(table.c.vehicle, table.c.sensor, table.c.start_ns, table.c.path)
         try:
             with self.engine.connect() as connection:
                 rows = connection.execute(query).mappings().all()
@@ -304,6 +323,7 @@ class History:
                 if values[name] is not None:
                     values[name] = tuple(float(v) for v in values[name])
             out.append(HistoryRecord(**values))
+        out.sort(key=lambda r: (r.vehicle, r.sensor, r.start_ns is None, r.start_ns or 0, r.path, r.recording_id))
         return out
 
     def close(self) -> None:
