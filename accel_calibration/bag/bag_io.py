@@ -478,6 +478,45 @@ def _scan_sqlite(path, topics, progress=None) -> dict | None:
         return None
 
 
+def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
+    """The wanted topics' messages from rosbag2's sqlite3 tables in groups of `group_messages` rows
+    ({topic: PackedMessages} per group), one SELECT over both topics in the order rosbag2 readers give
+    (timestamp, id), fetched a group at a time: memory bounded by a group. Raises NotStreamable where
+    the tables are not as expected (the whole read, then rosbags, says what is wrong)."""
+    import sqlite3
+
+    from .mcap_scan import NotStreamable, PackedMessages
+
+    try:
+        for file in [Path(path)] if Path(path).is_file() else sorted(Path(path).glob("*.db3")):
+            connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
+            try:
+                names = {topic_id: name for topic_id, name in connection.execute("SELECT id, name FROM topics")
+                         if name in topics}
+                if not names:
+                    continue
+                marks = ",".join("?" * len(names))
+                cursor = connection.execute(f"SELECT topic_id, data FROM messages WHERE topic_id IN ({marks}) "
+                                            "ORDER BY timestamp, id", tuple(names))
+                while True:
+                    rows = cursor.fetchmany(group_messages)
+                    if not rows:
+                        break
+                    if len(names) == 1:
+                        by_topic = {next(iter(names.values())): [data for _, data in rows]}
+                    else:
+                        by_topic = {name: [] for name in names.values()}
+                        for topic_id, data in rows:
+                            by_topic[names[topic_id]].append(data)
+                    if progress is not None:
+                        progress.update(len(rows))
+                    yield {topic: PackedMessages.from_payloads(by_topic.get(topic, [])) for topic in topics}
+            finally:
+                connection.close()
+    except (sqlite3.Error, TypeError, ValueError) as error:  # a data value that is not a blob: damage
+        raise NotStreamable(str(error)) from None
+
+
 def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarray) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
     linear_acceleration (same topic, same stamps, same storage type). Returns messages written."""

@@ -154,6 +154,93 @@ def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dic
     return {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
 
 
+class NotStreamable(Exception):
+    """The file cannot be streamed as the whole-file read would give it (log times going back across
+    chunks, damage, an unknown compression): the caller reads it whole instead."""
+
+
+def stream_topics(path, topics, progress=None, group_messages: int = 1 << 16, schemas: dict | None = None):
+    """The wanted topics' messages as scan_topics gives them, in groups of about `group_messages`
+    ({topic: PackedMessages} per group, each in log_time order), reading one chunk at a time: memory is
+    bounded by a group, not the file. `schemas` is kept filled with {topic: (message type, encoding,
+    definition)} of the channels seen so far (a group's channels are seen before it is yielded). Raises
+    NotStreamable where the whole-file read would differ (a chunk whose messages were logged before the
+    previous group's latest: the whole file is sorted by log time) or this reader cannot go on."""
+    files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
+    wanted = set(topics)
+    latest = -1  # the latest log time yielded
+    meta: dict = {"schemas": {}, "channel_schema": {}}
+
+    def group(out, times):
+        nonlocal latest
+        packed = {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
+        stamps = [t for topic in wanted for t in times[topic] if len(t)]
+        if stamps:
+            if min(int(t.min()) for t in stamps) < latest:
+                raise NotStreamable("messages logged out of order across chunks")
+            latest = max(latest, max(int(t.max()) for t in stamps))
+        return packed
+
+    try:
+        for file in files:
+            with open(file, "rb") as stream:
+                if stream.read(8) != MAGIC:
+                    raise NotStreamable("not an mcap file")
+                channels: dict[int, str] = {}
+                meta["schemas"], meta["channel_schema"] = {}, {}
+                out: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}
+                times: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}
+                pending = 0
+                while True:
+                    head = stream.read(9)
+                    if len(head) < 9:
+                        raise NotStreamable("cut short: no footer")
+                    op, length = head[0], _U64.unpack_from(head, 1)[0]
+                    if op == 0x02:  # Footer: the summary before it repeats what we have
+                        break
+                    if op not in (0x03, 0x04, 0x05, 0x06):
+                        stream.seek(length, 1)
+                        continue
+                    if length > MAX_CHUNK_BYTES:
+                        raise NotStreamable("a record larger than any chunk rosbag2 writes")
+                    body = stream.read(length)
+                    if len(body) != length:
+                        raise NotStreamable("cut short: the file was truncated")
+                    if op == 0x03:
+                        _schema(body, 0, meta)
+                    elif op == 0x04:
+                        _channel(body, 0, channels, meta)
+                    elif op == 0x06:
+                        size = _U64.unpack_from(body, 16)[0]
+                        name_length = _U32.unpack_from(body, 28)[0]
+                        decompress = _decompressor(bytes(body[32:32 + name_length]).decode())
+                        if decompress is None:
+                            raise NotStreamable("unknown chunk compression")
+                        records_at = 32 + name_length
+                        records_length = _U64.unpack_from(body, records_at)[0]
+                        view = memoryview(body)[records_at + 8:records_at + 8 + records_length]
+                        chunk = memoryview(decompress(view, size))
+                        count = _scan_records(chunk, channels, wanted, out, times, meta)
+                        pending += count
+                        if progress is not None:
+                            progress.update(count)
+                    else:
+                        pending += _scan_records(memoryview(head + body), channels, wanted, out, times, meta)
+                    if pending >= group_messages:
+                        if schemas is not None:
+                            schemas.update(_recorded(channels, meta))
+                        yield group(out, times)
+                        out = {topic: [] for topic in wanted}
+                        times = {topic: [] for topic in wanted}
+                        pending = 0
+                if schemas is not None:
+                    schemas.update(_recorded(channels, meta))
+                if any(out[topic] for topic in wanted):
+                    yield group(out, times)
+    except (struct.error, IndexError, ValueError, OSError, UnicodeDecodeError, _ChunkError) as error:
+        raise NotStreamable(str(error)) from None
+
+
 class PackedMessages(Sequence):
     """Message payloads of one topic, kept as the uint8 matrices of runs of equal-length records (no
     per-message objects), in file order, then stably sorted by log_time when the file was not. A

@@ -20,6 +20,7 @@ FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "csv")
 KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
          "csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
+IMU_TYPE, TEMPERATURE_TYPE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
 _SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
 
@@ -114,6 +115,117 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
     if kind == "ulog":
         return _read_ulog(path, instance, progress)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
+
+
+@dataclass
+class BagStream:
+    """A bag read a group of messages at a time (the fast path's storage reads, streamed): `pieces()`
+    yields (IMU (stamps ns, accel, gyro) or None, temperature (stamps ns, degC) or None) per group, in
+    the order the whole read gives. Raises mcap_scan.NotStreamable where streaming cannot give what the
+    whole read gives (the caller reads it whole)."""
+
+    path: str
+    format: str
+    stream: str  # the Imu topic
+    temperature_stream: str | None
+    expected_messages: int  # the IMU count the topic list declares
+    groups: object  # iterator of {topic: PackedMessages}
+    recorded: dict  # {topic: (type, encoding, definition)} as the storage records them (filled as read)
+    frame_id: str = ""
+    messages: int = 0
+    unit: str = "messages"
+    sensor_id: str = ""
+
+    def pieces(self):
+        from rosbags.typesys import Stores, get_typestore
+
+        from .bag_io import TopicInfo, check_recorded_types, decode_imus, decode_temperatures, is_standard_definition
+        from .bag_io import _fixed_temperatures as fixed_temperatures
+        from .mcap_scan import NotStreamable
+
+        deserialize = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr
+        wanted = [TopicInfo(self.stream, IMU_TYPE, self.expected_messages)]
+        if self.temperature_stream:
+            wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE_TYPE, 0))
+        for group in self.groups:  # type: ignore[attr-defined]
+            check_recorded_types(self.path, wanted, self.recorded)
+            if not all(is_standard_definition(topic, self.recorded) for topic in wanted):
+                raise NotStreamable("another message definition: read through it")
+            imu = None
+            raws = group[self.stream]
+            if len(raws):
+                t, accel, gyro, frame_id, *_ = decode_imus(raws, self.path, deserialize)
+                self.frame_id = self.frame_id or frame_id
+                self.messages += len(t)
+                imu = (t, accel, gyro)
+            temperatures = None
+            if self.temperature_stream and len(group[self.temperature_stream]):
+                raws = group[self.temperature_stream]
+                temperatures = fixed_temperatures(raws) or decode_temperatures(raws, self.path, deserialize)
+            yield imu, temperatures
+        if self.messages != self.expected_messages:
+            raise NotStreamable(f"{self.messages} IMU messages, the bag declares {self.expected_messages}")
+
+
+def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
+               temperature_topic: str | None = None, progress: bool = False, **other) -> BagStream | None:
+    """A bag (rosbag2 directory, .mcap or .db3 file) to stream, when its storage can be read directly
+    with standard definitions; None for anything else (open_recording reads it whole, or says what is
+    wrong, in one line)."""
+    from .bag_io import (
+        IMU,
+        TEMPERATURE,
+        choose_topic,
+        metadata_topics,
+        refuse_special_files,
+        standard_hash,
+        storage_of,
+        stream_sqlite,
+    )
+    from .mcap_scan import stream_topics
+
+    if any(value is not None for value in other.values()):
+        return None  # options of other formats: open_recording refuses them in one line
+    if format is not None and format not in BAGS:
+        return None
+    try:
+        kind = format or detect_format(path)
+    except RecordingError:
+        return None
+    if kind not in BAGS or (kind == "rosbag2") != Path(path).is_dir():
+        return None
+    refuse_special_files(path)
+    infos = metadata_topics(path) if kind == "rosbag2" else _file_topics(path)
+    if infos is None:
+        return None
+    imu = choose_topic(infos, IMU, imu_topic, "imu", path)
+    if imu is None:
+        raise _no_imu(path, infos)
+    temperature = choose_topic(infos, TEMPERATURE, temperature_topic, "temperature", path)
+    wanted = [imu] + ([temperature] if temperature else [])
+    if any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in wanted):
+        return None
+    topics = [topic.topic for topic in wanted]
+    bar = _bar(path, imu.msgcount + (temperature.msgcount if temperature else 0), "msg", progress)
+    recorded: dict = {}
+    if storage_of(path) == "mcap":
+        groups = stream_topics(path, topics, bar, schemas=recorded)
+    else:
+        from .bag_io import recorded_definitions
+
+        recorded = recorded_definitions(path) or {}
+        groups = stream_sqlite(path, topics, bar)
+    return BagStream(str(path), kind, imu.topic, temperature.topic if temperature else None, int(imu.msgcount),
+                     _closing(groups, bar), recorded)
+
+
+def _closing(groups, bar):
+    """The groups, then the progress bar closed (also when the reader stops early)."""
+    try:
+        yield from groups
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def _where(flag: str) -> str:

@@ -55,11 +55,13 @@ class ReplayResult:
     frame_id: str = ""
     imu: object = None  # msg_tools.bag_io.ImuData, for writing a corrected copy
     temperature_at_samples: np.ndarray | None = None
-    recording: object = None  # recording.Recording that was replayed
+    recording: object = None  # recording.Recording read whole, or recording.BagStream streamed
     # Per pose found (in `poses`): "used" or "outlier" by the fit, "dropped" (the store gave it up at
     # capacity) or "not fitted" (no fit was run: too few poses, wrong units).
     pose_status: list[str] = field(default_factory=list)
     temperature_timeout_s: float = 5.0
+    start_ns: int | None = None  # the earliest IMU stamp
+    sensor_id: str = ""  # as the recording names the sensor (a ULog's device), where it does
 
     @property
     def calibration(self) -> Calibration | None:
@@ -69,7 +71,7 @@ class ReplayResult:
         """The filtered temperature held at each sample (NaN where none or stale), as the correction uses it;
         worked out on first use (a CSV may carry a reading on every row)."""
         recording = self.recording
-        if self.temperature_at_samples is None and recording is not None and recording.temperature is not None:
+        if self.temperature_at_samples is None and getattr(recording, "temperature", None) is not None:
             stamps, values = recording.temperature
             if len(stamps):
                 self.temperature_at_samples, _ = TemperatureFilter(timeout_s=self.temperature_timeout_s).series(
@@ -84,12 +86,22 @@ class ReplayError(BagError):
 def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False,
                for_copy: bool = False) -> ReplayResult:
     """Any recording (recording.open_recording: a bag directory, a .mcap/.db3 file, a ULog, a CSV stream)
-    through the session. `for_copy`: read a bag in rosbags' message order, which write_corrected_bag needs."""
-    from .recording import open_recording
+    through the session. A bag whose storage can be read directly is streamed (memory bounded by a part,
+    whatever its length), the rest read whole. `for_copy`: read a bag whole in rosbags' message order,
+    which write_corrected_bag needs."""
+    from .mcap_scan import NotStreamable
+    from .recording import open_recording, stream_bag
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
     try:
+        if not for_copy:
+            try:
+                bag = stream_bag(path, progress=progress, **s.reader_options())
+                if bag is not None:
+                    return _replay_stream(bag, s, started)
+            except NotStreamable:
+                pass  # read whole below: the same poses, or the reason it cannot be read
         recording = open_recording(path, progress=progress, for_copy=for_copy, **s.reader_options())
     except BagError as error:
         raise ReplayError(str(error)) from None
@@ -100,10 +112,29 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
     return replay_recording(recording, s, started)
 
 
+def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
+    """A streamed bag (recording.BagStream) through a fresh session, piece by piece."""
+    session = CalibrationSession(s.session)
+    feed = session.recording_feed(has_temperature=bag.temperature_stream is not None)
+    low = high = None
+    for imu, temperatures in bag.pieces():
+        if temperatures is not None:
+            feed.add_temperatures(*temperatures)
+        if imu is not None:
+            t, accel, gyro = imu
+            if not session.frame_id:
+                session.frame_id = bag.frame_id
+            feed.add_samples(t, accel, gyro)
+            if len(t):
+                low = int(t.min()) if low is None else min(low, int(t.min()))
+                high = int(t.max()) if high is None else max(high, int(t.max()))
+    poses = feed.finish()
+    duration = (high - low) / 1e9 if low is not None and high is not None and feed.samples > 1 else 0.0
+    return _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True)
+
+
 def replay_recording(recording, settings: ReplaySettings | None = None, started: float | None = None) -> ReplayResult:
     """A recording's sample arrays (recording.Recording) through a fresh session, as the node would take them."""
-    from ..core.models import parameter_count
-
     s = settings or ReplaySettings()
     started = time.perf_counter() if started is None else started
     # The recording's own order is the order the node received the messages: the session takes them
@@ -116,7 +147,18 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
     # No gyro (a CSV without gx,gy,gz): zeros, which never look like motion; taken out again below.
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
     poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values)
-    if recording.gyro_radps is None:
+    duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
+    start = int(t.min()) if len(t) else None
+    return _verdict(session, poses, recording, len(t), duration, start, s, started,
+                    has_gyro=recording.gyro_radps is not None)
+
+
+def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples: int, duration: float,
+             start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool) -> ReplayResult:
+    """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
+    from ..core.models import parameter_count
+
+    if not has_gyro:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
     slots = []  # per pose, its place in the store (None once the store gave that place to a newer pose)
     for pose in poses:
@@ -126,7 +168,6 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
         slots.append(event.index)
     verdict = session.calibrate()
     counts = session.counters.as_dict()
-    duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
     problem = None
     if not verdict.success:
         problem = verdict.message
@@ -135,11 +176,11 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
             problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
                        f"{session.settings.model} needs {need} orientations): " + problem)
         problem = (f"found {len(poses)} static pose{'' if len(poses) == 1 else 's'} ({len(session.store)} distinct) "
-                   f"in {recording.stream} ({len(t)} {recording.unit}, {duration:.1f} s): {problem}")
+                   f"in {recording.stream} ({samples} {recording.unit}, {duration:.1f} s): {problem}")
     result = verdict.result
     if verdict.success:
         calibration = verdict.calibration
-        if recording.gyro_radps is None:
+        if not has_gyro:
             calibration = calibration.replace(gyro_bias_radps=None)
         if recording.sensor_id and not calibration.sensor_id:
             calibration = calibration.replace(sensor_id=recording.sensor_id)
@@ -148,22 +189,25 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
     outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}
     status = ["dropped" if slot is None else "not fitted" if result is None
               else "outlier" if slot in outliers else "used" for slot in slots]
+    whole = getattr(recording, "t_ns", None) is not None  # a Recording read whole (a BagStream is not)
     return ReplayResult(
         bag=str(recording.path),
         imu_topic=recording.stream,
         temperature_topic=recording.temperature_stream,
-        messages=len(t),
+        messages=samples,
         duration_s=duration,
         poses=poses,
         result=result,
         problem=problem,
         counts=counts,
         elapsed_s=time.perf_counter() - started,
-        frame_id=recording.frame_id,
-        imu=recording.source,
+        frame_id=session.frame_id,
+        imu=recording.source if whole else None,
         recording=recording,
         pose_status=status,
         temperature_timeout_s=s.session.temperature_timeout_s,
+        start_ns=start_ns,
+        sensor_id=recording.sensor_id,
     )
 
 

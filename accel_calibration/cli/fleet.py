@@ -159,10 +159,7 @@ def _start_ns(path: Path, replay: Any) -> int | None:
         starting = _bag_metadata(path).get("starting_time")
         if isinstance(starting, dict) and isinstance(starting.get("nanoseconds_since_epoch"), int):
             return int(starting["nanoseconds_since_epoch"])
-    stamps = getattr(getattr(replay, "recording", None), "t_ns", None)
-    if stamps is not None and len(stamps):
-        return int(stamps.min())
-    return None
+    return getattr(replay, "start_ns", None)
 
 
 def _count(value: Any) -> int | None:
@@ -257,7 +254,7 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
         )
     reason = None if status == "calibrated" else f"{path}: {replay.problem}"
     # The sensor as the recording names it: a ULog's device id, a bag's frame_id, else the stream read.
-    sensor = getattr(getattr(replay, "recording", None), "sensor_id", "") or replay.frame_id or replay.imu_topic
+    sensor = replay.sensor_id or replay.frame_id or replay.imu_topic
     record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor=sensor,
                            status=status, reason=reason, **values)
     return outcome(status, reason, record, _line(record, where.name))
