@@ -21,6 +21,7 @@ KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file),
          "csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
 IMU_TYPE, TEMPERATURE_TYPE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
+STREAM_GROUP_MESSAGES = 1 << 16  # messages read from a streamed bag at a time (the results do not depend on it)
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
 _SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
 
@@ -209,12 +210,12 @@ def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
     bar = _bar(path, imu.msgcount + (temperature.msgcount if temperature else 0), "msg", progress)
     recorded: dict = {}
     if storage_of(path) == "mcap":
-        groups = stream_topics(path, topics, bar, schemas=recorded)
+        groups = stream_topics(path, topics, bar, STREAM_GROUP_MESSAGES, schemas=recorded)
     else:
         from .bag_io import recorded_definitions
 
         recorded = recorded_definitions(path) or {}
-        groups = stream_sqlite(path, topics, bar)
+        groups = stream_sqlite(path, topics, bar, STREAM_GROUP_MESSAGES)
     return BagStream(str(path), kind, imu.topic, temperature.topic if temperature else None, int(imu.msgcount),
                      _closing(groups, bar), recorded)
 

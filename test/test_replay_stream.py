@@ -1,0 +1,101 @@
+"""Replay streams a bag's storage (mcap chunk by chunk, sqlite3 a fetch at a time) into the session in
+parts, so a worker's memory is bounded by a part, not the bag: the result is bit for bit the replay of
+the recording read whole, whatever the group and part sizes; where streaming cannot give what the whole
+read gives (log times going back across chunks, another definition) the bag is read whole instead."""
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from accel_calibration.bag import recording as recording_module
+from accel_calibration.bag.bag_io import write_session_bag
+from accel_calibration.bag.recording import BagStream, Recording, open_recording
+from accel_calibration.bag.replay import replay_bag, replay_recording
+from accel_calibration.core.session import RecordingFeed
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+START_NS = 1_700_000_000 * 10**9
+
+
+@pytest.fixture(scope="module")
+def session():
+    rng = np.random.default_rng(5)
+    errors = SensorErrors.mpu6050_like(rng, noise_mps2=0.02)
+    return SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.0, move_s=0.8, rate_hz=200.0, seed=5,
+                        temperature_degc=lambda t: 20.0 + 0.1 * t).samples()
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory, session):
+    folder = tmp_path_factory.mktemp("stream")
+    made = {}
+    for name, storage, compression in (("sqlite3", "sqlite3", ""), ("mcap", "mcap", ""), ("mcap-zstd", "mcap", "zstd")):
+        made[name] = folder / name
+        write_session_bag(made[name], session, start_ns=START_NS, storage=storage, chunk_compression=compression,
+                          shuffle_seed=3)  # neighbours swapped in the file, as recorders do
+    return made
+
+
+def same_replay(streamed, whole):
+    assert [(p.start_ns, p.end_ns, p.samples, *p.accel_mps2.tolist(), p.temperature_degc) for p in streamed.poses] \
+        == [(p.start_ns, p.end_ns, p.samples, *p.accel_mps2.tolist(), p.temperature_degc) for p in whole.poses]
+    assert streamed.counts == whole.counts
+    assert (streamed.messages, streamed.duration_s, streamed.frame_id, streamed.start_ns) == \
+        (whole.messages, whole.duration_s, whole.frame_id, whole.start_ns)
+    assert streamed.problem == whole.problem
+    if whole.calibration is not None:
+        np.testing.assert_array_equal(streamed.calibration.bias, whole.calibration.bias)
+        np.testing.assert_array_equal(streamed.calibration.matrix, whole.calibration.matrix)
+
+
+@pytest.mark.parametrize("kind", ["sqlite3", "mcap", "mcap-zstd"])
+@pytest.mark.parametrize("group, part", [(1 << 16, 1 << 17), (257, 1000), (4000, 333)])
+def test_a_streamed_bag_replays_as_read_whole(bags, kind, group, part, monkeypatch):
+    monkeypatch.setattr(recording_module, "STREAM_GROUP_MESSAGES", group)
+    monkeypatch.setattr(RecordingFeed, "PART_ROWS", part)
+    streamed = replay_bag(bags[kind])
+    assert isinstance(streamed.recording, BagStream)  # it was streamed, not read whole
+    whole = replay_recording(open_recording(bags[kind]))
+    assert isinstance(whole.recording, Recording)
+    same_replay(streamed, whole)
+    assert len(streamed.poses) >= 12 and streamed.calibration is not None, streamed.problem
+    assert streamed.temperature_topic == "/imu/temperature"
+    assert all(p.temperature_degc is not None for p in streamed.poses)
+
+
+def test_log_times_going_back_across_chunks_read_whole(tmp_path, bags, monkeypatch):
+    """A message logged before the previous group's latest: the whole read sorts the file by log time, so
+    streaming would give another order; replay notices and reads it whole (the same result as whole)."""
+    monkeypatch.setattr(recording_module, "STREAM_GROUP_MESSAGES", 500)
+    bag = tmp_path / "late"
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([bags["mcap"]], default_typestore=store) as reader, \
+            Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        out = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store) for c in reader.connections}
+        messages = list(reader.messages())
+        for k, (connection, timestamp, raw) in enumerate(messages):
+            if k == len(messages) - 1:
+                timestamp -= 30 * 10**9  # the last message logged 30 s early: its place is chunks back
+            writer.write(out[connection.id], timestamp, raw)
+    streamed = replay_bag(bag)
+    assert isinstance(streamed.recording, Recording)  # read whole
+    same_replay(streamed, replay_recording(open_recording(bag)))
+
+
+def test_a_damaged_bag_streamed_is_the_same_one_line(tmp_path, bags):
+    """Cut short mid-file: streaming stops, the whole read says what is wrong, as before."""
+    bag = tmp_path / "cut"
+    shutil.copytree(bags["mcap-zstd"], bag)
+    storage = next(bag.glob("*.mcap"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[:len(data) // 2])
+    from accel_calibration.bag.replay import ReplayError
+
+    with pytest.raises(ReplayError) as error:
+        replay_bag(bag)
+    assert len(str(error.value).splitlines()) == 1 and str(bag) in str(error.value)
