@@ -479,38 +479,36 @@ def _scan_sqlite(path, topics, progress=None) -> dict | None:
 
 
 def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
-    """The wanted topics' messages from rosbag2's sqlite3 tables in groups of `group_messages` rows
-    ({topic: PackedMessages} per group), one SELECT over both topics in the order rosbag2 readers give
-    (timestamp, id), fetched a group at a time: memory bounded by a group. Raises NotStreamable where
-    the tables are not as expected (the whole read, then rosbags, says what is wrong)."""
+    """The wanted topics' messages from rosbag2's sqlite3 tables ({topic: PackedMessages} per group),
+    in the order rosbag2 readers give (timestamp, id): the first topic (the IMU) fetched a group of rows
+    at a time, memory bounded by a group; the others (a temperature topic, ~100 times fewer messages)
+    whole, with the first group. Raises NotStreamable where the tables are not as expected (the whole
+    read, then rosbags, says what is wrong)."""
     import sqlite3
 
     from .mcap_scan import NotStreamable, PackedMessages
 
+    select = "SELECT data FROM messages WHERE topic_id = ? ORDER BY timestamp, id"
     try:
         for file in [Path(path)] if Path(path).is_file() else sorted(Path(path).glob("*.db3")):
             connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
             try:
-                names = {topic_id: name for topic_id, name in connection.execute("SELECT id, name FROM topics")
-                         if name in topics}
-                if not names:
-                    continue
-                marks = ",".join("?" * len(names))
-                cursor = connection.execute(f"SELECT topic_id, data FROM messages WHERE topic_id IN ({marks}) "
-                                            "ORDER BY timestamp, id", tuple(names))
+                ids = {name: topic_id for topic_id, name in connection.execute("SELECT id, name FROM topics")}
+                others = {topic: [data for (data,) in connection.execute(select, (ids[topic],)).fetchall()]
+                          for topic in topics[1:] if topic in ids}
+                if progress is not None:
+                    progress.update(sum(map(len, others.values())))
+                cursor = connection.execute(select, (ids[topics[0]],)) if topics[0] in ids else None
                 while True:
-                    rows = cursor.fetchmany(group_messages)
-                    if not rows:
+                    rows = cursor.fetchmany(group_messages) if cursor is not None else []
+                    if not rows and not others:
                         break
-                    if len(names) == 1:
-                        by_topic = {next(iter(names.values())): [data for _, data in rows]}
-                    else:
-                        by_topic = {name: [] for name in names.values()}
-                        for topic_id, data in rows:
-                            by_topic[names[topic_id]].append(data)
+                    group = {topic: PackedMessages.from_payloads(others.get(topic, [])) for topic in topics[1:]}
+                    group[topics[0]] = PackedMessages.from_payloads([data for (data,) in rows])
+                    others = {}
                     if progress is not None:
                         progress.update(len(rows))
-                    yield {topic: PackedMessages.from_payloads(by_topic.get(topic, [])) for topic in topics}
+                    yield group
             finally:
                 connection.close()
     except (sqlite3.Error, TypeError, ValueError) as error:  # a data value that is not a blob: damage
