@@ -242,6 +242,11 @@ class StaticDetector:
         self.state = "waiting"
 
     @property
+    def continuing(self) -> bool:
+        """A recording is going through process() in parts: the next call continues it."""
+        return self._batch_carry is not None or self._layout is not None
+
+    @property
     def noise_floor_accel_var(self) -> float | None:
         """Per-axis variance of the acceleration noise (window total / 3), when learned: the floor in
         force, bounded as the thresholds are."""
@@ -524,7 +529,7 @@ class StaticDetector:
         in force when the call began (0)."""
         from .static_detector_batch import detect_batch
 
-        continuing = self._batch_carry is not None or self._layout is not None
+        continuing = self.continuing
         if not continuing and (self._last_ns is not None or self._full_time_ns):
             raise CalibrationError("process() needs a fresh StaticDetector (this one has seen samples)")
         t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
