@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import datetime as _dt
-from dataclasses import dataclass, field, replace
+import math
+import time
+from dataclasses import MISSING, dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -17,16 +19,49 @@ MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
 
 
 def _frozen(values: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:
-    try:
-        array = np.array(values, dtype=float)
-    except (TypeError, ValueError):
-        raise CalibrationError(f"{name} must be numbers, got {values!r:.60}") from None
+    """A read-only float copy of `values`, checked for shape and finiteness. Plain float arrays (what
+    fit() passes) take the short way: every fit builds a Calibration, and on 3 and 9 numbers Python's
+    float checks cost a fraction of numpy's."""
+    if type(values) is np.ndarray and values.dtype == np.float64:
+        array = values.copy()
+    else:
+        try:
+            array = np.array(values, dtype=float)
+        except (TypeError, ValueError):
+            raise CalibrationError(f"{name} must be numbers, got {values!r:.60}") from None
     if array.shape != shape:
         raise CalibrationError(f"{name} must have shape {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
+    if not all(map(math.isfinite, array.ravel().tolist())):
         raise CalibrationError(f"{name} must be finite, got {array.tolist()}")
-    array.flags.writeable = False
+    array.setflags(write=False)
     return array
+
+
+def _scaled_determinant(matrix: np.ndarray) -> float:
+    """det of a finite 3 x 3 matrix with each row divided by its largest magnitude (0 when a row is
+    zero): singularity relative to each row's size. Closed form on floats: numpy's det costs more."""
+    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
+    first, second, third = max(abs(a), abs(b), abs(c)), max(abs(d), abs(e), abs(f)), max(abs(g), abs(h), abs(i))
+    if not (first > 0 and second > 0 and third > 0):
+        return 0.0
+    a, b, c = a / first, b / first, c / first
+    d, e, f = d / second, e / second, f / second
+    g, h, i = g / third, h / third, i / third
+    return float(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g))
+
+
+_CREATED: tuple[int, str] = (-1, "")
+
+
+def _created_now() -> str:
+    """UTC now in ISO format to the second, formatted once per second (fits run thousands per second)."""
+    global _CREATED
+    second = int(time.time())
+    cached = _CREATED
+    if cached[0] != second:
+        cached = (second, _dt.datetime.fromtimestamp(second, _dt.UTC).isoformat(timespec="seconds"))
+        _CREATED = cached
+    return cached[1]
 
 
 @dataclass(frozen=True)
@@ -54,7 +89,7 @@ class Calibration:
     bias_sigma: np.ndarray | None = None  # 1-sigma of b
     matrix_sigma: np.ndarray | None = None  # 1-sigma of M's entries (0 where the model fixes them)
     quality: Quality | None = None
-    created: str = field(default_factory=lambda: _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    created: str = field(default_factory=_created_now)
     frame_id: str = ""
     sensor_id: str = ""
     reference_temperature_degc: float | None = None
@@ -71,8 +106,7 @@ class Calibration:
             raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
         set_(self, "gravity", float(self.gravity))
         # Relative to each row's size, never absolute: raw counts at 256 000 LSB/g give M ~ 4e-5.
-        row_size = np.abs(self.matrix).max(axis=1)
-        if not np.all(row_size > 0) or abs(np.linalg.det(self.matrix / row_size[:, None])) < 1e-12:
+        if abs(_scaled_determinant(self.matrix)) < 1e-12:
             raise CalibrationError("matrix is singular: it would collapse the measurement")
         if self.quadratic is not None:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
@@ -89,6 +123,35 @@ class Calibration:
             set_(self, "bias_sigma", _frozen(self.bias_sigma, (3,), "bias_sigma"))
         if self.matrix_sigma is not None:
             set_(self, "matrix_sigma", _frozen(self.matrix_sigma, (3, 3), "matrix_sigma"))
+
+    @classmethod
+    def from_fit(cls, bias: np.ndarray, matrix: np.ndarray, bias_sigma: np.ndarray, matrix_sigma: np.ndarray,
+                 **others: Any) -> Calibration:
+        """What fit() builds on every fit: float64 arrays of the right shapes that it has just computed
+        and found finite. They are validated once, there: here only what fit() does not check (M
+        singular relative to its rows, the model, gravity) is, and read-only copies are taken as
+        always. Anything else given (quadratic, temperature, ...) takes the full constructor."""
+        if others.keys() - _FIT_FIELDS:
+            return cls(bias=bias, matrix=matrix, bias_sigma=bias_sigma, matrix_sigma=matrix_sigma, **others)
+        values = {"bias": _read_only(bias), "matrix": _read_only(matrix), "bias_sigma": _read_only(bias_sigma),
+                  "matrix_sigma": _read_only(matrix_sigma), **others}
+        self = object.__new__(cls)
+        for f in _FIELDS:
+            if f.name in values:
+                value = values[f.name]
+            elif f.default_factory is not MISSING:
+                value = f.default_factory()
+            else:  # a field without a default is one of the required ones, given above
+                value = f.default
+            object.__setattr__(self, f.name, value)
+        if self.model not in MODELS:
+            raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(MODELS)}")
+        if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
+            raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
+        object.__setattr__(self, "gravity", float(self.gravity))
+        if abs(_scaled_determinant(self.matrix)) < 1e-12:
+            raise CalibrationError("matrix is singular: it would collapse the measurement")
+        return self
 
     @classmethod
     def identity(cls, **kwargs: Any) -> Calibration:
@@ -179,6 +242,17 @@ class Calibration:
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.
     __hash__ = None  # type: ignore[assignment]
+
+
+_FIELDS = fields(Calibration)
+# What from_fit() takes besides the arrays: the checks it keeps cover these; others go the full way.
+_FIT_FIELDS = frozenset({"model", "gravity", "quality", "frame_id", "reference_temperature_degc"})
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    copy = array.copy()
+    copy.setflags(write=False)
+    return copy
 
 
 def _same_temperature(a: TemperatureModel | None, b: TemperatureModel | None) -> bool:

@@ -36,7 +36,7 @@ def face_name(axis: int, sign: int) -> str:
 def missing_directions(directions: np.ndarray) -> list[str]:
     """Faces (x up, x down, ...) that no pose comes near. `directions` are unit vectors (N, 3) of
     the measured specific force."""
-    highest, lowest = directions.max(axis=0), directions.min(axis=0)
+    highest, lowest = directions.max(axis=0).tolist(), directions.min(axis=0).tolist()
     missing = []
     for axis in range(3):
         if highest[axis] < FACE_COSINE:
@@ -49,11 +49,11 @@ def missing_directions(directions: np.ndarray) -> list[str]:
 def angular_spread_deg(directions: np.ndarray) -> float:
     """Largest angle between any pose direction and the mean direction."""
     mean = directions.sum(axis=0) / len(directions)
-    norm = math.sqrt(float(mean @ mean))
+    norm = math.sqrt(float(mean.dot(mean)))
     if norm < 1e-9:
         return 180.0
     # Scalar math on the one smallest cosine: this runs on every fit.
-    return math.degrees(math.acos(min(max(float((directions @ (mean / norm)).min()), -1.0), 1.0)))
+    return math.degrees(math.acos(min(max(float(directions.dot(mean / norm).min()), -1.0), 1.0)))
 
 
 def scaled_condition_number(jacobian: np.ndarray) -> float:
@@ -75,16 +75,20 @@ def condition_and_inverse(normal: np.ndarray) -> tuple[float, np.ndarray | None]
     Jacobi-scaled matrix (what a fit needs for its observability check, sigma and leverages). The
     inverse is None where the condition number is infinite."""
     diag = np.sqrt(normal.diagonal())
-    if (diag == 0).any() or not np.isfinite(normal).all():
+    outer = diag[:, None] * diag
+    scaled = normal / outer
+    # A zero or non-finite diagonal, or a non-finite entry: the scaled entries of a normal matrix lie
+    # within +-1, so their sum is finite exactly when they all are (one reduction instead of two).
+    if not (diag.min() > 0 and math.isfinite(float(scaled.sum()))):
         return float("inf"), None
-    outer = np.outer(diag, diag)
     # LAPACK's syevd directly (what numpy's eigh calls): on a 9 x 9 matrix numpy's wrapper costs more
     # than the decomposition, and this runs on every fit.
-    eigenvalues, vectors, info = syevd(normal / outer, lower=1)
-    if info != 0 or not eigenvalues[0] > 0:
+    eigenvalues, vectors, info = syevd(scaled, lower=1)
+    smallest, largest = float(eigenvalues[0]), float(eigenvalues[-1])
+    if info != 0 or not smallest > 0:
         return float("inf"), None
-    inverse: np.ndarray = ((vectors / eigenvalues) @ vectors.T) / outer
-    return float(eigenvalues[-1] / eigenvalues[0]), inverse
+    inverse: np.ndarray = np.dot(vectors / eigenvalues, vectors.T) / outer
+    return largest / smallest, inverse
 
 
 def describe_missing(missing: list[str]) -> str:

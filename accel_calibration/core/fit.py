@@ -15,8 +15,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.special import erfc
-from scipy.stats import f as f_distribution
 
 from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
 from .coverage import (
@@ -33,7 +31,7 @@ from .coverage import (
     scaled_condition_number,
 )
 from .errors import CalibrationError
-from .gauss_newton import LeastSquaresSolution, gauss_newton
+from .gauss_newton import LeastSquaresSolution, gauss_newton, gauss_newton_stacked
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, parameter_count, seed_sphere
 from .pose import Pose
 from .temperature_models import (
@@ -55,6 +53,7 @@ from .temperature_models import (
 )
 
 AXES = "xyz"
+_ONES3 = np.ones(3)
 
 
 @dataclass(frozen=True)
@@ -86,6 +85,9 @@ class OutlierOptions:
                 raise CalibrationError(f"outlier {name} must be a number >= {low:g}, got {value!r}")
         if not (isinstance(self.max_fraction, (int, float)) and 0.0 <= self.max_fraction <= 0.5):
             raise CalibrationError(f"outlier max_fraction must be within 0..0.5, got {self.max_fraction!r}")
+
+
+_DEFAULT_OUTLIER_OPTIONS = OutlierOptions()  # frozen: one instance serves every fit that gives none
 
 
 @dataclass(frozen=True)
@@ -272,7 +274,7 @@ def fit(
             and all(isinstance(p, Pose) for p in accel_mps2):
         pose_sigma_mps2 = pose_mean_sigma(accel_mps2)
     accel, gravity, temps, ref = _check_arguments(accel_mps2, model, gravity, temperature_degc, reference, initial)
-    outlier_options = OutlierOptions() if outlier_options is None else outlier_options
+    outlier_options = _DEFAULT_OUTLIER_OPTIONS if outlier_options is None else outlier_options
     if not isinstance(outlier_options, OutlierOptions):
         raise CalibrationError("outlier_options must be an OutlierOptions or None")
     pose_sigma = None
@@ -354,8 +356,8 @@ def _leave_out_outliers(fit_poses: Callable[[np.ndarray | None], FitResult], acc
     if first.leverage is not None and len(first.leverage) == n:
         # Cheap bound first: the candidates' linearised deleted residuals from the fit's own residuals and
         # leverages. None near the threshold (margin far above rounding): clean data, the first fit stands.
-        h = np.clip(first.leverage, 0.0, 1.0 - 1e-9)
-        if float(np.max(np.abs(first.residuals_mg) / (1.0 - h))) < options.threshold_mg * (1.0 - 1e-6):
+        h = np.minimum(np.maximum(first.leverage, 0.0), 1.0 - 1e-9)  # np.clip's wrapper costs more
+        if float((np.abs(first.residuals_mg) / (1.0 - h)).max()) < options.threshold_mg * (1.0 - 1e-6):
             return first
     keep = np.ones(n, dtype=bool)
     current = first
@@ -441,6 +443,10 @@ def _stands_out(calibration: Calibration, keep: np.ndarray, indices: list[int], 
 @functools.lru_cache(maxsize=256)
 def _critical_ratio(k_sigma: float, components: int, dof: int) -> float:
     """F(components, dof) quantile with the upper tail probability of k_sigma Gaussian sigmas (two-sided)."""
+    # Imported here: scipy.stats costs ~0.5 s at import, and only a fit with an outlier candidate needs it.
+    from scipy.special import erfc
+    from scipy.stats import f as f_distribution
+
     return float(f_distribution.ppf(1.0 - erfc(k_sigma / np.sqrt(2.0)), components, dof))
 
 
@@ -577,7 +583,7 @@ def _not_finite(**arrays: np.ndarray | None) -> str | None:
 
 def _quality(residuals_mg: np.ndarray, condition: float) -> Quality:
     return Quality(
-        residual_rms_mg=math.sqrt(float(residuals_mg @ residuals_mg) / len(residuals_mg)),
+        residual_rms_mg=math.sqrt(float(residuals_mg.dot(residuals_mg)) / len(residuals_mg)),
         residual_max_mg=float(np.abs(residuals_mg).max()),
         poses=len(residuals_mg),
         condition_number=float(condition),
@@ -602,23 +608,29 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
                 ref_temperature: float | None, frame_id: str) -> FitResult:
     model = SphereModel(name)
     n = len(accel)
+    # The poses as rows of x, y and z: what the residual function and the direction checks work on
+    # (whole contiguous rows instead of strided columns).
+    accel_t = np.ascontiguousarray(accel.T)
     if initial is not None:
         bias0, matrix0 = initial.bias, initial.matrix
         x0 = model.project(bias0, matrix0)
+        directions_t = np.dot(matrix0, accel_t - bias0[:, None])
     else:
         bias0, matrix0 = seed_sphere(accel, gravity)
         # The seed's M is diagonal and positive: already in every sphere model's form (what project's QR
-        # would return, without it).
-        x0 = model.pack(bias0, np.abs(matrix0))
-    directions = (accel - bias0) @ matrix0.T
-    lengths = np.sqrt(np.einsum("ij,ij->i", directions, directions))
-    if not (lengths > 0).all():
+        # would return, without it), and applying it is a scaling of each axis.
+        scale0 = matrix0.diagonal()
+        x0 = np.concatenate((bias0, np.abs(matrix0).ravel()[model.flat_index]))
+        directions_t = (accel_t - bias0[:, None]) * scale0[:, None]
+    lengths = np.sqrt(np.dot(_ONES3, directions_t * directions_t))
+    if not lengths.min() > 0:  # NaN too
         row = int(np.flatnonzero(~(lengths > 0))[0])
         return FitResult(False, f"pose {row} reads {accel[row].tolist()}, exactly the starting estimate of the bias, "
                          "so it has no direction: drop it if it is a dropped or zeroed sample", name, poses=n)
-    directions /= lengths[:, None]
-    if not np.isfinite(directions).all():
+    directions_t /= lengths
+    if not math.isfinite(float(directions_t.sum())):  # unit vectors: the sum is finite unless an entry is not
         return _numerical_failure(accel, None, "the starting point overflows", model=name)
+    directions = directions_t.T
     missing = tuple(missing_directions(directions))
     spread = angular_spread_deg(directions)
     if spread < SAME_DIRECTION_DEG:
@@ -630,7 +642,7 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
             missing_directions=missing,
             poses=n,
         )
-    solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, gravity), x0)
+    solution = gauss_newton_stacked(lambda p: model.stacked(p, accel_t, gravity), x0)
     # One normal matrix (the solver's, when it formed it at the solution) for the condition number,
     # sigma, the uncertainty and the outlier leverages.
     jacobian = solution.jacobian
@@ -647,7 +659,13 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
         poses=n,
     )
     # Overflow before observability: an infinite condition number from it says nothing about coverage.
-    broken = _not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=solution.jacobian)
+    # Finite sums of squares (x, the cost, the normal matrix's diagonal) prove every entry finite at
+    # once (the solver forms its normal matrix only at a point where they are); only otherwise is each
+    # array checked to name the one that is not.
+    x = solution.x
+    finite = (math.isfinite(float(x.dot(x))) and math.isfinite(solution.cost)
+              and (solution.normal is not None or math.isfinite(float(normal.trace()))))
+    broken = None if finite else _not_finite(parameters=x, residuals=solution.residuals, jacobian=jacobian)
     if broken:
         return _numerical_failure(accel, None, _broken_reason(broken, solution), **common)
     # Observability first: a fit that wanders along an unobservable direction also fails to converge,
@@ -670,18 +688,24 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     if not solution.success:
         return FitResult(False, solution.message, **common)
     bias, matrix = model.unpack(solution.x)
-    if not np.linalg.det(matrix) > 0:
+    m00, m11, m22 = matrix.diagonal().tolist()
+    if not m00 * m11 * m22 > 0:  # det(M): the sphere models' M is lower-triangular
         return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
     if inverse is None:  # an infinite condition number fails the observability check above
         return _numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
-    stds = np.sqrt(np.abs(np.diag(inverse)) * (2.0 * solution.cost / (n - model.size)))
-    if _not_finite(uncertainties=stds):
+    stds = np.sqrt(np.abs(inverse.diagonal()) * (2.0 * solution.cost / (n - model.size)))
+    if not all(map(math.isfinite, stds.tolist())):
         return _numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
     _, matrix_sigma = model.unpack(stds)
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
-    uncertainty = _uncertainty(name, bias, matrix, gravity, jacobian, residuals_mg * MG, model.size, normal)
-    leverage = np.einsum("ij,jk,ik->i", jacobian, inverse, jacobian)
-    calibration = Calibration(
+    residuals = solution.residuals
+    # The normal matrix is finite (checked above): the Uncertainty needs no further test.
+    uncertainty = Uncertainty(name, bias, matrix, gravity, normal, float(residuals.dot(residuals)) / (n - model.size))
+    # Leverage h_i = J_i (J^T J)^-1 J_i^T of each pose, from the solver's J^T (rows of parameters).
+    jacobian_t = jacobian.T
+    leverage = np.einsum("ji,ji->i", np.dot(inverse, jacobian_t), jacobian_t)
+    # Every array here was just computed and found finite (x, stds): validated once.
+    calibration = Calibration.from_fit(
         bias=bias,
         matrix=matrix,
         model=name,

@@ -14,10 +14,13 @@ direction a_raw = b + S a_true (+ q * a_true^2), S = M^-1, because the noise liv
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg.lapack import dpocon as pocon
+from scipy.linalg.lapack import dposv as posv
 
 SPHERE_MODELS = ("six", "sphere9")
 REFERENCE_MODELS = ("reference12", "reference15")
@@ -38,6 +41,7 @@ _ENTRY_INDEX: dict[str, tuple[NDArray[np.int_], NDArray[np.int_]]] = {
 
 
 _FLAT_INDEX: dict[str, NDArray[np.int_]] = {name: rows * 3 + cols for name, (rows, cols) in _ENTRY_INDEX.items()}
+_ONES = np.ones(3)
 
 
 def parameter_count(model: str) -> int:
@@ -70,8 +74,7 @@ class SphereModel:
 
     def unpack(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         matrix = np.zeros((3, 3))
-        rows, cols = self._index
-        matrix[rows, cols] = p[3:]
+        matrix.ravel()[_FLAT_INDEX[self.name]] = p[3:]
         return p[:3].copy(), matrix
 
     @property
@@ -79,7 +82,8 @@ class SphereModel:
         return _ENTRY_INDEX[self.name]
 
     @property
-    def _flat_index(self) -> NDArray[np.int_]:
+    def flat_index(self) -> NDArray[np.int_]:
+        """Positions of the free entries in M's row-major ravel: p[3:] == M.ravel()[flat_index]."""
         return _FLAT_INDEX[self.name]
 
     def project(self, bias: np.ndarray, matrix: np.ndarray) -> np.ndarray:
@@ -97,21 +101,29 @@ class SphereModel:
 
     def residual_and_jacobian(self, p: np.ndarray, accel: np.ndarray,
                               gravity: float) -> tuple[np.ndarray, np.ndarray]:
-        """r_i = |M (a_i - b)| - g and its Jacobian (N x size). Called every Gauss-Newton iteration:
-        kept to a handful of vectorised numpy calls."""
-        rows, cols = self._index
-        matrix: np.ndarray = np.zeros(9)
-        matrix[self._flat_index] = p[3:]
-        matrix = matrix.reshape(3, 3)
-        centred = accel - p[:3]
-        corrected = centred @ matrix.T
-        norm = np.sqrt((corrected * corrected).sum(axis=1))
-        jac = np.empty((len(accel), self.size))
-        # d|Mv|/db = -(Mv)^T M / |Mv|;  d|Mv|/dM_ij = (Mv)_i v_j / |Mv| for the free entries (i, j).
-        np.matmul(corrected, -matrix, out=jac[:, :3])
-        np.multiply(corrected[:, rows], centred[:, cols], out=jac[:, 3:])
-        jac /= norm[:, None]
-        return norm - gravity, jac
+        """r_i = |M (a_i - b)| - g and its Jacobian (N x size), as views of `stacked`."""
+        out = self.stacked(p, accel.T, gravity)
+        return out[-1], out[:-1].T
+
+    def stacked(self, p: np.ndarray, accel_t: np.ndarray, gravity: float) -> np.ndarray:
+        """[J^T; r] as one (size + 1, N) array from the poses as columns (accel_t, 3 x N): what
+        gauss_newton_stacked takes. Called every Gauss-Newton iteration: a handful of numpy calls on
+        contiguous rows (axis-0 takes instead of column fancy-indexing, one output buffer)."""
+        rows, cols = _ENTRY_INDEX[self.name]
+        size = 3 + len(rows)
+        matrix = np.zeros((3, 3))
+        matrix.ravel()[_FLAT_INDEX[self.name]] = p[3:]
+        # -v = b - a and -Mv, which give the derivatives below without negating M:
+        # d|Mv|/db = -(Mv)^T M / |Mv| = M^T (-Mv) / |Mv|;  d|Mv|/dM_ij = (Mv)_i v_j / |Mv| = (-Mv)_i (-v)_j / |Mv|.
+        negated = p[:3, None] - accel_t
+        corrected = np.dot(matrix, negated)
+        norm = np.sqrt(np.dot(_ONES, corrected * corrected))
+        out = np.empty((size + 1, negated.shape[1]))
+        np.dot(matrix.T, corrected, out=out[:3])
+        np.multiply(corrected.take(rows, axis=0), negated.take(cols, axis=0), out=out[3:size])
+        np.divide(out[:size], norm, out=out[:size])
+        np.subtract(norm, gravity, out=out[size])
+        return out
 
     def parameter_names(self) -> list[str]:
         return [f"b_{a}" for a in AXES] + [f"M_{AXES[i]}{AXES[j]}" for i, j in self.entries]
@@ -124,34 +136,58 @@ def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarr
     raw counts far from zero (e.g. unsigned 16-bit output centred on 32768). Falls back to zero bias
     and a common scale when the poses do not define an ellipsoid (or their magnitudes overflow).
     """
-    centre = accel.mean(axis=0)
-    spread = float(np.abs(accel - centre).max()) or 1.0
-    typical = float(np.median(np.linalg.norm(accel, axis=1)))
-    fallback = np.zeros(3), np.eye(3) * gravity / (typical if np.isfinite(typical) and typical > 0 else 1.0)
-    if not np.isfinite(spread):
-        return fallback
-    x = (accel - centre) / spread
-    design = np.hstack([x**2, x])
-    if len(accel) >= 6:
-        coeffs, *_ = np.linalg.lstsq(design, np.ones(len(accel)), rcond=None)
+    n = len(accel)
+    centre = accel.sum(axis=0) / n  # accel.mean(axis=0) without its wrapper
+    centred = accel - centre
+    spread = float(np.abs(centred).max()) or 1.0
+    if math.isfinite(spread) and n >= 6:
+        x = centred / spread
+        coeffs = _ellipsoid_coefficients(x)
         quad, lin = coeffs[:3], coeffs[3:]
-        if np.all(quad > 0):
-            offset = -lin / (2 * quad)
-            level = 1.0 + float(np.sum(quad * offset**2))
+        if quad[0] > 0 and quad[1] > 0 and quad[2] > 0:
+            # Scalar arithmetic on three numbers: the same IEEE operations numpy would do, for less.
+            offset = [-b / (2 * a) for a, b in zip(quad, lin)]
+            level = 1.0 + (quad[0] * offset[0] * offset[0] + quad[1] * offset[1] * offset[1]
+                           + quad[2] * offset[2] * offset[2])
             if level > 0:
-                radii = np.sqrt(level / quad) * spread
-                bias = centre + offset * spread
+                radii = [math.sqrt(level / a) * spread for a in quad]
+                bias = [c + o * spread for c, o in zip(centre.tolist(), offset)]
                 # Plausible only if the axes' scales agree within 50 % (MEMS parts are within a few %)
                 # and the poses span more than a sliver of it; a cluster of alike poses fits any quadric.
                 plausible = (
-                    np.all(np.isfinite(radii))
-                    and np.all(np.isfinite(bias))
-                    and radii.max() < 1.5 * radii.min()
-                    and 2 * spread > 0.2 * radii.mean()
+                    all(map(math.isfinite, radii))
+                    and all(map(math.isfinite, bias))
+                    and max(radii) < 1.5 * min(radii)
+                    and 2 * spread > 0.2 * ((radii[0] + radii[1] + radii[2]) / 3)
                 )
                 if plausible:
-                    return bias, np.diag(gravity / radii)
-    return fallback
+                    matrix = np.zeros((3, 3))
+                    matrix.ravel()[::4] = [gravity / r for r in radii]  # the diagonal
+                    return np.array(bias), matrix
+    typical = float(np.median(np.linalg.norm(accel, axis=1)))
+    return np.zeros(3), np.eye(3) * gravity / (typical if np.isfinite(typical) and typical > 0 else 1.0)
+
+
+def _ellipsoid_coefficients(x: np.ndarray) -> list[float]:
+    """Least-squares solution of [x^2, x] c = 1 (N >= 6 rows). Normal equations by Cholesky when they
+    are well conditioned (reciprocal condition > 1e-3; normalised poses spread over the sphere give ~0.2,
+    and then they agree with the SVD solution to rounding), else numpy's SVD least squares as before
+    (poses in a hemisphere or a plane, where the two could part)."""
+    n = len(x)
+    design = np.empty((n, 7))
+    np.multiply(x, x, out=design[:, :3])
+    design[:, 3:6] = x
+    design[:, 6] = 1.0
+    normal = design.T @ design  # [D^T D, D^T 1] in one product
+    factor, solution, info = posv(normal[:6, :6], normal[:6, 6])
+    if info == 0:
+        # 1-norm bound for pocon: |A_ij| <= max diagonal for a positive definite A (conservative by <= 6x).
+        rcond, info = pocon(factor, 6.0 * float(normal.diagonal()[:6].max()))
+        if info == 0 and rcond > 1e-3:
+            coefficients: list[float] = solution.tolist()
+            return coefficients
+    least: list[float] = np.linalg.lstsq(design[:, :6], np.ones(n), rcond=None)[0].tolist()
+    return least
 
 
 def apply_forward_inverse(raw: np.ndarray, bias: np.ndarray, matrix: np.ndarray,
