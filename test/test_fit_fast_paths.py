@@ -180,7 +180,9 @@ def test_calibration_holds_read_only_copies_and_an_iso_utc_stamp():
 
 
 def test_fit_imports_scipy_stats_only_when_an_outlier_is_judged():
-    code = ("import sys, accel_calibration.core.fit, accel_calibration.core.temperature_models; "
+    # What every command loads (the CLI, replay, the session) must not pull scipy.stats in.
+    code = ("import sys, accel_calibration.core.fit, accel_calibration.core.temperature_models, "
+            "accel_calibration.core.session, accel_calibration.cli.main, accel_calibration.bag.replay; "
             "print('scipy.stats' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
@@ -188,6 +190,11 @@ def test_fit_imports_scipy_stats_only_when_an_outlier_is_judged():
     from scipy.special import erfc
     from scipy.stats import f
     assert _critical_ratio(5.0, 1, 10) == pytest.approx(f.ppf(1 - erfc(5 / np.sqrt(2)), 1, 10), rel=1e-12)
+    # The pose store's agreement bound, written out, is scipy's chi-square quantile.
+    from scipy.stats import chi2
+
+    from accel_calibration.core.pose_store import AGREEMENT_CHI2
+    assert AGREEMENT_CHI2 == float(chi2.ppf(0.999, 3))
 
 
 def test_calibration_from_fit_equals_the_full_constructor_and_refuses_alike():
