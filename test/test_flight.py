@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 import pytest
+import session_doors as doors
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
@@ -60,20 +61,8 @@ def whole_recording(samples, settings=None, collecting=None):
 def per_message(samples, settings=None, armed=None):
     """What the node does, message by message; `armed` (start_ns, end_ns): the armed input is true then."""
     session = CalibrationSession(settings)
-    poses = []
-    add = session.add_sample
-    t, accel, gyro = samples.t_ns.tolist(), samples.accel_raw.tolist(), samples.gyro_raw.tolist()
-    for i in range(len(t)):
-        if armed is not None and (armed[0] <= t[i] <= armed[1]) == session.collecting:
-            session.set_collecting(not session.collecting, "armed")
-        pose = add(t[i], *accel[i], *gyro[i])
-        if pose is not None:
-            poses.append(pose)
-    last = session.flush()
-    if last is not None:
-        poses.append(last)
-    for pose in poses:
-        session.add_pose(pose)
+    collecting = None if armed is None else ~((armed[0] <= samples.t_ns) & (samples.t_ns <= armed[1]))
+    poses = doors.per_message(session, samples.t_ns, samples.accel_raw, samples.gyro_raw, collecting=collecting)
     return session, poses
 
 

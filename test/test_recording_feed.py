@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from session_doors import per_message
 from test_session import hostile, per_sample, stream, temperature_readings
 
 from accel_calibration.core.session import CalibrationSession, RecordingFeed
@@ -112,15 +113,7 @@ def test_a_pause_or_a_clock_jump_at_a_part_boundary(where, monkeypatch):
         accel[boundary - 3:boundary] = 1e6  # saturated, screened out: the break lands on the next part
         t[boundary - 3:] -= 2 * 86_400 * 10**9
     live = CalibrationSession()
-    live_poses = []
-    for i in range(len(t)):
-        if (not collecting[i]) != (not live.collecting):
-            live.set_collecting(bool(collecting[i]), "armed")
-        pose = live.add_sample(int(t[i]), *accel[i].tolist(), *gyro[i].tolist())
-        if pose is not None:
-            live_poses.append(pose)
-    last = live.flush()
-    live_poses += [last] if last is not None else []
+    live_poses = per_message(live, t, accel, gyro, collecting=collecting, store=False)
     whole = CalibrationSession()
     monkeypatch.setattr(RecordingFeed, "PART_ROWS", 10**9)
     one_call = whole.add_recording(t, accel, gyro, collecting=collecting)

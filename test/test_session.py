@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
+from session_doors import per_message
 
 from accel_calibration import MG, Calibration, Pose, fit
 from accel_calibration.core.correction import Correction, rep145_covariance
@@ -36,22 +37,7 @@ def temperature_readings(samples, period_s=0.1):
 
 def per_sample(session, t_ns, accel, gyro, temperatures=None):
     """What the node does: temperature and IMU messages in arrival order, poses into the store."""
-    poses = []
-    stamps, values = temperatures if temperatures is not None else (np.zeros(0, dtype=np.int64), np.zeros(0))
-    k = 0
-    for i in range(len(t_ns)):
-        while k < len(stamps) and stamps[k] <= t_ns[i]:
-            session.add_temperature(int(stamps[k]), float(values[k]))
-            k += 1
-        pose = session.add_sample(int(t_ns[i]), *(float(v) for v in accel[i]), *(float(v) for v in gyro[i]))
-        if pose is not None:
-            poses.append(pose)
-    last = session.flush()
-    if last is not None:
-        poses.append(last)
-    for pose in poses:
-        session.add_pose(pose)
-    return poses
+    return per_message(session, t_ns, accel, gyro, temperatures)
 
 
 def hostile(samples):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import session_doors as doors
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -41,19 +42,7 @@ def session_stream(seed=1, rate_hz=200.0, poses=POSES):
 def per_message(t, accel, gyro, settings_=None, paused=None):
     """The node's door: one add_sample per message; `paused` (bool per message) toggles set_collecting."""
     session = CalibrationSession(settings_)
-    poses = []
-    a, g = accel.tolist(), gyro.tolist()
-    for i, stamp in enumerate(np.asarray(t, dtype=np.int64).tolist()):
-        if paused is not None and paused[i] == session.collecting:
-            session.set_collecting(not paused[i], "armed")
-        pose = session.add_sample(stamp, *a[i], *g[i])
-        if pose is not None:
-            poses.append(pose)
-    last = session.flush()
-    if last is not None:
-        poses.append(last)
-    for pose in poses:
-        session.add_pose(pose)
+    poses = doors.per_message(session, t, accel, gyro, collecting=None if paused is None else ~np.asarray(paused))
     return session, poses
 
 
