@@ -8,11 +8,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_static_detector import assert_same_poses, streams
+from test_stream_faults import stream_with_breaks
 
-from accel_calibration.core.static_detector import DISCARD, RESTART, StaticDetector
-from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from accel_calibration.core.static_detector import StaticDetector
 
-DAY_NS = 86_400 * 10**9
 FAST = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -67,18 +66,7 @@ def test_parts_give_the_poses_of_one_call(name, stream, options, data):
 @FAST
 @given(data=st.data())
 def test_parts_with_restarts_and_discards(data):
-    rng = np.random.default_rng(data.draw(st.integers(0, 1000)))
-    errors = SensorErrors(noise_mps2=0.02, gyro_noise_radps=0.002)
-    s = SyntheticImu(errors, spread_orientations(6, rng), dwell_s=3.0, move_s=1.0, rate_hz=100.0,
-                     seed=data.draw(st.integers(0, 1000))).samples()
-    t = s.t_ns.copy()
-    breaks = np.zeros(len(t), dtype=np.int64)
-    for _ in range(data.draw(st.integers(1, 5))):
-        i = data.draw(st.integers(0, len(t) - 1))
-        kind = data.draw(st.sampled_from([RESTART, DISCARD]))
-        breaks[i] = kind
-        if kind == RESTART:  # a clock that starts over, anywhere
-            t[i:] += data.draw(st.integers(-2 * DAY_NS, 2 * DAY_NS))
+    s, t, breaks = stream_with_breaks(data)
     cuts = cut_points(data, len(t))
     if data.draw(st.booleans()):  # a cut exactly at a break
         cuts = sorted(set(cuts) | {int(i) for i in np.flatnonzero(breaks) if i > 0})

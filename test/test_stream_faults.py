@@ -277,9 +277,9 @@ def test_repeated_samples_never_feed_the_floor():
     assert detector.quietest_floors[0] > 0.5 * 3 * 0.02**2
 
 
-@FAST
-@given(data=st.data())
-def test_batch_equals_streaming_with_restarts_and_discards(data):
+def stream_with_breaks(data):
+    """Six poses at 100 Hz with 1-5 restarts (the clock starting over anywhere) and discards drawn by
+    hypothesis: (samples, stamps, breaks)."""
     rng = np.random.default_rng(data.draw(st.integers(0, 1000)))
     errors = SensorErrors(noise_mps2=0.02, gyro_noise_radps=0.002)
     s = SyntheticImu(errors, spread_orientations(6, rng), dwell_s=3.0, move_s=1.0, rate_hz=100.0,
@@ -292,6 +292,13 @@ def test_batch_equals_streaming_with_restarts_and_discards(data):
         breaks[i] = kind
         if kind == RESTART:  # a clock that starts over, anywhere
             t[i:] += data.draw(st.integers(-2 * DAY_NS, 2 * DAY_NS))
+    return s, t, breaks
+
+
+@FAST
+@given(data=st.data())
+def test_batch_equals_streaming_with_restarts_and_discards(data):
+    s, t, breaks = stream_with_breaks(data)
     batch_detector, stream_detector = StaticDetector(), StaticDetector()
     batch = batch_detector.process(t, s.accel_raw, s.gyro_raw, breaks=breaks)
     streamed = stream_detector.process_streaming(t, s.accel_raw, s.gyro_raw, breaks=breaks)
