@@ -29,10 +29,13 @@ if TYPE_CHECKING:
     from .static_detector import StaticDetector, _VarianceFloor
 
 _QUERY_EVERY = 64
+# Each histogram bin's value, by _VarianceFloor._query's own expression (Python's pow: numpy's power can
+# differ from it in the last bit).
+_CENTRES = np.array([10 ** (_LOG_MIN + (index + 0.5) / _BINS_PER_DECADE) for index in range(_NBINS)])
 
 
 
-def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndarray, warm_full: np.ndarray,
+def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndarray | slice, warm_full: np.ndarray,
                       floor: _VarianceFloor, fixed: float | None, k_sigma: float, rise_var: float,
                       cap: float, quietest: float) -> tuple[np.ndarray, float]:
     """One channel's stillness threshold at each full window: the fixed one, or k_sigma x the learned
@@ -41,14 +44,19 @@ def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndar
     updated."""
     # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
     # The floor is learned under a fixed threshold too, as update() learns it (diagnostics show it).
-    values = _floor_values(np.where(evidence, var, np.nan)[full_index], floor)
+    values = _floor_values(np.where(evidence[full_index], var[full_index], np.nan), floor)
     lowest = _quietest(values, warm_full, quietest)
     quietest = float(lowest[-1]) if len(lowest) else quietest
     if fixed is not None:
-        return np.full(len(full_index), fixed), quietest
-    bounded = np.minimum(values, lowest * rise_var)
+        return np.full(len(warm_full), fixed), quietest
+    # min(k_sigma x min(floor, quietest x rise_var), cap), in place of `lowest` (its own array).
+    limit = lowest
+    limit *= rise_var
     with np.errstate(invalid="ignore"):
-        limit = np.where(warm_full, np.minimum(k_sigma * bounded, cap), np.nan)
+        np.minimum(values, limit, out=limit)
+        limit *= k_sigma
+        np.minimum(limit, cap, out=limit)
+    np.copyto(limit, np.nan, where=~warm_full)
     return limit, quietest
 
 
@@ -77,8 +85,13 @@ def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.nd
         return np.zeros(0)
     quantile, half_life = floor.quantile, floor.half_life
     with np.errstate(divide="ignore", invalid="ignore"):
-        index = np.floor((np.log10(variances) - _LOG_MIN) * _BINS_PER_DECADE)
-    index = np.where(variances <= 0.0, 0, np.clip(np.nan_to_num(index, nan=0.0), 0, _NBINS - 1)).astype(np.int64)
+        position = np.log10(variances)
+    position -= _LOG_MIN
+    position *= _BINS_PER_DECADE
+    np.floor(position, out=position)
+    np.fmax(position, 0.0, out=position)  # a variance <= 0 gives -inf or NaN (fmax takes 0 over NaN): bin 0
+    np.minimum(position, _NBINS - 1, out=position)
+    index = position.astype(np.int64)
     # add() queries after the first add ever, then every _QUERY_EVERY adds; it halves every half_life adds
     # (before the query of the same add). Numbered 1.. within these adds.
     first_query = 1 if floor.value is None else _QUERY_EVERY - floor._since_query
@@ -89,8 +102,9 @@ def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.nd
     # Only bins ever hit matter: empty bins below add nothing, and a hit needs counts.
     low = int(min(index.min(), hit_bins.min() if len(hit_bins) else _NBINS))
     high = int(max(index.max(), hit_bins.max() if len(hit_bins) else -1)) + 1
-    width, index = high - low, index - low
-    centres = 10.0 ** (_LOG_MIN + (np.arange(low, high) + 0.5) / _BINS_PER_DECADE)
+    width = high - low
+    index -= low
+    centres = _CENTRES[low:high]
     base = carried[low:high].copy()
     base_total = float(floor.total)
     values = np.empty(len(query_adds))
@@ -101,23 +115,37 @@ def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.nd
         chosen = np.flatnonzero(epoch_of_query == epoch)
         if len(chosen):
             upto = query_adds[chosen]
-            block = np.searchsorted(upto, np.arange(begin, end) + 1, side="left")  # its first query
-            counted = block < len(chosen)  # adds after the last query never reach one
-            per_block = np.bincount(block[counted] * width + index[begin:end][counted],
-                                    minlength=len(chosen) * width).reshape(-1, width).astype(float)
-            counts = base + np.cumsum(per_block, axis=0)
+            # Adds begin+1 .. the epoch's last query (later ones never reach one), each keyed by (its first
+            # query at or after it, its bin): those up to the first query, then _QUERY_EVERY per query.
+            head, reached = int(upto[0]) - begin, int(upto[-1]) - begin
+            keys = index[begin:begin + reached].copy()
+            keys[head:].reshape(len(chosen) - 1, _QUERY_EVERY)[...] += width * np.arange(1, len(chosen))[:, None]
+            # Per query, this epoch's adds per bin so far (integers: a fast cumsum), plus the carried counts:
+            # the histogram it sees; then its running count over the bins, in add()'s order.
+            adds = np.bincount(keys, minlength=len(chosen) * width).reshape(-1, width)
+            np.cumsum(adds, axis=0, out=adds)
+            running = adds + base
+            np.cumsum(running, axis=1, out=running)
             total = base_total + (upto - begin).astype(float)
-            running = np.cumsum(counts, axis=1)
-            hit = (running >= quantile * total[:, None]) & (counts > 0)
-            values[chosen] = np.where(hit.any(axis=1), centres[np.argmax(hit, axis=1)], 10.0**_LOG_MAX)
+            # add() takes the first bin reaching quantile x total that holds counts: the first bin reaching a
+            # target above 0 does (the running count rose there); a target of 0, the first bin holding any.
+            target = np.maximum(quantile * total, 5e-324)
+            first_hit = np.count_nonzero(running < target[:, None], axis=1)
+            values[chosen] = np.where(first_hit < width, centres[np.minimum(first_hit, width - 1)], 10.0**_LOG_MAX)
         base = base + np.bincount(index[begin:end], minlength=width)
         base_total += end - begin
         if epoch + 1 < len(epoch_starts):  # the halving after this epoch's last add
             base *= 0.5
             base_total *= 0.5
     previous = np.nan if floor.value is None else floor.value
-    latest_query = np.searchsorted(query_adds, np.arange(1, count + 1), side="right") - 1
-    per_add = np.where(latest_query >= 0, values[np.maximum(latest_query, 0)] if len(values) else np.nan, previous)
+    # After each add: the value of the latest query at or before it (every _QUERY_EVERY adds from first_query).
+    before_first = min(first_query - 1, count)
+    per_add = np.empty(count)
+    per_add[:before_first] = previous
+    after = per_add[before_first:]
+    runs = len(after) // _QUERY_EVERY
+    after[:runs * _QUERY_EVERY].reshape(runs, _QUERY_EVERY)[:] = values[:runs, None]
+    after[runs * _QUERY_EVERY:] = values[runs] if len(after) > runs * _QUERY_EVERY else 0.0
     # The state add() would leave.
     carried[low:high] = base
     floor.counts = carried.tolist()
@@ -129,87 +157,154 @@ def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.nd
     return np.asarray(per_add)
 
 
-def _window_variance(channels: list[np.ndarray], start: np.ndarray, segment_first: np.ndarray,
-                     full: np.ndarray, mean_of: tuple[int, ...] = (0,)) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per channel (accel, gyro: n x 3 each): total variance (sum over axes) and mean of values[start_i .. i]
-    for each full window i (0 elsewhere: never used; the mean only for the channels in `mean_of`), about
-    each segment's median.
+def _window_variance(channels: list[np.ndarray], start: np.ndarray, firsts: np.ndarray,
+                     full: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Per channel (accel, gyro: n x 3 each): the total variance (sum over axes) of values[start_i .. i]
+    about the median of its segment (segments begin at rows `firsts`, the first at 0), for each full
+    window i; and the squared norm of the first channel's window mean (both 0 elsewhere: never used).
 
     Blocks are as long as the shortest full window, so every full window holds a block boundary; it
     is summed from pieces that lie inside it: the end of the block holding its first sample, whole
     blocks between (only for a window longer than the shortest), the start of the block holding its
-    last sample. All channels go through one pass, laid out column-major (4 sums per channel) so the
-    running sums run along contiguous memory; cumsum adds in order, so the sums are the row-major ones.
+    last sample. Column by column (x, y, z, |x|^2 of a channel), laid out block row by block. A few
+    buffers serve every column: touching fresh memory costs as much as the sums.
     """
     n_rows = len(channels[0])
-    n_cols = 4 * len(channels)
+    variances = [np.zeros(n_rows) for _ in channels]
+    mean_square = np.zeros(n_rows)
     windows = np.flatnonzero(full)  # index of each full window's last sample
     if not len(windows):
-        return [(np.zeros(n_rows), np.zeros((n_rows, 3))) for _ in channels]
+        return variances, mean_square
     first = start[windows]
-    block = int((windows - first).min()) + 1
-    firsts = np.flatnonzero(segment_first == np.arange(n_rows))
+    count = windows.astype(float)  # samples in the window (exact)
+    count -= first
+    count += 1.0
+    block = int(count.min())
     bounds = list(zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]))
-    blocks = -(-n_rows // block)
-    padded_rows = blocks * block
-    columns = np.empty((n_cols, padded_rows))  # per channel: x y z |x|^2
-    columns[:, n_rows:] = 0.0  # the padding of the last block
-    references = []
-    for c, values in enumerate(channels):
-        reference = np.empty_like(values)
-        for begin, end in bounds:
-            # Median, not the first sample: a glitch there would leave every window far from its reference.
-            for axis in range(3):  # column by column: the same medians, faster than axis=0 on rows of 3
-                reference[begin:end, axis] = np.median(values[begin:end, axis])
-        shifted = values - reference
-        references.append(reference)
-        columns[4 * c:4 * c + 3, :n_rows] = shifted.T
-        columns[4 * c + 3, :n_rows] = np.einsum("ij,ij->i", shifted, shifted)
-    prefix = np.cumsum(columns.reshape(n_cols, blocks, block), axis=2)  # from the block's first row to this one
-    totals = np.concatenate([prefix[:, :, -1], np.zeros((n_cols, 1))], axis=1)
-    prefix = prefix.reshape(n_cols, -1)
-    # From a row to its block's last, summed backwards: running sums over the reversed rows (row r is
-    # reversed row padded_rows - 1 - r; block boundaries coincide since padded_rows is whole blocks).
-    backwards = np.cumsum(columns[:, ::-1].reshape(n_cols, blocks, block), axis=2).reshape(n_cols, -1)
-
-    boundary = windows // block * block  # the last block boundary at or before the window's last row
+    blocks, tail = -(-n_rows // block), n_rows % block
+    whole = n_rows // block  # blocks without padding
+    last_block, last_at = np.divmod(windows, block)
+    last_at *= blocks  # the last row's place in a column laid out (block row, block)
+    last_at += last_block
+    first_block, first_at = np.divmod(first, block)
+    first_at *= blocks
+    first_at += first_block
+    spans = last_block - first_block
+    one_block = np.flatnonzero(spans == 0)  # it starts at the boundary: no piece before it
+    between = np.flatnonzero(spans > 1)  # whole blocks in between
+    pairs = np.column_stack([first_block[between] + 1, last_block[between]]).reshape(-1)
+    del spans, last_block, first_block
     contiguous = windows[-1] - windows[0] + 1 == len(windows)  # the usual case: full from some row on
-    upto_last = prefix[:, windows[0]:windows[-1] + 1] if contiguous else np.take(prefix, windows, axis=1)
-    head_mask = boundary > first  # the window starts before that boundary
-    head = np.flatnonzero(head_mask)
-    suffix = np.take(backwards, padded_rows - 1 - first, axis=1)  # [first, end of its block]
-    if len(head) == len(windows):
-        sums = np.add(upto_last, suffix, out=suffix)  # [boundary, last] + [first, end of its block]
-    else:
-        sums = upto_last + np.where(head_mask, suffix, 0.0)
-    first_block, last_block = first[head] // block + 1, boundary[head] // block
-    between = first_block < last_block  # whole blocks in between
-    if between.any():
-        pairs = np.column_stack([first_block[between], last_block[between]]).reshape(-1)
-        sums[:, head[between]] += np.add.reduceat(totals, pairs, axis=1)[:, ::2]
+    at = slice(int(windows[0]), int(windows[-1]) + 1) if contiguous else windows
+    segment = 0 if len(bounds) == 1 else np.searchsorted(firsts, windows, side="right") - 1
+    lengths = np.diff([*firsts.tolist(), n_rows])
 
-    count = windows - first + 1
-    results = []
-    for c in range(len(channels)):
-        variance = np.zeros(n_rows)
-        mean = np.zeros((n_rows, 3))
-        s1, s2 = sums[4 * c:4 * c + 3].T, sums[4 * c + 3]
-        variance[windows] = (s2 - np.einsum("ij,ij->i", s1, s1) / count) / count
-        if c in mean_of:
-            mean[windows] = references[c][windows] + s1 / count[:, None]
-        results.append((variance, mean))
-    return results
+    column_rows, squares, backwards = np.empty((3, block, blocks))
+    total, piece = np.empty((2, len(windows)))
+
+    def window_sums(rows: np.ndarray) -> None:
+        """`total` := each window's sum of the column laid out in `rows` (turned into its running sums)."""
+        if blocks >= 128:  # enough blocks that one add per block row beats cumsum's per-element loop
+            backwards[block - 1] = rows[block - 1]  # row r: from row r to the block's last, from the last
+            for r in range(block - 2, -1, -1):
+                np.add(backwards[r + 1], rows[r], out=backwards[r])
+            for r in range(1, block):
+                rows[r] += rows[r - 1]  # from the block's first row to this one (cumsum's order)
+        else:
+            backwards[::-1] = np.cumsum(rows[::-1], axis=0)
+            np.cumsum(rows, axis=0, out=rows)
+        np.take(rows.reshape(-1), last_at, out=total)
+        np.take(backwards.reshape(-1), first_at, out=piece)
+        piece[one_block] = 0.0
+        np.add(total, piece, out=total)
+        if len(between):
+            total[between] += np.add.reduceat(np.append(rows[block - 1], 0.0), pairs)[::2]
+
+    for c, values in enumerate(channels):
+        norm = variances[c][at] if contiguous else np.empty(len(windows))  # |window sum|^2, then the variance
+        mean = mean_square[at] if contiguous else np.empty(len(windows))
+        for axis in range(3):
+            column = values[:, axis]
+            medians = np.array([_median(column[begin:end]) for begin, end in bounds])
+            # Median, not the first sample: a glitch there would leave every window far from its reference.
+            # Per row of the column: its segment's median (one number for the usual single segment).
+            per_row = np.repeat(medians, lengths) if len(bounds) > 1 else None
+            np.subtract(column[:whole * block].reshape(whole, block).T,
+                        medians[0] if per_row is None else per_row[:whole * block].reshape(whole, block).T,
+                        out=column_rows[:, :whole])
+            if tail:
+                np.subtract(column[whole * block:], medians[0] if per_row is None else per_row[whole * block:],
+                            out=column_rows[:tail, whole])
+                column_rows[tail:, whole] = 0.0  # the padding of the last block
+            if axis == 0:
+                np.multiply(column_rows, column_rows, out=squares)
+            else:
+                np.multiply(column_rows, column_rows, out=backwards)
+                squares += backwards
+            window_sums(column_rows)
+            if c == 0:  # the window mean: its median plus the mean about it
+                np.divide(total, count, out=piece)
+                piece += medians[segment]
+                piece *= piece
+                if axis == 0:
+                    mean[...] = piece
+                else:
+                    mean += piece
+            np.multiply(total, total, out=piece)
+            if axis == 0:
+                norm[...] = piece
+            else:
+                norm += piece
+        window_sums(squares)
+        norm /= count
+        np.subtract(total, norm, out=norm)
+        norm /= count
+        if not contiguous:
+            variances[c][windows] = norm
+            if c == 0:
+                mean_square[windows] = mean
+    return variances, mean_square
+
+
+def _median(values: np.ndarray) -> float:
+    """np.median of finite values, bit for bit: the order statistics it averages are picked among the
+    values between two quantiles of a sample (a partition of a small part instead of all: the full
+    partition was the largest cost of a long recording), or by np.median itself when they lie outside."""
+    size = len(values)
+    if size < 4096:
+        return float(np.median(values))
+    sample = np.sort(values[::size // 1024])
+    middle = len(sample) // 2
+    # The sample median's rank is off by ~sqrt(1024) / 2 = 16 sample positions: 4 standard deviations.
+    low, high = sample[max(middle - 64, 0)], sample[min(middle + 64, len(sample) - 1)]
+    below = int(np.count_nonzero(values < low))
+    near = values[(values >= low) & (values <= high)]
+    lower_rank, upper_rank = (size - 1) // 2 - below, size // 2 - below  # np.median averages these two
+    if lower_rank < 0 or upper_rank >= len(near):
+        return float(np.median(values))
+    part = np.partition(near, [lower_rank, upper_rank])
+    if lower_rank == upper_rank:
+        return float(part[lower_rank])
+    return float((part[lower_rank] + part[upper_rank]) / 2)
 
 
 def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Per row: how many rows of its window start_i .. i repeat their predecessor bit for bit (all three
-    axes; the first row of the recording has none), as update() counts them."""
-    repeat = np.zeros(len(values), dtype=np.int64)
+    """Per row: twice how many rows of its window start_i .. i repeat their predecessor bit for bit (all
+    three axes; the first row of the recording has none), as update() counts them."""
+    # running[k + 1]: repeats among rows 0 .. k (exact in int32 below 2**31 rows)
+    running = np.zeros(len(values) + 1, dtype=np.int32 if len(values) < 2**31 else np.int64)
     if len(values) > 1:
         same = values[1:] == values[:-1]
-        repeat[1:] = same[:, 0] & same[:, 1] & same[:, 2]  # faster than all(axis=1) over 3 columns
-    running = np.concatenate([[0], np.cumsum(repeat)])
-    return np.asarray(running[1:] - running[start])
+        np.cumsum(same[:, 0] & same[:, 1] & same[:, 2], out=running[2:])  # & beats all(axis=1) over 3 columns
+    twice = running[start]
+    np.subtract(running[1:], twice, out=twice)
+    twice *= 2
+    return np.asarray(twice)
+
+
+def _within(values: np.ndarray, limit: float) -> bool:
+    """Every value in [-limit, limit] (none NaN)."""
+    return bool(values.max(initial=-math.inf) <= limit and values.min(initial=math.inf) >= -limit)
 
 
 def _quietest(floor: np.ndarray, warm: np.ndarray, before: float = math.inf) -> np.ndarray:
@@ -218,7 +313,7 @@ def _quietest(floor: np.ndarray, warm: np.ndarray, before: float = math.inf) -> 
     candidates = np.where(warm & ~np.isnan(floor), floor, np.inf)
     if len(candidates):
         candidates[0] = min(candidates[0], before)
-    return np.asarray(np.minimum.accumulate(candidates)) if len(candidates) else candidates
+    return np.asarray(np.minimum.accumulate(candidates, out=candidates))
 
 
 @dataclass
@@ -261,9 +356,8 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
             temp_all = np.where(np.abs(temp_all) <= _HARD_LIMIT, temp_all, np.nan)
     with np.errstate(invalid="ignore"):
         # As update(): NaN/inf or beyond the limit on any axis rejects the sample (NaN propagates through
-        # max and compares False).
-        if np.abs(a_all).max(initial=0.0) <= d._accel_max and (
-                g_all is None or np.abs(g_all).max(initial=0.0) <= d._gyro_max):
+        # max and min and compares False; no |x| copy: fresh memory is slow to touch).
+        if _within(a_all, d._accel_max) and (g_all is None or _within(g_all, d._gyro_max)):
             valid = np.ones(len(a_all), bool)  # the usual recording: one reduction each says all are valid
         else:
             valid = np.abs(a_all).max(axis=1, initial=0.0) <= d._accel_max
@@ -284,18 +378,18 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         previous_max[1:] = np.maximum(previous_max[1:], latest)
         accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
     rejected = len(t_all) - int(accepted.sum())
-    keep = np.flatnonzero(valid)[accepted]
-    everything = len(keep) == len(t_all)  # nothing rejected: the arrays as given, without copies
+    everything = rejected == 0  # nothing rejected: the arrays as given, without copies
+    keep = None if everything else np.flatnonzero(valid)[accepted]
     dropped = None
     if drop is not None:
         # A discard before a rejected sample still applies to the next accepted one.
         marked = np.concatenate([[0], np.cumsum(np.asarray(drop, dtype=bool).reshape(-1))])
-        upto = marked[keep + 1]
+        upto = marked[1:] if keep is None else marked[keep + 1]
         dropped = (upto - np.concatenate([[0], upto[:-1]])) > 0
-    t = t_all if everything else t_all[keep]
-    a = a_all if everything else a_all[keep]
-    g = None if g_all is None else g_all if everything else g_all[keep]
-    temps = None if temp_all is None else temp_all if everything else temp_all[keep]
+    t = t_all if keep is None else t_all[keep]
+    a = a_all if keep is None else a_all[keep]
+    g = None if g_all is None else g_all if keep is None else g_all[keep]
+    temps = None if temp_all is None else temp_all if keep is None else temp_all[keep]
     # The rows kept from the part before come first; the interval rules run over the new rows only.
     context = 0
     if carry is not None:
@@ -315,32 +409,47 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         return [], rejected, out_of_range
 
     window_ns, trim_ns = d._window_ns, int(d.trim_s * 1e9)
-    gaps = np.concatenate([[False], np.diff(t) > d._gap_ns])
-    segment_first = np.maximum.accumulate(np.where(gaps | (np.arange(n) == 0), np.arange(n), 0))
-    start = np.maximum(np.searchsorted(t, t - window_ns, side="right"), segment_first)
-    count = np.arange(n) - start + 1
-    full = ((t - t[start]) >= d._full_ns) & (count >= 5)
+    dt = np.zeros(n, dtype=np.int64)
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    gaps = dt > d._gap_ns
+    segment_firsts = np.flatnonzero(gaps)  # the first row of each segment after the first
+    start = np.searchsorted(t, t - window_ns, side="right")
+    if len(segment_firsts):  # a window starts no earlier than its segment
+        segment_firsts = np.concatenate([[0], segment_firsts])
+        np.maximum(start, np.repeat(segment_firsts, np.diff(np.append(segment_firsts, n))), out=start)
+    else:
+        segment_firsts = np.zeros(1, dtype=np.int64)
+    count = np.arange(1, n + 1)
+    count -= start
+    span = t[start]
+    np.subtract(t, span, out=span)
+    full = span >= d._full_ns
+    full &= count >= 5
     full[:context] = False  # decided in the part before
     # Windows mostly of repeated samples are no evidence of the noise (update(): 2 * repeats <= n).
-    accel_evidence = 2 * _repeats_in_window(a, start) <= count
-    gyro_evidence = None if g is None else 2 * _repeats_in_window(g, start) <= count
-    window_stats = _window_variance([a] if g is None else [a, g], start, segment_first, full)
-    accel_var, accel_mean = window_stats[0]
-    gyro_var = None if g is None else window_stats[1][0]
+    accel_evidence = _repeats_in_window(a, start) <= count
+    gyro_evidence = None if g is None else _repeats_in_window(g, start) <= count
+    variances, accel_mean_square = _window_variance([a] if g is None else [a, g], start, segment_firsts, full)
+    accel_var = variances[0]
+    gyro_var = None if g is None else variances[1]
     # A window whose mean is no gravity (a dead sensor's quiet zeros) does not teach the floor either.
-    plausible = np.einsum("ij,ij->i", accel_mean, accel_mean) >= d._min_magnitude_squared
+    plausible = accel_mean_square >= d._min_magnitude_squared
     accel_evidence &= plausible
     if gyro_evidence is not None:
         gyro_evidence &= plausible
-    dt = np.concatenate([[0], np.diff(t)])
-    full_time = d._full_time_ns + np.cumsum(np.where(full & accel_evidence, dt, 0))
+    full_time = dt  # dt is not needed any more: the full-window time in its place
+    full_time *= full & accel_evidence
+    np.cumsum(full_time, out=full_time)
+    full_time += d._full_time_ns
     d._full_time_ns = int(full_time[-1])
 
-    full_index = np.flatnonzero(full)
+    full_rows = np.flatnonzero(full)
+    full_index: np.ndarray | slice = full_rows
+    if len(full_rows) and full_rows[-1] - full_rows[0] + 1 == len(full_rows):  # full from some row on
+        full_index = slice(int(full_rows[0]), int(full_rows[-1]) + 1)  # views instead of copies
     accel_limit = np.full(n, np.nan)
     gyro_limit = np.full(n, np.nan)
-    warm = full_time >= d._warmup_ns
-    warm_full = warm[full_index]
+    warm_full = full_time[full_index] >= d._warmup_ns
     accel_limit[full_index], d._accel_quietest = _limit_per_window(
         accel_var, accel_evidence, full_index, warm_full, d._accel_floor, d.accel_var_threshold, d.k_sigma,
         d._rise_var, d._accel_cap, d._accel_quietest)
@@ -360,7 +469,9 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
 
     # The interval rules, applied per run of samples in the same state (runs break at gaps and at
     # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
-    state = np.where(~full, 0, np.where(learning, 1, np.where(still, 2, 3)))
+    state = full.view(np.int8) * np.int8(3)  # learning and still are parts of full, apart
+    state -= learning.view(np.int8) * np.int8(2)
+    state -= still.view(np.int8)
     changes = (state[context + 1:] != state[context:-1]) | gaps[context + 1:]
     boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
     ends = np.concatenate([boundary[1:], [n]]) - 1
@@ -452,18 +563,24 @@ def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g:
     if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
         return
     rows = a[k0:k1 + 1]
+    samples = k1 - k0 + 1
+    # np.mean and np.cov's own operations, without their per-call overhead (the same values, bit for bit).
+    mean = np.add.reduce(rows, axis=0) / samples
+    centred = (rows - mean).T
+    cov = np.dot(centred, centred.T.conj())
+    cov *= np.true_divide(1, samples - 1)
     temperature = spread = None
     if temps is not None:
         known = temps[k0:k1 + 1][~np.isnan(temps[k0:k1 + 1])]
         if len(known):
             temperature, spread = float(known.mean()), float(known.max() - known.min())
     poses.append(Pose(
-        accel_mps2=rows.mean(axis=0),
-        accel_cov=np.cov(rows, rowvar=False),
-        samples=k1 - k0 + 1,
+        accel_mps2=mean,
+        accel_cov=cov,
+        samples=samples,
         start_ns=int(t[k0]),
         end_ns=int(t[k1]),
-        gyro_radps=None if g is None else g[k0:k1 + 1].mean(axis=0),
+        gyro_radps=None if g is None else np.add.reduce(g[k0:k1 + 1], axis=0) / samples,
         temperature_degc=temperature,
         temperature_spread_degc=spread,
     ))
