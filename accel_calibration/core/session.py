@@ -380,7 +380,7 @@ class RecordingFeed:
     pause or a clock re-synchronisation came after the last sample the detector saw. Poses are checked
     against frozen runs at the end, when every run is known (a run found later may overlap a pose)."""
 
-    PART_ROWS = 1 << 17
+    PART_ROWS = 1 << 14  # ~16 s at 1 kHz: a part and its temporaries stay in cache (2 workers then scale)
     MAX_LAG_PARTS = 8
 
     def __init__(self, session: CalibrationSession, has_temperature: bool):

@@ -319,8 +319,10 @@ def _quietest(floor: np.ndarray, warm: np.ndarray, before: float = math.inf) -> 
 @dataclass
 class BatchCarry:
     """What a detect_batch call leaves for the next part of the same recording (final=False): the rows
-    the next windows and the open interval still need (accepted rows: stamps, accel, gyro, temperature)
-    and where in them the open interval began and last grew. The floors, the quietest floors, the
+    the next windows and the open interval still need (accepted rows: stamps, accel, gyro, temperature),
+    where in them the open interval began (and its window's first row) and last grew, and from which row
+    on the next windows need them (`window_from`: the rows before it are only the open interval's, kept
+    for its pose, never passed through the window sums again). The floors, the quietest floors, the
     full-window time and the warm-up's loudest windows live on the detector, as update() keeps them."""
 
     t: np.ndarray
@@ -328,7 +330,9 @@ class BatchCarry:
     gyro: np.ndarray | None
     temperature: np.ndarray | None
     opened: int | None
+    opened_window: int  # the first row of the opened row's window (where its pose may start)
     last: int
+    window_from: int
 
 
 def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
@@ -407,8 +411,20 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
             if final:
                 return _finish(d, [], carry, t, a, g, temps, flush), rejected, out_of_range
         return [], rejected, out_of_range
+    trim_ns = int(d.trim_s * 1e9)
+    # The window rules run over the rows from `held` on (the rows before it are an open interval's only);
+    # indices below are of those rows, `held` + index in the whole.
+    held = 0 if carry is None else carry.window_from
+    full_t, full_a, full_g, full_temps = t, a, g, temps
+    if held:
+        t, a = t[held:], a[held:]
+        g = None if g is None else g[held:]
+        temps = None if temps is None else temps[held:]
+        dropped = None if dropped is None else dropped[held:]
+        context -= held
+        n -= held
 
-    window_ns, trim_ns = d._window_ns, int(d.trim_s * 1e9)
+    window_ns = d._window_ns
     dt = np.zeros(n, dtype=np.int64)
     np.subtract(t[1:], t[:-1], out=dt[1:])
     gaps = dt > d._gap_ns
@@ -464,8 +480,15 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
 
     poses: list[Pose] = []
 
+    def window_of(row: int) -> int:
+        """The first row of a row's window, both in the whole. The carried open interval's row keeps the
+        window it had (its window may begin before the rows passed through the window sums here)."""
+        if carry is not None and row == carry.opened:
+            return carry.opened_window
+        return int(start[row - held]) + held
+
     def emit(opened: int, last: int, trim_end: bool) -> None:
-        _emit(poses, d, t, a, g, temps, start, opened, last, trim_end, trim_ns)
+        _emit(poses, d, full_t, full_a, full_g, full_temps, window_of(opened), opened, last, trim_end, trim_ns)
 
     # The interval rules, applied per run of samples in the same state (runs break at gaps and at
     # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
@@ -475,8 +498,10 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     changes = (state[context + 1:] != state[context:-1]) | gaps[context + 1:]
     boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
     ends = np.concatenate([boundary[1:], [n]]) - 1
-    opened: int | None = None if carry is None else carry.opened  # index that opened the current interval
-    last = 0 if carry is None else carry.last  # the last sample added to it (read only while one is open)
+    # In the whole's rows (held + index): the row that opened the current interval, the last one added to it
+    # (read only while one is open).
+    opened: int | None = None if carry is None else carry.opened
+    last = 0 if carry is None else carry.last
     warmup = d._warmup_max  # the loudest windows of the warm-up, until the threshold is known
     loudest_accel, loudest_gyro = (0.0, 0.0) if warmup is None else warmup
     warmup_open = warmup is not None
@@ -494,8 +519,8 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
             if gyro_var is not None:
                 loudest_gyro = max(loudest_gyro, float(gyro_var[first:final_row + 1].max()))
             if opened is None:
-                opened = first
-            last = final_row
+                opened = first + held
+            last = final_row + held
             continue
         if warmup_open:
             warmup_open = False
@@ -511,53 +536,55 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         # A run of still samples: open at its first sample if nothing is open, cut at max_pose_s.
         i = first
         if opened is None:
-            opened = last = first
+            opened = last = first + held
             i = first + 1
         while i <= final_row:
-            limit = None if max_pose_ns is None else t[start[opened]] + max_pose_ns
+            limit = None if max_pose_ns is None else full_t[window_of(opened)] + max_pose_ns
             split = final_row + 1 if limit is None else max(i, int(np.searchsorted(t, limit, side="left")))
             if split > final_row:
-                last = final_row
+                last = final_row + held
                 break
-            emit(opened, split, True)
-            opened = last = split
+            emit(opened, split + held, True)
+            opened = last = split + held
             i = split + 1
     d._warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
     # What the next part needs: the window of the last row (the next rows' windows start no earlier), and
     # the open interval from its window's first row (emit trims from there).
-    keep_from = int(start[n - 1]) if opened is None else min(int(start[n - 1]), int(start[opened]))
-    left = BatchCarry(t[keep_from:].copy(), a[keep_from:].copy(), None if g is None else g[keep_from:].copy(),
-                      None if temps is None else temps[keep_from:].copy(),
-                      None if opened is None else opened - keep_from, max(last - keep_from, 0))
+    windows_from = window_of(held + n - 1)
+    keep_from = windows_from if opened is None else min(windows_from, window_of(opened))
+    left = BatchCarry(full_t[keep_from:].copy(), full_a[keep_from:].copy(),
+                      None if full_g is None else full_g[keep_from:].copy(),
+                      None if full_temps is None else full_temps[keep_from:].copy(),
+                      None if opened is None else opened - keep_from,
+                      0 if opened is None else window_of(opened) - keep_from,
+                      max(last - keep_from, 0), windows_from - keep_from)
     if not final:
         d._batch_carry = left
         return poses, rejected, out_of_range
-    return _finish(d, poses, left, t, a, g, temps, flush, opened, last, start, trim_ns), rejected, out_of_range
+    return _finish(d, poses, left, full_t, full_a, full_g, full_temps, flush, opened, last,
+                   None if opened is None else window_of(opened), trim_ns), rejected, out_of_range
 
 
 def _finish(d: StaticDetector, poses: list[Pose], carry: BatchCarry, t: np.ndarray, a: np.ndarray,
             g: np.ndarray | None, temps: np.ndarray | None, flush: bool, opened: int | None = None,
-            last: int = 0, start: np.ndarray | None = None, trim_ns: int = 0) -> list[Pose]:
+            last: int = 0, opened_window: int | None = None, trim_ns: int = 0) -> list[Pose]:
     """The end of the recording: the interval still open is a pose when `flush` (it was not moving)."""
     d._batch_carry = None
-    if start is None:  # no new rows came: the open interval is the carried one
-        opened = carry.opened
-        last = carry.last
+    if opened_window is None:  # no new rows came: the open interval is the carried one
+        opened, opened_window, last = carry.opened, carry.opened_window, carry.last
         trim_ns = int(d.trim_s * 1e9)
-        segment_first = np.zeros(len(t), dtype=np.int64)
-        start = np.maximum(np.searchsorted(t, t - d._window_ns, side="right"), segment_first)
     if opened is not None and flush:
-        _emit(poses, d, t, a, g, temps, start, opened, last, False, trim_ns)
+        _emit(poses, d, t, a, g, temps, opened_window, opened, last, False, trim_ns)
     return poses
 
 
 def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
-          temps: np.ndarray | None, start: np.ndarray, opened: int, last: int, trim_end: bool, trim_ns: int) -> None:
-    """The interval opened at row `opened` (its window's first row gives the start, trimmed) up to row
-    `last` (trimmed at the end when motion ended it) as a pose, when long enough."""
-    first_time = t[start[opened]] + trim_ns
+          temps: np.ndarray | None, opened_window: int, opened: int, last: int, trim_end: bool, trim_ns: int) -> None:
+    """The interval opened at row `opened` (its window's first row, `opened_window`, gives the start,
+    trimmed) up to row `last` (trimmed at the end when motion ended it) as a pose, when long enough."""
+    first_time = t[opened_window] + trim_ns
     k0 = int(np.searchsorted(t, first_time, side="left"))
-    k0 = max(k0, int(start[opened]))
+    k0 = max(k0, opened_window)
     k1 = int(np.searchsorted(t, t[last] - trim_ns, side="right")) - 1 if trim_end else last
     k1 = min(k1, last)
     if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
