@@ -494,8 +494,11 @@ def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
             connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
             try:
                 ids = {name: topic_id for topic_id, name in connection.execute("SELECT id, name FROM topics")}
-                others = {topic: [data for (data,) in connection.execute(select, (ids[topic],)).fetchall()]
-                          for topic in topics[1:] if topic in ids}
+                # In the table's own order: a scan, not ~150k lookups through the timestamp index (readings
+                # are taken in stamp order by the temperature filter whatever order they come in).
+                others = {topic: [data for (data,) in connection.execute(
+                    "SELECT data FROM messages WHERE topic_id = ? ORDER BY id", (ids[topic],)).fetchall()]
+                    for topic in topics[1:] if topic in ids}
                 if progress is not None:
                     progress.update(sum(map(len, others.values())))
                 cursor = connection.execute(select, (ids[topics[0]],)) if topics[0] in ids else None

@@ -21,7 +21,8 @@ KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file),
          "csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
 IMU_TYPE, TEMPERATURE_TYPE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
-STREAM_GROUP_MESSAGES = 1 << 16  # messages read from a streamed bag at a time (the results do not depend on it)
+STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (the results do not depend on
+# it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
 _SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
 
