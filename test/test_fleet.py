@@ -47,11 +47,9 @@ def _flight(path, errors, seed, start_ns, storage, poses=14):
         write_session_bag(path, samples, start_ns=start_ns, storage=storage)
 
 
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory):
-    """uav07: sensor A, stable over two flights; uav08: sensor B, bias z steps between its two flights;
-    uav09: a too-short session (refused) and a file that is no recording (failed)."""
-    root = tmp_path_factory.mktemp("fleet")
+def two_vehicles(root):
+    """uav07: sensor A, stable over two flights a week apart; uav08: sensor B, whose bias z steps by
+    STEP_MG between its two flights (mcap and sqlite3 bags). Returns (sensor A, sensor B)."""
     sensor_a = SensorErrors.mpu6050_like(np.random.default_rng(70), noise_mps2=0.02)
     sensor_b = SensorErrors.mpu6050_like(np.random.default_rng(80), noise_mps2=0.02)
     stepped = SensorErrors(bias_mps2=sensor_b.bias_mps2 + [0.0, 0.0, STEP_MG * MG], matrix=sensor_b.matrix,
@@ -61,6 +59,15 @@ def fleet(tmp_path_factory):
     _flight(root / "uav07" / "flight2", sensor_a, 2, START_NS + WEEK_NS, "sqlite3")
     _flight(root / "uav08" / "flight1", sensor_b, 3, START_NS, "sqlite3")
     _flight(root / "uav08" / "flight2", stepped, 4, START_NS + WEEK_NS, "mcap")
+    return sensor_a, sensor_b
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """Two vehicles (two_vehicles); uav09: a too-short session (refused) and a file that is no recording
+    (failed); uav10, uav11: a CSV and a ULog."""
+    root = tmp_path_factory.mktemp("fleet")
+    sensor_a, sensor_b = two_vehicles(root)
     _flight(root / "uav09" / "short", sensor_a, 5, START_NS, "mcap", poses=4)
     _flight(root / "uav10" / "bench.csv", sensor_a, 6, START_NS, "csv")  # every format the replay reads
     _flight(root / "uav11" / "flight.ulg", sensor_b, 7, START_NS, "ulog")

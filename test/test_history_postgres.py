@@ -13,14 +13,13 @@ import subprocess
 import sys
 from dataclasses import replace
 
-import numpy as np
 import psycopg
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from postgres_server import PostgresServer, PostgresUnavailable
 from sqlalchemy.engine import make_url
-from test_fleet import START_NS, STEP_MG, WEEK_NS, _flight
+from test_fleet import START_NS, STEP_MG, WEEK_NS, two_vehicles
 from test_history import WRITERS, record
 
 from accel_calibration.bag.replay import replay_bag
@@ -28,7 +27,6 @@ from accel_calibration.cli.fleet import local_cluster
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import MG
 from accel_calibration.io.history import HistoryError, HistoryRecord, open_history
-from msg_tools.synthetic_imu import SensorErrors
 
 _names = itertools.count()
 DAY_NS = 86_400 * 10**9
@@ -258,15 +256,7 @@ def fleet_run(postgres, tmp_path_factory):
     file that is no recording. One fleet run (a local cluster of 2 workers) into a fresh PostgreSQL
     database and one into SQLite."""
     root = tmp_path_factory.mktemp("pgfleet")
-    sensor_a = SensorErrors.mpu6050_like(np.random.default_rng(70), noise_mps2=0.02)
-    sensor_b = SensorErrors.mpu6050_like(np.random.default_rng(80), noise_mps2=0.02)
-    stepped = SensorErrors(bias_mps2=sensor_b.bias_mps2 + [0.0, 0.0, STEP_MG * MG], matrix=sensor_b.matrix,
-                           noise_mps2=sensor_b.noise_mps2, gyro_bias_radps=sensor_b.gyro_bias_radps,
-                           gyro_noise_radps=sensor_b.gyro_noise_radps)
-    _flight(root / "uav07" / "flight1", sensor_a, 1, START_NS, "mcap")
-    _flight(root / "uav07" / "flight2", sensor_a, 2, START_NS + WEEK_NS, "sqlite3")
-    _flight(root / "uav08" / "flight1", sensor_b, 3, START_NS, "sqlite3")
-    _flight(root / "uav08" / "flight2", stepped, 4, START_NS + WEEK_NS, "mcap")
+    two_vehicles(root)
     (root / "uav09").mkdir()
     (root / "uav09" / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)
     url = postgres.create_database("fleet")
