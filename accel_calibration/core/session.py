@@ -388,7 +388,8 @@ class RecordingFeed:
         self.has_temperature = has_temperature
         self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._buffered = 0
-        self._readings: list[tuple[np.ndarray, np.ndarray]] = []
+        self._readings: list[tuple[np.ndarray, np.ndarray]] = []  # as they came
+        self._sorted: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros(0))  # not yet taken
         self._latest_reading: int | None = None
         self._paused_since = False  # a paused sample since the detector's last one
         self._restart_since = False  # a clock re-synchronisation since the detector's last one
@@ -458,17 +459,21 @@ class RecordingFeed:
                 np.concatenate([p[2] for p in taken]), np.concatenate(masks) if any_mask else None)
 
     def _readings_upto(self, last_ns: int | None) -> tuple[np.ndarray, np.ndarray] | None:
-        """The buffered readings stamped at or before `last_ns` (all of them when None), taken out."""
-        if not self._readings:
-            return None
-        stamps = np.concatenate([r[0] for r in self._readings])
-        values = np.concatenate([r[1] for r in self._readings])
-        if last_ns is None:
+        """The buffered readings stamped at or before `last_ns` (all of them when None), taken out, in
+        stamp order (stable: as the temperature filter takes a whole recording's). The buffer is kept
+        sorted, so a part takes a prefix (a CSV brings a reading on every row: no copy per part)."""
+        if self._readings:  # readings that came since: merged into the sorted buffer
+            stamps = np.concatenate([self._sorted[0], *(r[0] for r in self._readings)])
+            values = np.concatenate([self._sorted[1], *(r[1] for r in self._readings)])
+            order = np.argsort(stamps, kind="stable")
+            self._sorted = (stamps[order], values[order])
             self._readings = []
-            return stamps, values
-        now = stamps <= last_ns
-        self._readings = [(stamps[~now], values[~now])] if not now.all() else []
-        return stamps[now], values[now]
+        stamps, values = self._sorted
+        if not len(stamps):
+            return None
+        count = len(stamps) if last_ns is None else int(np.searchsorted(stamps, last_ns, side="right"))
+        self._sorted = (stamps[count:], values[count:])
+        return stamps[:count], values[:count]
 
     def _part(self, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray, collecting: np.ndarray | None,
               final: bool) -> None:
