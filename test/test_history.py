@@ -47,24 +47,31 @@ def record(i=0, *, vehicle="uav07", sensor="imu0", bias=(0.3, -0.2, 0.1), bias_s
 
 # --- the database ------------------------------------------------------------------------------------
 
-def test_round_trip_and_rewriting_a_recording_updates_its_row(tmp_path):
-    db = tmp_path / "h.sqlite"
-    first = record(1, temperature_min_degc=21.5, temperature_max_degc=24.0, outliers=1, condition_number=math.nan)
-    with open_history(db) as history:
+def assert_round_trip(target, **first_extra) -> list[HistoryRecord]:
+    """Two records written, the first written again: its row is updated whole, not added; the rows come
+    back as written, also after reopening. Returns the rows."""
+    first = record(1, temperature_min_degc=21.5, temperature_max_degc=24.0, outliers=1, condition_number=math.nan,
+                   **first_extra)
+    with open_history(target) as history:
         assert history.write([first, record(2)]) == 2
-        again = record(1, bias=(0.31, -0.2, 0.1), reason=None)
-        history.write([again])
+        history.write([record(1, bias=(0.31, -0.2, 0.1), reason=None)])
         rows = history.records()
     assert [r.recording_id for r in rows] == [first.recording_id, record(2).recording_id]
     assert rows[0].bias == (0.31, -0.2, 0.1)  # updated, not added
     assert rows[0].matrix[0] == 1.01 and rows[0].matrix[3] == 0.004 and rows[0].outliers is None
     assert (rows[0].temperature_min_degc, rows[0].temperature_max_degc) == (None, None)  # updated whole
     assert rows[1].scale == (1.01, 0.99, 1.0) and rows[1].scale_sigma == (1e-4,) * 3
-    with open_history(db) as history:  # reopened: the schema is there, nothing lost
+    with open_history(target) as history:  # reopened: the schema is there, nothing lost
         assert len(history.records()) == 2
         assert [r.recording_id for r in history.records(vehicle="uav07", sensor="imu0")] == [r.recording_id
                                                                                             for r in rows]
         assert history.records(vehicle="uav99") == []
+    return rows
+
+
+def test_round_trip_and_rewriting_a_recording_updates_its_row(tmp_path):
+    db = tmp_path / "h.sqlite"
+    assert_round_trip(db)
     with sqlite3.connect(db) as raw:
         assert raw.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
         assert raw.execute("SELECT count(*) FROM calibrations").fetchone()[0] == 2

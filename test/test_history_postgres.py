@@ -19,8 +19,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from postgres_server import PostgresServer, PostgresUnavailable
 from sqlalchemy.engine import make_url
-from test_fleet import START_NS, STEP_MG, WEEK_NS, two_vehicles
-from test_history import WRITERS, record
+from test_fleet import START_NS, WEEK_NS, assert_flags_the_stepped_sensor_only, two_vehicles
+from test_history import WRITERS, assert_round_trip, record
 
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.fleet import local_cluster
@@ -60,22 +60,10 @@ def _raw(postgres, url):
 # --- the database --------------------------------------------------------------------------------------
 
 def test_round_trip_and_rewriting_a_recording_updates_its_row(postgres, pg_url):
-    first = record(1, temperature_min_degc=21.5, temperature_max_degc=24.0, outliers=1, condition_number=math.nan,
-                   residual_max_mg=math.inf)
-    with open_history(pg_url) as history:
-        assert history.write([first, record(2)]) == 2
-        history.write([record(1, bias=(0.31, -0.2, 0.1))])
-        rows = history.records()
-    assert [r.recording_id for r in rows] == [first.recording_id, record(2).recording_id]
-    assert rows[0].bias == (0.31, -0.2, 0.1)  # updated, not added
-    assert rows[0].matrix[0] == 1.01 and rows[0].matrix[3] == 0.004 and rows[0].outliers is None
-    assert (rows[0].temperature_min_degc, rows[0].temperature_max_degc) == (None, None)  # updated whole
-    assert rows[1].scale == (1.01, 0.99, 1.0) and rows[1].scale_sigma == (1e-4,) * 3
+    rows = assert_round_trip(pg_url, residual_max_mg=math.inf)
     assert replace(rows[1], written_at=None) == record(2)
     written = datetime.datetime.fromisoformat(rows[1].written_at)
     assert written.utcoffset() is not None and written.utcoffset().total_seconds() == 0  # UTC, said so
-    with open_history(pg_url) as history:  # reopened: the schema is there, nothing lost
-        assert len(history.records()) == 2 and history.records(vehicle="uav99") == []
     with _raw(postgres, pg_url) as raw:
         assert raw.execute("SELECT count(*) FROM calibrations").fetchone()[0] == 2
         # NaN and inf are no number a reader can use: NULL, as on SQLite.
@@ -311,18 +299,7 @@ def test_a_rerun_does_not_duplicate_rows(fleet_run, postgres, capsys):
 def test_history_command_flags_the_stepped_sensor_only(fleet_run, tmp_path, capsys):
     _, url, _, _, _ = fleet_run
     url = url.replace("postgresql+psycopg://", "postgresql://")  # the plain form: psycopg 3 is the default
-    capsys.readouterr()
-    assert main(["history", "--history", url]) == 3
-    flagged = [line.strip() for line in capsys.readouterr().out.splitlines() if " moved " in line]
-    with open_history(url) as history:
-        b1, b2 = history.records(vehicle="uav08")
-    change_mg = (b2.bias[2] - b1.bias[2]) / MG
-    sigmas = abs(b2.bias[2] - b1.bias[2]) / math.hypot(b1.bias_sigma[2], b2.bias_sigma[2])
-    assert abs(change_mg - STEP_MG) < 1.0 and sigmas > 10
-    assert flagged == [f"vehicle uav08 imu_link: bias z moved {abs(change_mg):.3g} mg ({sigmas:.1f} sigma) "
-                       "between 2026-11-02 and 2026-11-09"]
-    assert main(["history", "--history", url, "--vehicle", "uav07"]) == 0  # the stable sensor stays quiet
-    assert "no change beyond what the sigmas explain" in capsys.readouterr().out
+    assert_flags_the_stepped_sensor_only(url, capsys)
     figure = tmp_path / "history.png"
     assert main(["report", "--history", url, "-o", str(figure)]) == 0
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

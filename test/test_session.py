@@ -13,7 +13,7 @@ from session_doors import per_message
 from accel_calibration import MG, Calibration, Pose, fit
 from accel_calibration.core.correction import Correction, rep145_covariance
 from accel_calibration.core.errors import SettingsError
-from accel_calibration.core.session import CalibrationSession
+from accel_calibration.core.session import CalibrationSession, RecordingFeed
 from accel_calibration.core.settings import PARAMETERS, Settings
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -53,8 +53,11 @@ def hostile(samples):
     return t, accel, gyro
 
 
+@pytest.mark.parametrize("part_rows", [None, 777], ids=["one part", "parts of 777"])
 @pytest.mark.parametrize("faults", [False, True], ids=["clean", "hostile"])
-def test_live_and_replay_give_the_same_poses_and_calibration(faults):
+def test_live_and_replay_give_the_same_poses_and_calibration(faults, part_rows, monkeypatch):
+    if part_rows is not None:  # replay's recording in many parts (RecordingFeed), not one
+        monkeypatch.setattr(RecordingFeed, "PART_ROWS", part_rows)
     errors, samples = stream(temperature_degc=lambda t: 20.0 + 0.2 * t)
     t, accel, gyro = hostile(samples) if faults else (samples.t_ns, samples.accel_raw, samples.gyro_raw)
     readings = temperature_readings(samples)
