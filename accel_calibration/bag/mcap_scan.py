@@ -104,52 +104,17 @@ def _recorded(channels, meta) -> dict[str, tuple[str, str, str]]:
 def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dict[str, PackedMessages] | None:
     """{topic: [message data, ...]} for the wanted topics, or None when this file needs rosbags (or is
     damaged: rosbags then says how). `schemas`, when given, is filled with {topic: (message type,
-    encoding, definition)} as recorded in the file's Schema and Channel records."""
-    files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
+    encoding, definition)} as recorded in the file's Schema and Channel records. The whole bag, in
+    log_time order (one sort over every chunk's messages)."""
     wanted = set(topics)
     out: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}  # runs of payloads, file order
     times: dict[str, list[np.ndarray]] = {topic: [] for topic in wanted}  # log_times: rosbag2 readers' order
-    meta: dict = {"schemas": {}, "channel_schema": {}}
     try:
-        for file in files:
-            data = memoryview(file.read_bytes())
-            if bytes(data[:8]) != MAGIC:
-                return None
-            channels: dict[int, str] = {}
-            meta["schemas"], meta["channel_schema"] = {}, {}
-            pos, end = 8, len(data) - 8
-            while pos < end:
-                op = data[pos]
-                length = _U64.unpack_from(data, pos + 1)[0]
-                body = pos + 9
-                if body + length > len(data):
-                    return None  # cut short: the file was truncated
-                if op == 0x03:
-                    _schema(data, body, meta)
-                elif op == 0x04:
-                    _channel(data, body, channels, meta)
-                elif op == 0x06:
-                    size = _U64.unpack_from(data, body + 16)[0]
-                    name_length = _U32.unpack_from(data, body + 28)[0]
-                    name = bytes(data[body + 32:body + 32 + name_length]).decode()
-                    decompress = _decompressor(name)
-                    if decompress is None:
-                        return None
-                    records_at = body + 32 + name_length
-                    records_length = _U64.unpack_from(data, records_at)[0]
-                    chunk = decompress(data[records_at + 8:records_at + 8 + records_length], size)
-                    chunk = memoryview(chunk)
-                    count = _scan_records(chunk, channels, wanted, out, times, meta)
-                    if progress is not None:
-                        progress.update(count)
-                elif op == 0x05:
-                    _scan_records(data[pos:pos + 9 + length], channels, wanted, out, times, meta)
-                elif op == 0x02:  # Footer: the summary that follows repeats what we have
-                    break
-                pos = body + length
-            if schemas is not None:
-                schemas.update(_recorded(channels, meta))
-    except (struct.error, IndexError, ValueError, OSError, _ChunkError):
+        for runs, log_times in _chunk_runs(path, wanted, progress, None, schemas):
+            for topic in wanted:
+                out[topic] += runs[topic]
+                times[topic] += log_times[topic]
+    except NotStreamable:
         return None
     return {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
 
@@ -166,21 +131,25 @@ def stream_topics(path, topics, progress=None, group_messages: int = 1 << 16, sc
     definition)} of the channels seen so far (a group's channels are seen before it is yielded). Raises
     NotStreamable where the whole-file read would differ (a chunk whose messages were logged before the
     previous group's latest: the whole file is sorted by log time) or this reader cannot go on."""
-    files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
     wanted = set(topics)
     latest = -1  # the latest log time yielded
-    meta: dict = {"schemas": {}, "channel_schema": {}}
-
-    def group(out, times):
-        nonlocal latest
-        packed = {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
-        stamps = [t for topic in wanted for t in times[topic] if len(t)]
+    for runs, log_times in _chunk_runs(path, wanted, progress, group_messages, schemas):
+        stamps = [t for topic in wanted for t in log_times[topic] if len(t)]
         if stamps:
             if min(int(t.min()) for t in stamps) < latest:
                 raise NotStreamable("messages logged out of order across chunks")
             latest = max(latest, max(int(t.max()) for t in stamps))
-        return packed
+        yield {topic: PackedMessages(runs[topic], log_times[topic]) for topic in wanted}
 
+
+def _chunk_runs(path, wanted: set, progress, group_messages: int | None, schemas: dict | None):
+    """The one walk over a bag's .mcap files, a record at a time from the file (chunks decompressed one
+    at a time): yields ({topic: payload runs}, {topic: log_time runs}) of the wanted topics in file order,
+    about `group_messages` messages at a time (None: the whole file at once). `schemas` is kept filled as
+    scan_topics says. Raises NotStreamable on anything this reader does not know (an unknown compression,
+    a malformed or cut-short record)."""
+    files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
+    meta: dict = {"schemas": {}, "channel_schema": {}}
     try:
         for file in files:
             with open(file, "rb") as stream:
@@ -226,18 +195,18 @@ def stream_topics(path, topics, progress=None, group_messages: int = 1 << 16, sc
                             progress.update(count)
                     else:
                         pending += _scan_records(memoryview(head + body), channels, wanted, out, times, meta)
-                    if pending >= group_messages:
+                    if group_messages is not None and pending >= group_messages:
                         if schemas is not None:
                             schemas.update(_recorded(channels, meta))
-                        yield group(out, times)
+                        yield out, times
                         out = {topic: [] for topic in wanted}
                         times = {topic: [] for topic in wanted}
                         pending = 0
                 if schemas is not None:
                     schemas.update(_recorded(channels, meta))
-                if any(out[topic] for topic in wanted):
-                    yield group(out, times)
-    except (struct.error, IndexError, ValueError, OSError, UnicodeDecodeError, _ChunkError) as error:
+                if group_messages is None or any(out[topic] for topic in wanted):
+                    yield out, times
+    except (struct.error, IndexError, ValueError, OSError, _ChunkError) as error:
         raise NotStreamable(str(error)) from None
 
 
