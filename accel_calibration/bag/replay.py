@@ -189,7 +189,6 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
     outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}
     status = ["dropped" if slot is None else "not fitted" if result is None
               else "outlier" if slot in outliers else "used" for slot in slots]
-    whole = getattr(recording, "t_ns", None) is not None  # a Recording read whole (a BagStream is not)
     return ReplayResult(
         bag=str(recording.path),
         imu_topic=recording.stream,
@@ -202,7 +201,7 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
         counts=counts,
         elapsed_s=time.perf_counter() - started,
         frame_id=session.frame_id,
-        imu=recording.source if whole else None,
+        imu=getattr(recording, "source", None),  # a Recording read whole has it; a streamed BagStream not
         recording=recording,
         pose_status=status,
         temperature_timeout_s=s.session.temperature_timeout_s,

@@ -159,7 +159,7 @@ def _start_ns(path: Path, replay: Any) -> int | None:
         starting = _bag_metadata(path).get("starting_time")
         if isinstance(starting, dict) and isinstance(starting.get("nanoseconds_since_epoch"), int):
             return int(starting["nanoseconds_since_epoch"])
-    return getattr(replay, "start_ns", None)
+    return replay.start_ns
 
 
 def _count(value: Any) -> int | None:

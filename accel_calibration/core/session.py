@@ -453,10 +453,11 @@ class RecordingFeed:
         if len(taken) == 1:
             t, accel, gyro, collecting = taken[0]
             return t, accel, gyro, collecting
-        masks = [c if c is not None else np.ones(len(p[0]), bool) for p, c in ((p, p[3]) for p in taken)]
-        any_mask = any(p[3] is not None for p in taken)
+        collecting = None
+        if any(p[3] is not None for p in taken):  # a piece without a mask was collecting throughout
+            collecting = np.concatenate([np.ones(len(p[0]), bool) if p[3] is None else p[3] for p in taken])
         return (np.concatenate([p[0] for p in taken]), np.concatenate([p[1] for p in taken]),
-                np.concatenate([p[2] for p in taken]), np.concatenate(masks) if any_mask else None)
+                np.concatenate([p[2] for p in taken]), collecting)
 
     def _readings_upto(self, last_ns: int | None) -> tuple[np.ndarray, np.ndarray] | None:
         """The buffered readings stamped at or before `last_ns` (all of them when None), taken out, in
