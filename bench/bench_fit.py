@@ -42,7 +42,7 @@ def main() -> int:
     ratios_solver, ratios_fit, ratios_alone = [], [], []
     for seed in range(5):
         accel = problem(seed)
-        x0 = model.project(*seed_sphere(accel, G))
+        x0 = model.project(*seed_sphere(accel, G, cross_axis=True))
         fun = lambda p, a=accel: model.residual_and_jacobian(p, a, G)  # noqa: E731
         accel_t = np.ascontiguousarray(accel.T)
 

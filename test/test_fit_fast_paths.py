@@ -113,6 +113,46 @@ def test_rank_deficient_seed_design_takes_the_svd_path_unchanged():
     assert np.array_equal(np.array(_ellipsoid_coefficients(x)), svd)
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=seeds, n=st.integers(12, 60), counts=st.booleans())
+def test_cross_axis_seed_is_the_general_ellipsoid_and_starts_at_the_optimum(seed, n, counts):
+    """sphere9's seed: the general quadric through the poses (plain SVD least squares, centre and shape by
+    numpy), written as b and a lower-triangular M with |M (a - b)| = g on it; within noise of the optimum,
+    so Gauss-Newton takes two iterations (the axis-aligned seed took four)."""
+    accel = poses(seed, n, counts=counts)
+    bias, matrix = seed_sphere(accel, G, cross_axis=True)
+    centre = accel.mean(axis=0)
+    x = (accel - centre) / np.abs(accel - centre).max()
+    design = np.column_stack([x**2, x[:, 0] * x[:, 1], x[:, 0] * x[:, 2], x[:, 1] * x[:, 2], x])
+    c = np.linalg.lstsq(design, np.ones(n), rcond=None)[0]
+    quadric = np.array([[c[0], c[3] / 2, c[4] / 2], [c[3] / 2, c[1], c[5] / 2], [c[4] / 2, c[5] / 2, c[2]]])
+    offset = -0.5 * np.linalg.solve(quadric, c[6:])
+    spread = np.abs(accel - centre).max()
+    assert_allclose(bias, centre + offset * spread, rtol=1e-9, atol=1e-9 * np.abs(bias).max())
+    shape = G**2 * quadric / (1 + offset @ quadric @ offset) / spread**2
+    assert_allclose(matrix.T @ matrix, shape, rtol=1e-8, atol=1e-9 * np.abs(shape).max())
+    assert np.array_equal(np.tril(matrix), matrix) and np.all(np.diag(matrix) > 0)
+    result = fit(accel)
+    assert result.success and result.iterations <= 2, (result.iterations, result.message)
+
+
+@pytest.mark.parametrize("layout", ["faces", "plane"])
+def test_cross_axis_seed_gives_way_to_the_axis_aligned_one_where_the_poses_leave_it_loose(layout):
+    """Poses only at the six faces say nothing of the cross terms, poses in one plane nothing of the third
+    axis: the axis-aligned seed, exactly as without cross_axis, and the six faces still fit."""
+    rng = np.random.default_rng(4)
+    if layout == "faces":
+        directions = np.vstack([FACES, FACES])
+    else:
+        angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+        directions = np.column_stack([np.cos(angles), np.sin(angles), np.zeros(12)])
+    accel = G * directions @ np.diag([1.01, 0.99, 1.02]) + [0.1, -0.2, 0.3] + rng.normal(0, 0.002, (len(directions), 3))
+    for got, axis_aligned in zip(seed_sphere(accel, G, cross_axis=True), seed_sphere(accel, G)):
+        assert np.array_equal(got, axis_aligned)
+    if layout == "faces":
+        assert fit(accel, model="six").success
+
+
 @pytest.mark.parametrize("seed", range(8))
 def test_fit_sigma_condition_and_leverage_equal_their_definitions(seed):
     accel = poses(seed, 24)

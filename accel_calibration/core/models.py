@@ -129,12 +129,16 @@ class SphereModel:
         return [f"b_{a}" for a in AXES] + [f"M_{AXES[i]}{AXES[j]}" for i, j in self.entries]
 
 
-def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarray]:
-    """Starting bias and diagonal matrix from an algebraic axis-aligned ellipsoid fit.
+def seed_sphere(accel: np.ndarray, gravity: float, *, cross_axis: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Starting bias and matrix from an algebraic ellipsoid fit.
 
     Solves A x^2 + B y^2 + C z^2 + D x + E y + F z = 1 linearly on normalised data, which copes with
-    raw counts far from zero (e.g. unsigned 16-bit output centred on 32768). Falls back to zero bias
-    and a common scale when the poses do not define an ellipsoid (or their magnitudes overflow).
+    raw counts far from zero (e.g. unsigned 16-bit output centred on 32768), and gives a diagonal M.
+    cross_axis: first try the general ellipsoid (xy, xz, yz terms too), which gives a lower-triangular M
+    (sphere9's form) within noise of sphere9's optimum, so that Gauss-Newton needs two iterations instead
+    of four; when the poses do not pin the cross terms down, the axis-aligned fit as before. Falls back
+    to zero bias and a common scale when the poses do not define an ellipsoid (or their magnitudes
+    overflow).
     """
     n = len(accel)
     centre = accel.sum(axis=0) / n  # accel.mean(axis=0) without its wrapper
@@ -142,6 +146,10 @@ def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarr
     spread = float(np.abs(centred).max()) or 1.0
     if math.isfinite(spread) and n >= 6:
         x = centred / spread
+        if cross_axis and n >= 9:
+            general = _general_ellipsoid_seed(x, centre, spread, gravity)
+            if general is not None:
+                return general
         coeffs = _ellipsoid_coefficients(x)
         quad, lin = coeffs[:3], coeffs[3:]
         if quad[0] > 0 and quad[1] > 0 and quad[2] > 0:
@@ -166,6 +174,73 @@ def seed_sphere(accel: np.ndarray, gravity: float) -> tuple[np.ndarray, np.ndarr
                     return np.array(bias), matrix
     typical = float(np.median(np.linalg.norm(accel, axis=1)))
     return np.zeros(3), np.eye(3) * gravity / (typical if np.isfinite(typical) and typical > 0 else 1.0)
+
+
+# Below this reciprocal condition (a 1-norm estimate) of its normal equations the general ellipsoid is
+# left for the axis-aligned one: the cross terms are then set by a handful of poses, or by none.
+SEED_RCOND = 1e-6
+
+
+def _general_ellipsoid_seed(x: np.ndarray, centre: np.ndarray, spread: float,
+                            gravity: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Bias and lower-triangular M with |M (a - b)| = g on the general ellipsoid x^T A x + l^T x = 1
+    through the normalised poses x = (a - centre) / spread (least squares, normal equations by Cholesky),
+    or None when the poses do not determine it well (reciprocal condition <= 1e-3: too few poses between
+    the axes, a hemisphere) or it is no plausible sensor (not an ellipsoid, axes' scales 50 % apart)."""
+    n = len(x)
+    x_t = x.T
+    design = np.empty((10, n))  # rows: x^2, y^2, z^2, xy, xz, yz, x, y, z, 1
+    np.multiply(x_t, x_t, out=design[:3])
+    np.multiply(x_t[0], x_t[1:], out=design[3:5])
+    np.multiply(x_t[1], x_t[2], out=design[5])
+    design[6:9] = x_t
+    design[9] = 1.0
+    normal = np.dot(design, design.T)  # [D^T D, D^T 1] in one product
+    factor, solution, info = posv(normal[:9, :9], normal[:9, 9])
+    if info != 0:
+        return None
+    rcond, info = pocon(factor, 9.0 * float(normal.diagonal()[:9].max()))  # |A_ij| <= max diagonal
+    if info != 0 or not rcond > SEED_RCOND:
+        return None
+    c = solution.tolist()
+    # A = [[c0, c3/2, c4/2], [c3/2, c1, c5/2], [c4/2, c5/2, c2]], l = c[6:]. Scalar arithmetic on a 3 x 3
+    # matrix: numpy's per-call cost would exceed the work many times over.
+    a01, a02, a12 = 0.5 * c[3], 0.5 * c[4], 0.5 * c[5]
+    # Lower-triangular L with L^T L = A (Cholesky from the last axis), which is sphere9's form of M.
+    if not c[2] > 0:
+        return None
+    l22 = math.sqrt(c[2])
+    l21, l20 = a12 / l22, a02 / l22
+    rest = c[1] - l21 * l21
+    if not rest > 0:
+        return None
+    l11 = math.sqrt(rest)
+    l10 = (a01 - l20 * l21) / l11
+    rest = c[0] - l10 * l10 - l20 * l20
+    if not rest > 0:
+        return None
+    l00 = math.sqrt(rest)
+    # Centre o = -A^-1 l / 2 by two triangular solves: w = L^-T l, o = -L^-1 w / 2; and
+    # (x - o)^T A (x - o) = 1 + o^T A o = 1 + |w|^2 / 4.
+    w2 = c[8] / l22
+    w1 = (c[7] - l21 * w2) / l11
+    w0 = (c[6] - l10 * w1 - l20 * w2) / l00
+    o0 = w0 / l00
+    o1 = (w1 - l10 * o0) / l11
+    o2 = (w2 - l20 * o0 - l21 * o1) / l22
+    level = 1.0 + 0.25 * (w0 * w0 + w1 * w1 + w2 * w2)
+    factor_g = gravity / (spread * math.sqrt(level))
+    diagonal = (l00 * factor_g, l11 * factor_g, l22 * factor_g)
+    radii = [gravity / d for d in diagonal]
+    bias = [centre_i - 0.5 * o_i * spread for centre_i, o_i in zip(centre.tolist(), (o0, o1, o2))]
+    # The axis-aligned seed's plausibility, with the diagonal of M for its axes' scales.
+    if not (all(map(math.isfinite, radii)) and all(map(math.isfinite, bias))
+            and max(radii) < 1.5 * min(radii) and 2 * spread > 0.2 * ((radii[0] + radii[1] + radii[2]) / 3)):
+        return None
+    matrix = np.array([[diagonal[0], 0.0, 0.0],
+                       [l10 * factor_g, diagonal[1], 0.0],
+                       [l20 * factor_g, l21 * factor_g, diagonal[2]]])
+    return np.array(bias), matrix
 
 
 def _ellipsoid_coefficients(x: np.ndarray) -> list[float]:
