@@ -1,7 +1,8 @@
 """Gauss-Newton sphere fit against scipy.optimize.least_squares on 24 poses, measured in the same run.
 
-Both solve the same problem (sphere9, same analytic Jacobian, same start, tight tolerances) and must
-land on the same optimum; the figures are ratios of median times. Target (issue 13): the whole fit()
+Both solve the same problem (sphere9, same analytic Jacobian, same start: fit()'s own seed, the general
+ellipsoid through the poses; tight tolerances) and must land on the same optimum; the figures are ratios
+of median times. Target (issue 13): the whole fit()
 >= 5x faster than the same fit() with least_squares as its solver; the solver alone is printed too.
 """
 import sys
