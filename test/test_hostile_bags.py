@@ -228,8 +228,8 @@ def test_another_imu_definition_is_read_through_its_own_never_at_the_standard_of
 
     standard_bag = bags["sqlite3" if storage == "sqlite3" else "mcap"]
     standard, samples = replay_bag(standard_bag), open_recording(standard_bag)  # (replay streams it)
-    for for_copy in (False, True):
-        other = replay_bag(bag, for_copy=for_copy)  # not streamed: another definition is read whole
+    for through_rosbags in (False, True):
+        other = replay_bag(bag, through_rosbags=through_rosbags)  # not streamed: another definition is read whole
         np.testing.assert_array_equal(other.recording.accel_mps2, samples.accel_mps2)
         np.testing.assert_array_equal(other.recording.gyro_radps, samples.gyro_radps)
         assert len(other.poses) == len(standard.poses)
@@ -242,13 +242,13 @@ def test_a_corrected_copy_of_another_definition_keeps_it(tmp_path, session):
     bag = tmp_path / "swapped"
     store = store_with_imu(SWAPPED_IMU)
     write_session_bag(bag, session, start_ns=START_NS, storage="mcap", typestore=store)
-    replay = replay_bag(bag, for_copy=True)
+    replay = replay_bag(bag, through_rosbags=True)
     if replay.calibration is None:
         pytest.skip(f"no calibration from this session today: {replay.problem}")
     from accel_calibration.bag.replay import write_corrected_bag
 
     write_corrected_bag(replay, replay.calibration, tmp_path / "corrected")
-    again = replay_bag(tmp_path / "corrected", for_copy=True)
+    again = replay_bag(tmp_path / "corrected", through_rosbags=True)
     np.testing.assert_allclose(again.recording.accel_mps2, replay.calibration.apply(session.accel_raw), atol=1e-12)
     np.testing.assert_array_equal(again.recording.gyro_radps, session.gyro_raw)
 

@@ -173,7 +173,7 @@ def test_direct_read_and_rosbags_read_give_the_same_poses(tmp_path, storage):
     _, samples = session(seed=9)
     bag = tmp_path / "b"
     write_session_bag(bag, samples, start_ns=START_NS, storage=storage, shuffle_seed=2)
-    fast, through_rosbags = replay_bag(bag), replay_bag(bag, for_copy=True)
+    fast, through_rosbags = replay_bag(bag), replay_bag(bag, through_rosbags=True)
     assert len(fast.poses) == len(through_rosbags.poses) >= 12
     for a, b in zip(fast.poses, through_rosbags.poses):
         assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)

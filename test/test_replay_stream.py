@@ -99,3 +99,43 @@ def test_a_damaged_bag_streamed_is_the_same_one_line(tmp_path, bags):
     with pytest.raises(ReplayError) as error:
         replay_bag(bag)
     assert len(str(error.value).splitlines()) == 1 and str(bag) in str(error.value)
+
+
+def raw_messages(path):
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        return [(c.topic, timestamp, bytes(raw)) for c, timestamp, raw in reader.messages()]
+
+
+@pytest.mark.parametrize("name", ["sqlite3", "mcap-zstd"])
+def test_a_corrected_copy_is_written_a_group_at_a_time_with_the_whole_recordings_numbers(bags, tmp_path, name):
+    """The copy is read, corrected and written a group at a time (memory: a group, not the bag): with
+    groups of 7 IMU messages, or of 2 kB of any topic, it is the copy made in one group, byte for byte, and
+    each sample is corrected at the temperature the whole recording holds at its stamp (a temperature
+    model that moves 10 mg per degC over the recording's 20-25 degC ramp)."""
+    from accel_calibration.bag.replay import corrected_accel, write_corrected_bag
+    from accel_calibration.core.temperature_filter import TemperatureFilter
+    from accel_calibration.core.temperature_models import TemperatureModel
+
+    replay = replay_bag(bags[name])  # streamed: no whole read behind the copy
+    assert isinstance(replay.recording, BagStream) and replay.calibration is not None
+    drift = TemperatureModel("polynomial", 22.0, (18.0, 30.0), bias_coefficients=[[0.1, -0.1, 0.05]])
+    calibration = replay.calibration.replace(temperature=drift)
+    copies = {}
+    for label, groups in (("one", dict(group_messages=1 << 40, group_bytes=1 << 60)),
+                          ("by count", dict(group_messages=7)), ("by bytes", dict(group_bytes=2000))):
+        copies[label] = tmp_path / label.replace(" ", "_")
+        written = write_corrected_bag(replay, calibration, copies[label], **groups)
+        assert written == len(raw_messages(bags[name]))
+    one = raw_messages(copies["one"])
+    assert raw_messages(copies["by count"]) == one and raw_messages(copies["by bytes"]) == one
+
+    whole = open_recording(bags[name], through_rosbags=True)  # rosbags' order: the copy's order
+    held, _ = TemperatureFilter(timeout_s=replay.temperature_timeout_s).series(*whole.temperature, whole.t_ns)
+    assert np.nanmax(held) - np.nanmin(held) > 3.0
+    expected, _ = corrected_accel(whole.accel_mps2, held, calibration)
+    corrected = open_recording(copies["by count"], through_rosbags=True)
+    np.testing.assert_allclose(corrected.accel_mps2, expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(corrected.t_ns, whole.t_ns)
+    np.testing.assert_array_equal(corrected.gyro_radps, whole.gyro_radps)
+    # Against the copy without the drift: it moved each sample by the model's bias at its temperature.
+    assert np.abs(expected - corrected_accel(whole.accel_mps2, held, replay.calibration)[0]).max() > 0.05

@@ -10,7 +10,7 @@ field name, or refused; and a metadata.yaml whose types disagree with the storag
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,10 +34,6 @@ class ImuData:
     accel: np.ndarray  # (N, 3) m/s^2
     gyro: np.ndarray  # (N, 3) rad/s
     frame_id: str
-    # For writing a corrected copy: per message, its length group and row in that group's matrix.
-    groups: dict
-    group_of: np.ndarray
-    row_of: np.ndarray
 
 
 def open_reader(path):
@@ -261,9 +257,8 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     if not all(is_standard_definition(topic, recorded) for topic in wanted):
         return None
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(found[imu_topic.topic], path,
-                                                                     typestore.deserialize_cdr)
-    imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
+    t, accel, gyro, frame_id, *_ = decode_imus(found[imu_topic.topic], path, typestore.deserialize_cdr)
+    imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id)
     temperatures = None
     if temperature_topic is not None:
         temperatures = _fixed_temperatures(found[temperature_topic.topic])
@@ -412,7 +407,7 @@ def decode_imus(raws: Sequence, path, deserialize, fixed_layout: bool = True
 
 def read_imu_and_temperature(reader, imu_connection, temperature_connection, path, progress=None):
     """Through rosbags, one pass for both topics (a second pass would decompress every mcap chunk
-    again), in rosbags' message order, which writing a corrected copy relies on.
+    again), in rosbags' message order.
     Returns (ImuData, (temperature stamps, values) or None)."""
     raws = []
     temperature_raws = []
@@ -432,9 +427,8 @@ def read_imu_and_temperature(reader, imu_connection, temperature_connection, pat
                 step = 0
     if progress is not None:
         progress.update(step)
-    t, accel, gyro, frame_id, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize,
-                                                                     fixed_layout=_reader_is_standard(reader))
-    imu = ImuData(imu_connection.topic, t, accel, gyro, frame_id, groups, group_of, row_of)
+    t, accel, gyro, frame_id, *_ = decode_imus(raws, path, reader.deserialize, fixed_layout=_reader_is_standard(reader))
+    imu = ImuData(imu_connection.topic, t, accel, gyro, frame_id)
     temperatures = None
     if temperature_connection is not None:
         temperatures = decode_temperatures(temperature_raws, path, reader.deserialize)
@@ -518,23 +512,30 @@ def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
         raise NotStreamable(str(error)) from None
 
 
-def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarray) -> int:
+# A corrected copy is read, corrected and written a group at a time: this many IMU messages, or this many
+# bytes of messages of any topic (camera images between them), whichever comes first.
+COPY_GROUP_MESSAGES = 1 << 14
+COPY_GROUP_BYTES = 64 << 20
+
+CorrectAccel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (stamps ns, accel (N, 3)) -> corrected
+
+
+def write_corrected(source, destination, imu_topic: str, correct: CorrectAccel, *,
+                    group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
-    linear_acceleration (same topic, same stamps, same storage type). Returns messages written."""
+    linear_acceleration, which becomes correct(header stamps, accelerations) (same topic, same stamps,
+    same storage type). Streamed: memory is a group of messages, whatever the bag's length; the result
+    does not depend on the groups. Returns messages written."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     destination = Path(destination)
     if destination.exists():
         raise BagError(f"{destination}: already exists (rosbag2 writes a new directory)")
-    patched = {length: block.copy() for length, (block, _) in imu.groups.items()}
-    for length, (_block, layout) in imu.groups.items():
-        rows = np.flatnonzero(imu.group_of == length)
-        values = np.ascontiguousarray(corrected_accel[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 24)
-        patched[length][imu.row_of[rows], layout["accel"]:layout["accel"] + 24] = values
     plugin = StoragePlugin.MCAP if storage_of(source) == "mcap" else StoragePlugin.SQLITE3
     reader = open_reader(source)
     written = 0
     try:
+        standard = _reader_is_standard(reader)
         with Writer(destination, version=9, storage_plugin=plugin) as writer:
             out = {}
             for c in reader.connections:
@@ -544,17 +545,29 @@ def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarr
                     msgdef=c.msgdef.data if c.msgdef else None, rihs01=c.digest or None,
                     serialization_format=c.ext.serialization_format, offered_qos_profiles=c.ext.offered_qos_profiles,
                 )
-            k = 0
+            pending: list = []  # (connection id, log time, raw; None for an IMU message), in log order
+            imu_raws: list = []
+            held = 0
+
+            def flush() -> None:
+                corrected = iter(_corrected_imus(imu_raws, reader, correct, source, standard))
+                for connection_id, timestamp, raw in pending:
+                    writer.write(out[connection_id], timestamp, next(corrected) if raw is None else raw)
+                pending.clear()
+                imu_raws.clear()
+
             for c, timestamp, raw in reader.messages():
-                if c.topic == imu.topic and c.msgtype == IMU:
-                    group = imu.group_of[k]
-                    if group >= 0:
-                        raw = patched[int(group)][imu.row_of[k]].tobytes()
-                    else:
-                        raw = _patch_one(reader, raw, corrected_accel[k])
-                    k += 1
-                writer.write(out[c.id], timestamp, raw)
+                if c.topic == imu_topic and c.msgtype == IMU:
+                    imu_raws.append(raw)
+                    pending.append((c.id, timestamp, None))
+                else:
+                    pending.append((c.id, timestamp, raw))
+                held += len(raw)
                 written += 1
+                if len(imu_raws) >= group_messages or held >= group_bytes:
+                    flush()
+                    held = 0
+            flush()
     except Exception as error:  # noqa: BLE001 - rosbags' reader and writer raise their own types
         import shutil
 
@@ -566,6 +579,24 @@ def write_corrected(source, destination, imu: ImuData, corrected_accel: np.ndarr
     finally:
         reader.close()
     return written
+
+
+def _corrected_imus(raws: list, reader, correct: CorrectAccel, path, standard: bool) -> list[bytes]:
+    """The IMU messages `raws` with their linear_acceleration replaced by correct(stamps, accel): the bytes
+    patched in place where the layout is the standard one, else through the recorded definition."""
+    if not raws:
+        return []
+    t, accel, _, _, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize, fixed_layout=standard)
+    corrected = correct(t, accel)
+    patched = {}
+    for length, (block, layout) in groups.items():
+        rows = np.flatnonzero(group_of == length)
+        block = block.copy()
+        block[row_of[rows], layout["accel"]:layout["accel"] + 24] = \
+            np.ascontiguousarray(corrected[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 24)
+        patched[length] = block
+    return [patched[int(group)][row].tobytes() if group >= 0 else _patch_one(reader, raw, value)
+            for raw, group, row, value in zip(raws, group_of.tolist(), row_of.tolist(), corrected)]
 
 
 def _patch_one(reader, raw, accel) -> bytes:

@@ -45,7 +45,7 @@ class Recording:
     temperature_stream: str | None
     frame_id: str = ""
     sensor_id: str = ""
-    source: object = None  # what writing a corrected copy needs (bag_io.ImuData, csv_stream.CsvLayout)
+    source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
 
     @property
     def unit(self) -> str:
@@ -96,9 +96,10 @@ def _regular_file(path: Path) -> None:
 def open_recording(path, format: str | None = None, *, imu_topic: str | None = None,
                    temperature_topic: str | None = None, instance: int | None = None, time_unit: str | None = None,
                    units: str | None = None, counts_per_g: float | None = None, progress: bool = False,
-                   for_copy: bool = False) -> Recording:
+                   through_rosbags: bool = False) -> Recording:
     """The recording at `path` as sample arrays. Options that do not apply to its format are refused
-    (one line), not ignored. `for_copy`: read a bag in rosbags' message order, which a corrected copy needs."""
+    (one line), not ignored. `through_rosbags`: read a bag with rosbags' reader, message by message, instead
+    of its storage directly."""
     if format is not None and format not in FORMATS:
         raise RecordingError(f"--format {format!r} is not a known format; known: {KNOWN}")
     kind = format or detect_format(path)
@@ -113,7 +114,7 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
     if kind != "rosbag2":
         _regular_file(Path(path))
     if kind in BAGS:
-        return _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy)
+        return _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags)
     if kind == "ulog":
         return _read_ulog(path, instance, progress)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
@@ -246,13 +247,13 @@ def _bar(path, total, unit: str, progress: bool):
     return tqdm(total=total, unit=unit, unit_scale=unit == "B", desc=Path(path).name, leave=False, disable=None)
 
 
-def _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy) -> Recording:
+def _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags) -> Recording:
     from .bag_io import metadata_topics
 
     if kind == "rosbag2" and not Path(path).is_dir():
         raise RecordingError(f"{path}: not a directory; a single storage file is --format mcap or sqlite3")
     loaded = None
-    if not for_copy:
+    if not through_rosbags:
         # Storage read directly; topics from metadata.yaml (a directory) or rosbags' reader (one file).
         infos = metadata_topics(path) if kind == "rosbag2" else _file_topics(path)
         if infos is not None:
@@ -261,7 +262,7 @@ def _read_bag(path, kind, imu_topic, temperature_topic, progress, for_copy) -> R
         loaded = _read_with_rosbags(path, imu_topic, temperature_topic, progress)
     imu, temperatures, temperature_name = loaded
     return Recording(str(path), kind, imu.topic, imu.t_ns, imu.accel, imu.gyro, temperatures, temperature_name,
-                     frame_id=imu.frame_id, source=imu)
+                     frame_id=imu.frame_id)
 
 
 def _no_imu(path, connections) -> RecordingError:

@@ -53,9 +53,11 @@ class ReplayResult:
     counts: dict
     elapsed_s: float
     frame_id: str = ""
-    imu: object = None  # msg_tools.bag_io.ImuData, for writing a corrected copy
     temperature_at_samples: np.ndarray | None = None
     recording: object = None  # recording.Recording read whole, or recording.BagStream streamed
+    # The temperature topic's readings (stamps ns, degC) as read, for correcting a copy at each sample's
+    # temperature; None without a temperature topic.
+    temperature_readings: tuple[np.ndarray, np.ndarray] | None = None
     # Per pose found (in `poses`): "used" or "outlier" by the fit, "dropped" (the store gave it up at
     # capacity) or "not fitted" (no fit was run: too few poses, wrong units).
     pose_status: list[str] = field(default_factory=list)
@@ -68,15 +70,20 @@ class ReplayResult:
         return self.result.calibration if self.problem is None and self.result is not None else None
 
     def temperatures_at_samples(self) -> np.ndarray | None:
-        """The filtered temperature held at each sample (NaN where none or stale), as the correction uses it;
-        worked out on first use (a CSV may carry a reading on every row)."""
-        recording = self.recording
-        if self.temperature_at_samples is None and getattr(recording, "temperature", None) is not None:
-            stamps, values = recording.temperature
-            if len(stamps):
-                self.temperature_at_samples, _ = TemperatureFilter(timeout_s=self.temperature_timeout_s).series(
-                    stamps, values, recording.t_ns)
+        """The filtered temperature held at each sample of a recording read whole (NaN where none or stale),
+        as the correction uses it; worked out on first use (a CSV may carry a reading on every row)."""
+        if self.temperature_at_samples is None:
+            self.temperature_at_samples = self.temperatures_at(self.recording.t_ns)
         return self.temperature_at_samples
+
+    def temperatures_at(self, t_ns: np.ndarray) -> np.ndarray | None:
+        """The filtered temperature held at each of these sample stamps, from all the recording's readings:
+        a sample's value does not depend on the others asked with it, so a copy corrected a group at a
+        time gets what the whole recording at once gets. None without temperature readings."""
+        if self.temperature_readings is None or not len(self.temperature_readings[0]):
+            return None
+        held, _ = TemperatureFilter(timeout_s=self.temperature_timeout_s).series(*self.temperature_readings, t_ns)
+        return held
 
 
 class ReplayError(BagError):
@@ -84,25 +91,25 @@ class ReplayError(BagError):
 
 
 def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False,
-               for_copy: bool = False) -> ReplayResult:
+               through_rosbags: bool = False) -> ReplayResult:
     """Any recording (recording.open_recording: a bag directory, a .mcap/.db3 file, a ULog, a CSV stream)
     through the session. A bag whose storage can be read directly is streamed (memory bounded by a part,
-    whatever its length), the rest read whole. `for_copy`: read a bag whole in rosbags' message order,
-    which write_corrected_bag needs."""
+    whatever its length), the rest read whole. `through_rosbags`: read a bag whole with rosbags' reader,
+    message by message (what the direct reads are checked against)."""
     from .mcap_scan import NotStreamable
     from .recording import open_recording, stream_bag
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
     try:
-        if not for_copy:
+        if not through_rosbags:
             try:
                 bag = stream_bag(path, progress=progress, **s.reader_options())
                 if bag is not None:
                     return _replay_stream(bag, s, started)
             except NotStreamable:
                 pass  # read whole below: the same poses, or the reason it cannot be read
-        recording = open_recording(path, progress=progress, for_copy=for_copy, **s.reader_options())
+        recording = open_recording(path, progress=progress, through_rosbags=through_rosbags, **s.reader_options())
     except BagError as error:
         raise ReplayError(str(error)) from None
     except (Exception, RecursionError) as error:  # noqa: BLE001 - the bag layer's boundary: a damaged
@@ -117,9 +124,11 @@ def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
     session = CalibrationSession(s.session)
     feed = session.recording_feed(has_temperature=bag.temperature_stream is not None)
     low = high = None
+    readings: list[tuple[np.ndarray, np.ndarray]] = []
     for imu, temperatures in bag.pieces():
         if temperatures is not None:
             feed.add_temperatures(*temperatures)
+            readings.append(temperatures)
         if imu is not None:
             t, accel, gyro = imu
             if not session.frame_id:
@@ -130,7 +139,12 @@ def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
                 high = int(t.max()) if high is None else max(high, int(t.max()))
     poses = feed.finish()
     duration = (high - low) / 1e9 if low is not None and high is not None and feed.samples > 1 else 0.0
-    return _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True)
+    temperature_readings = None
+    if bag.temperature_stream is not None:
+        temperature_readings = (np.concatenate([t for t, _ in readings] or [np.zeros(0, np.int64)]),
+                                np.concatenate([v for _, v in readings] or [np.zeros(0)]))
+    return _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True,
+                    temperature_readings=temperature_readings)
 
 
 def replay_recording(recording, settings: ReplaySettings | None = None, started: float | None = None) -> ReplayResult:
@@ -150,11 +164,12 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
     duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
     start = int(t.min()) if len(t) else None
     return _verdict(session, poses, recording, len(t), duration, start, s, started,
-                    has_gyro=recording.gyro_radps is not None)
+                    has_gyro=recording.gyro_radps is not None, temperature_readings=recording.temperature)
 
 
 def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples: int, duration: float,
-             start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool) -> ReplayResult:
+             start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool,
+             temperature_readings: tuple[np.ndarray, np.ndarray] | None) -> ReplayResult:
     """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
     from ..core.models import parameter_count
 
@@ -201,8 +216,8 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
         counts=counts,
         elapsed_s=time.perf_counter() - started,
         frame_id=session.frame_id,
-        imu=getattr(recording, "source", None),  # a Recording read whole has it; a streamed BagStream not
         recording=recording,
+        temperature_readings=temperature_readings,
         pose_status=status,
         temperature_timeout_s=s.session.temperature_timeout_s,
         start_ns=start_ns,
@@ -226,13 +241,15 @@ def corrected_accel(accel: np.ndarray, temps: np.ndarray | None, calibration: Ca
     return corrected, finite
 
 
-def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination) -> int:
-    """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature)."""
+def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
+    """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature), read
+    and written a group at a time (bag_io.write_corrected; `groups`: its group sizes)."""
     from .bag_io import BagError, write_corrected
 
-    imu = replay.imu
-    corrected, _ = corrected_accel(imu.accel, replay.temperatures_at_samples(), calibration)
+    def correct(t_ns: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        return corrected_accel(accel, replay.temperatures_at(t_ns), calibration)[0]
+
     try:
-        return write_corrected(replay.bag, destination, imu, corrected)
+        return write_corrected(replay.bag, destination, replay.imu_topic, correct, **groups)
     except BagError as error:
         raise CalibrationError(str(error)) from None

@@ -273,7 +273,7 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
     from ..io.poses_out import poses_table_text
 
     try:
-        replay = replay_bag(bag, settings, progress=progress, for_copy=corrected_bag is not None)
+        replay = replay_bag(bag, settings, progress=progress)
         if poses_out:
             write_text_atomically(poses_out, poses_table_text(replay.poses, replay.pose_status))
     except AccelCalibrationError as error:
