@@ -137,6 +137,33 @@ def test_calibrate_with_no_poses_names_its_gate():
     assert "x pointing up" in verdict.message
 
 
+@pytest.mark.parametrize("gyro_noise_mradps, orientations", [(60.0, 16), (2.0, 5)])
+def test_too_few_poses_from_a_sensor_hardly_ever_still_says_so_with_its_noise(gyro_noise_mradps, orientations):
+    """A shaking part (60 mrad/s of gyro noise against the 50 mrad/s a still pose may have) gives no poses:
+    the refusal says the sensor was hardly ever still, with its noise and the setting. A quiet part with
+    too few orientations is refused for those alone."""
+    import re
+    from dataclasses import replace as replaced
+
+    rng = np.random.default_rng(3)
+    errors = replaced(SensorErrors.mpu6050_like(rng, noise_mps2=0.02), gyro_noise_radps=gyro_noise_mradps * 1e-3)
+    samples = SyntheticImu(errors, spread_orientations(orientations, rng), dwell_s=2.5, move_s=1.0,
+                           rate_hz=200.0, seed=3).samples()
+    session = CalibrationSession()
+    for pose in session.add_recording(samples.t_ns, samples.accel_raw, samples.gyro_raw):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    assert not verdict.success and verdict.message.startswith("gate poses")
+    said = re.search(r"hardly ever still: its quietest noise, gyro (\d+) mrad/s rms per axis "
+                     r"\(static.max_gyro_noise_mradps 50\)", verdict.message)
+    if gyro_noise_mradps > 25:
+        assert len(session.store) < 3 and said is not None, verdict.message
+        assert abs(float(said.group(1)) - gyro_noise_mradps) < 8  # the noise as sampled, within a window's spread
+        assert "accel" not in verdict.message.split("hardly ever still")[1]  # 2 mg: not the accelerometer
+    else:
+        assert len(session.store) == orientations and said is None and "still" not in verdict.message.split(")")[-1]
+
+
 def test_pose_store_settings_are_honoured():
     """Finding 4: `store or PoseStore()` dropped max_poses, merge_angle_deg and temperature.bin_degc."""
     session = CalibrationSession(Settings(max_poses=30, merge_angle_deg=2.0, temperature_bin_degc=3.0))

@@ -272,6 +272,20 @@ class CalibrationSession:
         self.last_fit = result
         return result
 
+    def _too_noisy_text(self) -> str:
+        """Why few poses were found when the sensor was hardly ever still (its quietest noise near or above
+        the most a still pose may have): what to do about it; "" otherwise."""
+        accel, gyro = self.detector.noise_near_ceilings
+        noisy = ([] if accel is None else [f"accel {accel / MG:.1f} mg rms per axis (static.max_noise_mg "
+                                           f"{self.settings.static_max_noise_mg:g})"]) \
+            + ([] if gyro is None else [f"gyro {gyro * 1e3:.0f} mrad/s rms per axis (static.max_gyro_noise_mradps "
+                                        f"{self.settings.static_max_gyro_noise_mradps:g})"])
+        if not noisy:
+            return ""
+        return (f"; the sensor was hardly ever still: its quietest noise, {' and '.join(noisy)}, is near or above "
+                "the most a still pose may have (hand-held, driving or vibrating): set it down on something firm "
+                "for each pose")
+
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
         extra = () if holding is None else (holding,)
@@ -284,7 +298,7 @@ class CalibrationSession:
             if problem is not None:
                 return Verdict(False, "gate " + problem)
             return Verdict(False, f"gate poses: have {len(poses)} poses, need min_poses={need}"
-                           f" ({self._missing_text(poses)})")
+                           f" ({self._missing_text(poses)}){self._too_noisy_text()}")
         problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
             return Verdict(False, "gate " + problem)

@@ -262,6 +262,16 @@ class StaticDetector:
         return (None if a == _INF else a), (None if g == _INF else g)
 
     @property
+    def noise_near_ceilings(self) -> tuple[float | None, float | None]:
+        """(accel m/s^2, gyro rad/s) rms noise per axis of the quietest floor learned, where it is at least
+        half its ceiling (accel_noise_ceiling, gyro_noise_ceiling): the floor is a low quantile of the
+        windows' noise, so windows still enough for a pose were then the exception (a hand-held sensor,
+        vibration). None where it is not, or not known yet."""
+        accel, gyro = self.quietest_floors
+        return (None if accel is None or not accel >= self._accel_cap / 4 else math.sqrt(accel / 3.0),
+                None if gyro is None or not gyro >= self._gyro_cap / 4 else math.sqrt(gyro / 3.0))
+
+    @property
     def thresholds(self) -> tuple[float | None, float | None]:
         """(accel, gyro) window-variance thresholds in force; None where not yet known."""
         warm = self._full_time_ns >= self._warmup_ns
