@@ -160,20 +160,20 @@ def seed_sphere(accel: np.ndarray, gravity: float, *, cross_axis: bool = False) 
             if level > 0:
                 radii = [math.sqrt(level / a) * spread for a in quad]
                 bias = [c + o * spread for c, o in zip(centre.tolist(), offset)]
-                # Plausible only if the axes' scales agree within 50 % (MEMS parts are within a few %)
-                # and the poses span more than a sliver of it; a cluster of alike poses fits any quadric.
-                plausible = (
-                    all(map(math.isfinite, radii))
-                    and all(map(math.isfinite, bias))
-                    and max(radii) < 1.5 * min(radii)
-                    and 2 * spread > 0.2 * ((radii[0] + radii[1] + radii[2]) / 3)
-                )
-                if plausible:
+                if _plausible(radii, bias, spread):
                     matrix = np.zeros((3, 3))
                     matrix.ravel()[::4] = [gravity / r for r in radii]  # the diagonal
                     return np.array(bias), matrix
     typical = float(np.median(np.linalg.norm(accel, axis=1)))
     return np.zeros(3), np.eye(3) * gravity / (typical if np.isfinite(typical) and typical > 0 else 1.0)
+
+
+def _plausible(radii: list[float], bias: list[float], spread: float) -> bool:
+    """A seed's ellipsoid is plausible only if it is finite, the axes' scales (radii, in the data's units)
+    agree within 50 % (MEMS parts are within a few %) and the poses span more than a sliver of it (a
+    cluster of alike poses fits any quadric)."""
+    return (all(map(math.isfinite, radii)) and all(map(math.isfinite, bias))
+            and max(radii) < 1.5 * min(radii) and 2 * spread > 0.2 * ((radii[0] + radii[1] + radii[2]) / 3))
 
 
 # Below this reciprocal condition (a 1-norm estimate) of its normal equations the general ellipsoid is
@@ -231,11 +231,8 @@ def _general_ellipsoid_seed(x: np.ndarray, centre: np.ndarray, spread: float,
     level = 1.0 + 0.25 * (w0 * w0 + w1 * w1 + w2 * w2)
     factor_g = gravity / (spread * math.sqrt(level))
     diagonal = (l00 * factor_g, l11 * factor_g, l22 * factor_g)
-    radii = [gravity / d for d in diagonal]
     bias = [centre_i - 0.5 * o_i * spread for centre_i, o_i in zip(centre.tolist(), (o0, o1, o2))]
-    # The axis-aligned seed's plausibility, with the diagonal of M for its axes' scales.
-    if not (all(map(math.isfinite, radii)) and all(map(math.isfinite, bias))
-            and max(radii) < 1.5 * min(radii) and 2 * spread > 0.2 * ((radii[0] + radii[1] + radii[2]) / 3)):
+    if not _plausible([gravity / d for d in diagonal], bias, spread):  # M's diagonal for the axes' scales
         return None
     matrix = np.array([[diagonal[0], 0.0, 0.0],
                        [l10 * factor_g, diagonal[1], 0.0],
