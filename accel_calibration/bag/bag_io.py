@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -68,6 +69,20 @@ class TopicInfo:
     msgtype: str
     msgcount: int
     digest: str = ""  # type_description_hash (RIHS01) of the recorded definition, where written
+
+
+def read_head(path: Path, read: Callable[[BinaryIO], bytes], error: type[BagError], expected: str) -> bytes:
+    """The first bytes of a recording file, as `read` takes them from the open file; a missing file, a
+    directory or an unreadable file is one `error` line (`expected`: what the path should have been)."""
+    try:
+        with open(path, "rb") as stream:
+            return read(stream)
+    except FileNotFoundError:
+        raise error(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a directory, expected {expected}") from None
+    except OSError as failure:
+        raise error(f"{path}: cannot read ({failure.strerror})") from None
 
 
 def refuse_special_files(path) -> None:

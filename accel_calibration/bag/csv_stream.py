@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.settings import STANDARD_GRAVITY
 from ..core.units import units_problem
-from .bag_io import BagError
+from .bag_io import BagError, read_head
 
 TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 UNITS = ("mps2", "g", "counts")
@@ -73,15 +73,7 @@ def units_scale(units: str, counts_per_g: float | None, path) -> float:
 
 def _header(path: Path) -> tuple[list[str], str]:
     """(header cells as written, delimiter)."""
-    try:
-        with open(path, "rb") as stream:
-            first = stream.readline(1 << 16)
-    except FileNotFoundError:
-        raise CsvStreamError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise CsvStreamError(f"{path}: is a directory, expected a CSV file") from None
-    except OSError as error:
-        raise CsvStreamError(f"{path}: cannot read ({error.strerror})") from None
+    first = read_head(path, lambda stream: stream.readline(1 << 16), CsvStreamError, "a CSV file")
     if b"\x00" in first:
         raise CsvStreamError(f"{path}: binary content, expected a CSV text file with a header row")
     try:

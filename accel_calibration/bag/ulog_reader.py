@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag_io import BagError
+from .bag_io import BagError, read_head
 
 MAGIC = b"ULog\x01\x12\x35"
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: this sensor had no new sample in the message
@@ -67,15 +67,7 @@ def _load(path: Path, topics: list[str], progress=None):
     from pyulog import ULog
     from pyulog.exceptions import ULogException
 
-    try:
-        with open(path, "rb") as stream:
-            head = stream.read(len(MAGIC))
-    except FileNotFoundError:
-        raise UlogError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise UlogError(f"{path}: is a directory, expected a .ulg file") from None
-    except OSError as error:
-        raise UlogError(f"{path}: cannot read ({error.strerror})") from None
+    head = read_head(path, lambda stream: stream.read(len(MAGIC)), UlogError, "a .ulg file")
     if head != MAGIC:
         raise UlogError(f"{path}: not a PX4 ULog (no ULog header)")
     problem = _definitions_problem(path)
