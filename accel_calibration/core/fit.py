@@ -614,13 +614,12 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     if initial is not None:
         bias0, matrix0 = initial.bias, initial.matrix
         x0 = model.project(bias0, matrix0)
-        directions_t = np.dot(matrix0, accel_t - bias0[:, None])
     else:
         bias0, matrix0 = seed_sphere(accel, gravity, cross_axis=name == "sphere9")
         # The seed's M is diagonal, or lower-triangular for sphere9, with a positive diagonal: already in
         # the model's form (what project's QR would return, without it).
         x0 = np.concatenate((bias0, matrix0.ravel()[model.flat_index]))
-        directions_t = np.dot(matrix0, accel_t - bias0[:, None])
+    directions_t = np.dot(matrix0, accel_t - bias0[:, None])
     lengths = np.sqrt(np.dot(_ONES3, directions_t * directions_t))
     if not lengths.min() > 0:  # NaN too
         row = int(np.flatnonzero(~(lengths > 0))[0])

@@ -185,8 +185,8 @@ def _general_ellipsoid_seed(x: np.ndarray, centre: np.ndarray, spread: float,
                             gravity: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Bias and lower-triangular M with |M (a - b)| = g on the general ellipsoid x^T A x + l^T x = 1
     through the normalised poses x = (a - centre) / spread (least squares, normal equations by Cholesky),
-    or None when the poses do not determine it well (reciprocal condition <= 1e-3: too few poses between
-    the axes, a hemisphere) or it is no plausible sensor (not an ellipsoid, axes' scales 50 % apart)."""
+    or None when the poses do not determine it (reciprocal condition <= SEED_RCOND: poses only at the
+    faces, in a plane) or it is no plausible sensor (not an ellipsoid, axes' scales 50 % apart)."""
     n = len(x)
     x_t = x.T
     design = np.empty((10, n))  # rows: x^2, y^2, z^2, xy, xz, yz, x, y, z, 1
