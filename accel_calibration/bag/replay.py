@@ -64,6 +64,9 @@ class ReplayResult:
     temperature_timeout_s: float = 5.0
     start_ns: int | None = None  # the earliest IMU stamp
     sensor_id: str = ""  # as the recording names the sensor (a ULog's device), where it does
+    # The readings filtered once (the filter and its held values), for temperatures_at's many calls.
+    _held_temperatures: tuple[TemperatureFilter, tuple[np.ndarray, np.ndarray]] | None = field(
+        default=None, repr=False, compare=False)
 
     @property
     def calibration(self) -> Calibration | None:
@@ -82,8 +85,11 @@ class ReplayResult:
         time gets what the whole recording at once gets. None without temperature readings."""
         if self.temperature_readings is None or not len(self.temperature_readings[0]):
             return None
-        held, _ = TemperatureFilter(timeout_s=self.temperature_timeout_s).series(*self.temperature_readings, t_ns)
-        return held
+        if self._held_temperatures is None:  # a copy asks once per group: filter the readings once
+            held_filter = TemperatureFilter(timeout_s=self.temperature_timeout_s)
+            self._held_temperatures = held_filter, held_filter.take(*self.temperature_readings)
+        held_filter, held = self._held_temperatures
+        return held_filter.held_at(*held, t_ns)[0]
 
 
 class ReplayError(BagError):

@@ -48,14 +48,19 @@ class TemperatureFilter:
         stamp order after those already taken (the value held from them serves samples before the first
         new one), with the same results as `update` one by one (to rounding, < 1e-12 degC) and the same
         state left behind."""
+        return self.held_at(*self.take(stamps_ns, degc), sample_t_ns)
+
+    def take(self, stamps_ns: ArrayLike, degc: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """The first half of `series`: take the readings (state and `rejected` as series leaves them) and
+        return the values held from them, (stamps, filtered values) in stamp order, the value held before
+        first; empty when none is held. A caller asking for many stamps at different times looks them up
+        with `held_at` without filtering the readings again."""
         order = np.argsort(stamps_ns, kind="stable")
         stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)[order]
         values = np.asarray(degc, dtype=float).reshape(-1)[order]
         plausible = np.isfinite(values) & (values > PLAUSIBLE_DEGC[0]) & (values < PLAUSIBLE_DEGC[1])
         self.rejected += int(len(values) - np.count_nonzero(plausible))
         kept, readings = stamps[plausible], values[plausible]
-        sample_t_ns = np.asarray(sample_t_ns, dtype=np.int64)
-        out = np.full(len(sample_t_ns), np.nan)
         held = self.value is not None  # from readings taken before
         if len(kept):
             filtered = self._filter(kept, readings)
@@ -63,13 +68,21 @@ class TemperatureFilter:
                 kept = np.concatenate([[self.stamp_ns], kept])
                 filtered = np.concatenate([[self.value], filtered])
             self.value, self.stamp_ns = float(filtered[-1]), int(kept[-1])
-        elif held:
-            kept, filtered = np.array([self.stamp_ns], dtype=np.int64), np.array([self.value])
-        else:
+            return kept, filtered
+        if held:
+            return np.array([self.stamp_ns], dtype=np.int64), np.array([self.value])
+        return np.zeros(0, np.int64), np.zeros(0)
+
+    def held_at(self, stamps: np.ndarray, filtered: np.ndarray, sample_t_ns: ArrayLike) -> tuple[np.ndarray, int]:
+        """The second half of `series`: the value held at each sample stamp from `take`'s (stamps, filtered
+        values), NaN when none or stale, and how many samples were stale."""
+        sample_t_ns = np.asarray(sample_t_ns, dtype=np.int64)
+        out = np.full(len(sample_t_ns), np.nan)
+        if not len(stamps):
             return out, 0
-        index = np.searchsorted(kept, sample_t_ns, side="right") - 1
+        index = np.searchsorted(stamps, sample_t_ns, side="right") - 1
         have = index >= 0
-        fresh = have & (sample_t_ns - kept[np.clip(index, 0, None)] <= self.timeout_ns)
+        fresh = have & (sample_t_ns - stamps[np.clip(index, 0, None)] <= self.timeout_ns)
         out[fresh] = filtered[index[fresh]]
         return out, int(np.count_nonzero(have & ~fresh))
 
