@@ -249,14 +249,19 @@ def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | No
     return True
 
 
+def declares_other_definition(topics) -> bool:
+    """Whether the metadata declares another definition (type hash) than ROS 2 Jazzy's for any of `topics`."""
+    return any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in topics)
+
+
 def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
     """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
     from rosbags.typesys import Stores, get_typestore
 
     refuse_special_files(path)
     wanted = [imu_topic] + ([temperature_topic] if temperature_topic else [])
-    if any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in wanted):
-        return None  # another definition: rosbags reads it through its own, checked against this hash
+    if declares_other_definition(wanted):
+        return None  # rosbags reads it through its own definition, checked against this hash
     topics = [topic.topic for topic in wanted]
     if storage_of(path) == "mcap":
         from .mcap_scan import scan_topics
@@ -276,9 +281,7 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id)
     temperatures = None
     if temperature_topic is not None:
-        temperatures = _fixed_temperatures(found[temperature_topic.topic])
-        if temperatures is None:
-            temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
+        temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
     return imu, temperatures
 
 
@@ -309,8 +312,12 @@ def _fixed_temperatures(raws) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def decode_temperatures(raws: Sequence, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps ns, degC) of sensor_msgs/Temperature messages; a message that does not decode is one
+    """(stamps ns, degC) of sensor_msgs/Temperature messages: read at their fixed offsets where they are
+    packed standard ones (_fixed_temperatures), else one by one; a message that does not decode is one
     BagError naming it."""
+    fixed = _fixed_temperatures(raws)
+    if fixed is not None:
+        return fixed
     stamps = np.empty(len(raws), dtype=np.int64)
     values = np.empty(len(raws))
     for i, raw in enumerate(raws):

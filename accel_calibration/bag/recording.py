@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag_io import BagError
+from .bag_io import IMU, TEMPERATURE, BagError
 
 FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "csv")
 KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
          "csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
-IMU_TYPE, TEMPERATURE_TYPE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
 STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (the results do not depend on
 # it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
@@ -143,13 +142,12 @@ class BagStream:
         from rosbags.typesys import Stores, get_typestore
 
         from .bag_io import TopicInfo, check_recorded_types, decode_imus, decode_temperatures, is_standard_definition
-        from .bag_io import _fixed_temperatures as fixed_temperatures
         from .mcap_scan import NotStreamable
 
         deserialize = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr
-        wanted = [TopicInfo(self.stream, IMU_TYPE, self.expected_messages)]
+        wanted = [TopicInfo(self.stream, IMU, self.expected_messages)]
         if self.temperature_stream:
-            wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE_TYPE, 0))
+            wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE, 0))
         for group in self.groups:  # type: ignore[attr-defined]
             check_recorded_types(self.path, wanted, self.recorded)
             if not all(is_standard_definition(topic, self.recorded) for topic in wanted):
@@ -164,7 +162,7 @@ class BagStream:
             temperatures = None
             if self.temperature_stream and len(group[self.temperature_stream]):
                 raws = group[self.temperature_stream]
-                temperatures = fixed_temperatures(raws) or decode_temperatures(raws, self.path, deserialize)
+                temperatures = decode_temperatures(raws, self.path, deserialize)
             yield imu, temperatures
         if self.messages != self.expected_messages:
             raise NotStreamable(f"{self.messages} IMU messages, the bag declares {self.expected_messages}")
@@ -175,16 +173,7 @@ def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
     """A bag (rosbag2 directory, .mcap or .db3 file) to stream, when its storage can be read directly
     with standard definitions; None for anything else (open_recording reads it whole, or says what is
     wrong, in one line)."""
-    from .bag_io import (
-        IMU,
-        TEMPERATURE,
-        choose_topic,
-        metadata_topics,
-        refuse_special_files,
-        standard_hash,
-        storage_of,
-        stream_sqlite,
-    )
+    from .bag_io import declares_other_definition, metadata_topics, refuse_special_files, storage_of, stream_sqlite
     from .mcap_scan import stream_topics
 
     if any(value is not None for value in other.values()):
@@ -201,12 +190,9 @@ def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
     infos = metadata_topics(path) if kind == "rosbag2" else _file_topics(path)
     if infos is None:
         return None
-    imu = choose_topic(infos, IMU, imu_topic, "imu", path)
-    if imu is None:
-        raise _no_imu(path, infos)
-    temperature = choose_topic(infos, TEMPERATURE, temperature_topic, "temperature", path)
+    imu, temperature = _chosen_topics(path, infos, imu_topic, temperature_topic)
     wanted = [imu] + ([temperature] if temperature else [])
-    if any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in wanted):
+    if declares_other_definition(wanted):
         return None
     topics = [topic.topic for topic in wanted]
     bar = _bar(path, imu.msgcount + (temperature.msgcount if temperature else 0), "msg", progress)
@@ -280,14 +266,22 @@ def _file_topics(path):
         reader.close()
 
 
+def _chosen_topics(path, topics, imu_name: str | None, temperature_name: str | None):
+    """(the Imu topic, the Temperature topic or None) among a bag's `topics` (TopicInfo or rosbags
+    connections), as asked or the only one of its type; no Imu topic is one line naming what the bag has."""
+    from .bag_io import choose_topic
+
+    imu = choose_topic(topics, IMU, imu_name, "imu", path)
+    if imu is None:
+        raise _no_imu(path, topics)
+    return imu, choose_topic(topics, TEMPERATURE, temperature_name, "temperature", path)
+
+
 def _read_fast(path, infos, imu_name, temperature_name, progress):
     """Messages straight from the storage; None when that cannot be trusted (rosbags then)."""
-    from .bag_io import IMU, TEMPERATURE, choose_topic, read_fast
+    from .bag_io import read_fast
 
-    imu_topic = choose_topic(infos, IMU, imu_name, "imu", path)
-    if imu_topic is None:
-        raise _no_imu(path, infos)
-    temperature_topic = choose_topic(infos, TEMPERATURE, temperature_name, "temperature", path)
+    imu_topic, temperature_topic = _chosen_topics(path, infos, imu_name, temperature_name)
     bar = _bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), "msg", progress)
     try:
         read = read_fast(path, imu_topic, temperature_topic, bar)
@@ -300,14 +294,11 @@ def _read_fast(path, infos, imu_name, temperature_name, progress):
 
 
 def _read_with_rosbags(path, imu_name, temperature_name, progress):
-    from .bag_io import IMU, TEMPERATURE, choose_topic, open_reader, read_imu_and_temperature
+    from .bag_io import open_reader, read_imu_and_temperature
 
     reader = open_reader(path)
     try:
-        imu_connection = choose_topic(reader.connections, IMU, imu_name, "imu", path)
-        if imu_connection is None:
-            raise _no_imu(path, reader.connections)
-        temperature_connection = choose_topic(reader.connections, TEMPERATURE, temperature_name, "temperature", path)
+        imu_connection, temperature_connection = _chosen_topics(path, reader.connections, imu_name, temperature_name)
         total = imu_connection.msgcount + (temperature_connection.msgcount if temperature_connection else 0)
         bar = _bar(path, total, "msg", progress)
         try:
