@@ -100,14 +100,7 @@ class Calibration:
         set_ = object.__setattr__
         set_(self, "bias", _frozen(self.bias, (3,), "bias"))
         set_(self, "matrix", _frozen(self.matrix, (3, 3), "matrix"))
-        if self.model not in MODELS:
-            raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(MODELS)}")
-        if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
-            raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
-        set_(self, "gravity", float(self.gravity))
-        # Relative to each row's size, never absolute: raw counts at 256 000 LSB/g give M ~ 4e-5.
-        if abs(_scaled_determinant(self.matrix)) < 1e-12:
-            raise CalibrationError("matrix is singular: it would collapse the measurement")
+        self._check_model_gravity_matrix()
         if self.quadratic is not None:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
         if self.temperature is not None and not isinstance(self.temperature, TemperatureModel):
@@ -144,14 +137,20 @@ class Calibration:
             else:  # a field without a default is one of the required ones, given above
                 value = f.default
             object.__setattr__(self, f.name, value)
+        self._check_model_gravity_matrix()
+        return self
+
+    def _check_model_gravity_matrix(self) -> None:
+        """The checks both constructors make (gravity becomes a float): a known model, a positive finite
+        gravity, and M not singular."""
         if self.model not in MODELS:
             raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(MODELS)}")
         if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
             raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
         object.__setattr__(self, "gravity", float(self.gravity))
+        # Relative to each row's size, never absolute: raw counts at 256 000 LSB/g give M ~ 4e-5.
         if abs(_scaled_determinant(self.matrix)) < 1e-12:
             raise CalibrationError("matrix is singular: it would collapse the measurement")
-        return self
 
     @classmethod
     def identity(cls, **kwargs: Any) -> Calibration:
