@@ -195,14 +195,9 @@ def _general_ellipsoid_seed(x: np.ndarray, centre: np.ndarray, spread: float,
     np.multiply(x_t[1], x_t[2], out=design[5])
     design[6:9] = x_t
     design[9] = 1.0
-    normal = np.dot(design, design.T)  # [D^T D, D^T 1] in one product
-    factor, solution, info = posv(normal[:9, :9], normal[:9, 9])
-    if info != 0:
+    c = _normal_solution(np.dot(design, design.T), 9, SEED_RCOND)  # [D^T D, D^T 1] in one product
+    if c is None:
         return None
-    rcond, info = pocon(factor, 9.0 * float(normal.diagonal()[:9].max()))  # |A_ij| <= max diagonal
-    if info != 0 or not rcond > SEED_RCOND:
-        return None
-    c = solution.tolist()
     # A = [[c0, c3/2, c4/2], [c3/2, c1, c5/2], [c4/2, c5/2, c2]], l = c[6:]. Scalar arithmetic on a 3 x 3
     # matrix: numpy's per-call cost would exceed the work many times over.
     a01, a02, a12 = 0.5 * c[3], 0.5 * c[4], 0.5 * c[5]
@@ -250,16 +245,26 @@ def _ellipsoid_coefficients(x: np.ndarray) -> list[float]:
     np.multiply(x, x, out=design[:, :3])
     design[:, 3:6] = x
     design[:, 6] = 1.0
-    normal = design.T @ design  # [D^T D, D^T 1] in one product
-    factor, solution, info = posv(normal[:6, :6], normal[:6, 6])
-    if info == 0:
-        # 1-norm bound for pocon: |A_ij| <= max diagonal for a positive definite A (conservative by <= 6x).
-        rcond, info = pocon(factor, 6.0 * float(normal.diagonal()[:6].max()))
-        if info == 0 and rcond > 1e-3:
-            coefficients: list[float] = solution.tolist()
-            return coefficients
+    coefficients = _normal_solution(design.T @ design, 6, 1e-3)  # [D^T D, D^T 1] in one product
+    if coefficients is not None:
+        return coefficients
     least: list[float] = np.linalg.lstsq(design[:, :6], np.ones(n), rcond=None)[0].tolist()
     return least
+
+
+def _normal_solution(normal: np.ndarray, size: int, least_rcond: float) -> list[float] | None:
+    """The solution c of normal[:size, :size] c = normal[:size, size] (normal equations with the right-hand
+    side as their last column) by Cholesky, or None when the matrix is not positive definite or its
+    reciprocal condition (LAPACK's 1-norm estimate) is not above `least_rcond`."""
+    factor, solution, info = posv(normal[:size, :size], normal[:size, size])
+    if info != 0:
+        return None
+    # 1-norm bound for pocon: |A_ij| <= max diagonal for a positive definite A (conservative by <= size x).
+    rcond, info = pocon(factor, size * float(normal.diagonal()[:size].max()))
+    if info != 0 or not rcond > least_rcond:
+        return None
+    coefficients: list[float] = solution.tolist()
+    return coefficients
 
 
 def apply_forward_inverse(raw: np.ndarray, bias: np.ndarray, matrix: np.ndarray,
