@@ -49,8 +49,9 @@ def test_calibrate_with_too_few_poses_keeps_the_calibration_in_force(tmp_path, t
         got = tester.call("calibration/get")
         assert got.success and load_calibration(cal_file) == before
         assert cal_file.read_bytes() == before_bytes
-        # Diagnostics tell the person what to do next.
-        assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["advice"].startswith("turn"), 5)
+        # Diagnostics tell the person what to do next, and that a calibration is in force meanwhile.
+        assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["advice"].startswith(
+            "calibration in force; more poses would refine it (turn"), 5)
     finally:
         assert node.stop() == 0, node.log()
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from session_doors import per_message
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 
@@ -25,12 +26,10 @@ def part(samples, first, stop):
 def in_process_poses(samples, bounds, collecting):
     """What the node should hold: the same messages through a session paused where `collecting` says."""
     session = CalibrationSession()
-    for (first, stop), on in zip(bounds, collecting):
-        session.set_collecting(on, "test")
-        for i in range(first, stop):
-            pose = session.add_sample(START_NS + int(samples.t_ns[i]), *samples.accel_raw[i], *samples.gyro_raw[i])
-            if pose is not None:
-                session.add_pose(pose)
+    mask = np.concatenate([np.full(stop - first, on) for (first, stop), on in zip(bounds, collecting)])
+    stop = bounds[-1][1]
+    per_message(session, START_NS + samples.t_ns[:stop], samples.accel_raw[:stop], samples.gyro_raw[:stop],
+                collecting=mask)
     return len(session.store)
 
 

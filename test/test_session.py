@@ -261,6 +261,7 @@ def test_any_order_of_calibrate_reset_and_poses_ends_in_a_verdict(operations):
     Every call answers; a success is a calibration within 2 mg at fresh orientations; a refusal names
     its gate."""
     session = CalibrationSession(Settings(temperature_model="none"))
+    feed = session.live_feed()
     t_ns = 0
     for kind, arg, seed in operations:
         if kind == "poses":
@@ -280,7 +281,9 @@ def test_any_order_of_calibrate_reset_and_poses_ends_in_a_verdict(operations):
             t_ns += 1_000_000
             value = {"nan": float("nan"), "huge": 2e154, "zero": 0.0, "backwards": 9.81}[arg]
             stamp = 0 if arg == "backwards" else t_ns
-            assert session.add_sample(stamp, 0.0, 0.0, value, value, 0.0, 0.0) is None
+            feed.add_samples(np.array([stamp]), np.array([[0.0, 0.0, value]]), np.array([[value, 0.0, 0.0]]))
+            feed.drain()
+            assert feed.take_poses() == [] and feed.holding() is None
         session.progress()  # what /diagnostics shows never fails either
 
 
@@ -311,9 +314,12 @@ def test_gyro_range_default_is_2000_deg_per_s():
     beyond every MEMS gyro's range, so counted out of range and kept out of the fit."""
     assert Settings().gyro_range_radps == pytest.approx(np.radians(2000.0), abs=0.01)
     session = CalibrationSession()
-    session.add_sample(1_000_000, 0.0, 0.0, 9.8, 30.0, 0.0, 0.0)
+    feed = session.live_feed()
+    feed.add_samples(np.array([1_000_000]), np.array([[0.0, 0.0, 9.8]]), np.array([[30.0, 0.0, 0.0]]))
+    feed.drain()
     assert session.counters.gyro_out_of_range == 0
-    session.add_sample(2_000_000, 0.0, 0.0, 9.8, 0.0, -40.0, 0.0)
+    feed.add_samples(np.array([2_000_000]), np.array([[0.0, 0.0, 9.8]]), np.array([[0.0, -40.0, 0.0]]))
+    feed.drain()
     assert session.counters.gyro_out_of_range == 1
 
 

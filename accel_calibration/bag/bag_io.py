@@ -539,15 +539,16 @@ def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
 COPY_GROUP_MESSAGES = 1 << 14
 COPY_GROUP_BYTES = 64 << 20
 
-CorrectAccel = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (stamps ns, accel (N, 3)) -> corrected
+# (stamps ns, accel (N, 3), gyro (N, 3), linear_acceleration_covariance (N, 9)) -> the same corrected
+CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def write_corrected(source, destination, imu_topic: str, correct: CorrectAccel, *,
+def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
                     group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
-    linear_acceleration, which becomes correct(header stamps, accelerations) (same topic, same stamps,
-    same storage type). Streamed: memory is a group of messages, whatever the bag's length; the result
-    does not depend on the groups. Returns messages written."""
+    angular_velocity, linear_acceleration and its covariance, which become what `correct` gives (same
+    topic, same stamps, same storage type). Streamed: memory is a group of messages, whatever the bag's
+    length; the result does not depend on the groups. Returns messages written."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     destination = Path(destination)
@@ -603,28 +604,45 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectAccel, 
     return written
 
 
-def _corrected_imus(raws: list, reader, correct: CorrectAccel, path, standard: bool) -> list[bytes]:
-    """The IMU messages `raws` with their linear_acceleration replaced by correct(stamps, accel): the bytes
-    patched in place where the layout is the standard one, else through the recorded definition."""
+def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: bool) -> list[bytes]:
+    """The IMU messages `raws` with angular_velocity, linear_acceleration and its covariance replaced by
+    what `correct` gives: the bytes patched in place where the layout is the standard one, else through the
+    recorded definition."""
     if not raws:
         return []
-    t, accel, _, _, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize, fixed_layout=standard)
-    corrected = correct(t, accel)
+    t, accel, gyro, _, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize, fixed_layout=standard)
+    covariance = np.zeros((len(t), 9))
+    for length, (block, layout) in groups.items():
+        rows = np.flatnonzero(group_of == length)
+        start = layout["accel"] + 24
+        covariance[rows] = block[row_of[rows], start:start + 72].copy().view("<f8").reshape(len(rows), 9)
+    by_name = np.flatnonzero(group_of < 0)
+    messages = {int(i): reader.deserialize(raws[int(i)], IMU) for i in by_name}
+    for i, msg in messages.items():
+        covariance[i] = np.asarray(msg.linear_acceleration_covariance, dtype=float)
+    accel, gyro, covariance = correct(t, accel, gyro, covariance)
     patched = {}
     for length, (block, layout) in groups.items():
         rows = np.flatnonzero(group_of == length)
         block = block.copy()
-        block[row_of[rows], layout["accel"]:layout["accel"] + 24] = \
-            np.ascontiguousarray(corrected[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 24)
+        for field, values, width in (("gyro", gyro, 24), ("accel", accel, 24)):
+            block[row_of[rows], layout[field]:layout[field] + width] = \
+                np.ascontiguousarray(values[rows], dtype="<f8").view(np.uint8).reshape(len(rows), width)
+        start = layout["accel"] + 24
+        block[row_of[rows], start:start + 72] = \
+            np.ascontiguousarray(covariance[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 72)
         patched[length] = block
-    return [patched[int(group)][row].tobytes() if group >= 0 else _patch_one(reader, raw, value)
-            for raw, group, row, value in zip(raws, group_of.tolist(), row_of.tolist(), corrected)]
-
-
-def _patch_one(reader, raw, accel) -> bytes:
-    msg = reader.deserialize(raw, IMU)
-    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in accel)
-    return bytes(reader.typestore.serialize_cdr(msg, IMU))
+    out = []
+    for i, (group, row) in enumerate(zip(group_of.tolist(), row_of.tolist())):
+        if group >= 0:
+            out.append(patched[int(group)][row].tobytes())
+            continue
+        msg = messages[i]
+        msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in accel[i])
+        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in gyro[i])
+        msg.linear_acceleration_covariance = np.asarray(covariance[i], dtype=float)
+        out.append(bytes(reader.typestore.serialize_cdr(msg, IMU)))
+    return out
 
 
 def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3", frame_id: str = "imu_link",

@@ -43,6 +43,7 @@ class CsvLayout:
     header: list[str]  # as written in the file
     accel_index: tuple[int, int, int]  # column positions of ax, ay, az
     units_per_mps2: float  # file units per m/s^2 (1 for mps2, 1/g for g, counts_per_g/g for counts)
+    gyro_index: tuple[int, int, int] | None = None  # column positions of gx, gy, gz (rad/s), when present
 
 
 @dataclass
@@ -159,7 +160,9 @@ def read_csv_stream(path, *, time_unit: str | None = None, units: str = "mps2", 
         have = ~np.isnan(values)
         if have.any():
             temperature = (t_ns[have], values[have])
-    layout = CsvLayout(delimiter, cells, tuple(names.index(c) for c in ACCEL), 1.0 / scale)  # type: ignore[arg-type]
+    gyro_index = tuple(names.index(c) for c in GYRO) if gyro is not None else None
+    layout = CsvLayout(delimiter, cells, tuple(names.index(c) for c in ACCEL), 1.0 / scale,  # type: ignore[arg-type]
+                       gyro_index)  # type: ignore[arg-type]
     stream = f"{','.join(ACCEL)} ({units}) at {time_column}"
     return CsvSamples(stream, t_ns, accel, gyro, temperature, layout)
 
@@ -262,9 +265,11 @@ def _locate_problem(path: Path, delimiter: str, column_names: list[str], wanted:
 
 
 # ------------------------------------------------------------------------------------------- writing
-def corrected_csv_text(path, layout: CsvLayout, corrected_mps2: np.ndarray, valid: np.ndarray) -> str:
-    """The file again with ax,ay,az of each sample row replaced by `corrected_mps2` in the file's units
-    (rows where `valid` is False, e.g. non-finite samples, are copied unchanged; so are other columns)."""
+def corrected_csv_text(path, layout: CsvLayout, corrected_mps2: np.ndarray, valid: np.ndarray,
+                       corrected_radps: np.ndarray | None = None) -> str:
+    """The file again with ax,ay,az of each sample row replaced by `corrected_mps2` in the file's units, and
+    gx,gy,gz by `corrected_radps` when given (rows where `valid` is False, e.g. non-finite samples, are
+    copied unchanged; so are other columns)."""
     values = corrected_mps2 * layout.units_per_mps2
     out = io.StringIO()
     writer = csv.writer(out, delimiter=layout.delimiter, lineterminator="\n")
@@ -280,6 +285,10 @@ def corrected_csv_text(path, layout: CsvLayout, corrected_mps2: np.ndarray, vali
             if valid[sample]:
                 x, y, z = values[sample]
                 row[ax], row[ay], row[az] = repr(float(x)), repr(float(y)), repr(float(z))
+                if corrected_radps is not None and layout.gyro_index is not None:
+                    gx, gy, gz = layout.gyro_index
+                    u, v, w = corrected_radps[sample]
+                    row[gx], row[gy], row[gz] = repr(float(u)), repr(float(v)), repr(float(w))
             writer.writerow(row)
             sample += 1
     return out.getvalue()

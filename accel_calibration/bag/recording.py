@@ -352,7 +352,7 @@ def write_corrected_copy(replay, calibration, destination) -> str:
     """A corrected copy of the replayed recording in its own format (a ULog: a CSV of corrected samples,
     t_ns,ax,ay,az,gx,gy,gz,temperature in SI units, temperature the filtered value the correction used).
     Returns a line saying what was written."""
-    from .replay import corrected_accel, write_corrected_bag
+    from .replay import corrected_samples, write_corrected_bag
 
     recording = replay.recording
     kind = recording.format if recording is not None else "rosbag2"
@@ -369,12 +369,15 @@ def write_corrected_copy(replay, calibration, destination) -> str:
     from .csv_stream import corrected_csv_text, samples_csv_text
 
     temperatures = replay.temperatures_at_samples()
-    corrected, valid = corrected_accel(recording.accel_mps2, temperatures, calibration)
+    gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
+    corrected, rates, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)
+    if recording.gyro_radps is None:
+        rates = None
     if kind == "csv":
-        text = corrected_csv_text(recording.path, recording.source, corrected, valid)
+        text = corrected_csv_text(recording.path, recording.source, corrected, valid, rates)
         write_text_atomically(destination, text)
         return f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
-    text = samples_csv_text(recording.t_ns, corrected, recording.gyro_radps, temperatures)
+    text = samples_csv_text(recording.t_ns, corrected, rates, temperatures)
     write_text_atomically(destination, text)
     return f"corrected samples {destination} (CSV t_ns,ax,ay,az,...: a ULog is not rewritten; {len(corrected)} samples)"
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.calibration import Calibration
+from ..core.correction import correct_samples
 from ..core.errors import CalibrationError
 from ..core.fit import FitResult
 from ..core.pose import Pose
@@ -78,6 +79,16 @@ class ReplayResult:
         if self.temperature_at_samples is None:
             self.temperature_at_samples = self.temperatures_at(self.recording.t_ns)
         return self.temperature_at_samples
+
+    def filtered_temperatures(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The recording's temperature readings filtered once, (stamps ns, degC) in stamp order, as the node
+        takes them; None without readings."""
+        if self.temperature_readings is None or not len(self.temperature_readings[0]):
+            return None
+        if self._held_temperatures is None:
+            held_filter = TemperatureFilter(timeout_s=self.temperature_timeout_s)
+            self._held_temperatures = held_filter, held_filter.take(*self.temperature_readings)
+        return self._held_temperatures[1]
 
     def temperatures_at(self, t_ns: np.ndarray) -> np.ndarray | None:
         """The filtered temperature held at each of these sample stamps, from all the recording's readings:
@@ -231,20 +242,12 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
     )
 
 
-def corrected_accel(accel: np.ndarray, temps: np.ndarray | None, calibration: Calibration
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """(corrected accelerations, which rows were corrected): each at its sample's temperature where known;
-    non-finite samples are passed on unchanged."""
-    corrected = accel.copy()
-    finite = np.all(np.isfinite(corrected), axis=1)
-    if temps is not None and calibration.temperature is not None:
-        known = finite & ~np.isnan(temps)
-        corrected[known] = calibration.apply(accel[known], temps[known])
-        rest = finite & np.isnan(temps)
-        corrected[rest] = calibration.apply(accel[rest])
-    else:
-        corrected[finite] = calibration.apply(accel[finite])
-    return corrected, finite
+def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.ndarray, accel: np.ndarray,
+                      gyro: np.ndarray, covariance: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """What the node would publish for these samples of the replayed recording (core.correction's one
+    correction, at the temperatures the node would have used): (accel, gyro, covariance, corrected rows)."""
+    return correct_samples(calibration, t_ns, accel, gyro, covariance, replay.filtered_temperatures())
 
 
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
@@ -252,8 +255,11 @@ def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destinat
     and written a group at a time (bag_io.write_corrected; `groups`: its group sizes)."""
     from .bag_io import BagError, write_corrected
 
-    def correct(t_ns: np.ndarray, accel: np.ndarray) -> np.ndarray:
-        return corrected_accel(accel, replay.temperatures_at(t_ns), calibration)[0]
+    def correct(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray, covariance: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        corrected, rates, cov, _ = corrected_samples(replay, calibration, t_ns, accel, gyro, covariance)
+        assert cov is not None  # given one, it gives one
+        return corrected, rates, cov
 
     try:
         return write_corrected(replay.bag, destination, replay.imu_topic, correct, **groups)

@@ -1,13 +1,22 @@
-"""The correction in force, as one immutable value of plain floats: what per-message code applies.
+"""The one correction: what the node publishes for a message and what a corrected copy of a recording
+holds come from `Correction.apply` / `apply_gyro` / `covariance_for` (the node calls them on one
+message's floats, a copy on a group's arrays) and `correct_samples` (which Correction is in force for
+each sample: the same temperature rule as the node's).
 
-Built from a Calibration at one temperature (polynomial bias and scale drift folded into M and b; the
-segmented model's drift of the raw output as its (l, m, n) per axis at that temperature), with the
-reference15 quadratic term, the gyro bias and the REP-145 covariance; rebuilt when the calibration
-or the temperature changes and swapped whole, so a message is corrected by one consistent set.
+The arithmetic is elementwise in a fixed order (products and sums of floats, never BLAS: `@`, dot and
+matmul round differently by CPU kernel and matrix size), so a sample's corrected value is the same bit
+for bit whether it is corrected alone, in a group of any size, or on any CPU.
+
+A Correction is built from a Calibration at one temperature (polynomial bias and scale drift folded
+into M and b; the segmented model's drift of the raw output as its (l, m, n) per axis at that
+temperature), with the reference15 quadratic term, the gyro bias and the REP-145 covariance; rebuilt
+when the calibration, the measured noise or the temperature (by TEMPERATURE_STEP_DEGC) changes and
+swapped whole, so a message is corrected by one consistent set.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -15,6 +24,14 @@ from .calibration import Calibration
 
 Floats3 = tuple[float, float, float]
 Floats9 = tuple[float, float, float, float, float, float, float, float, float]
+Value = TypeVar("Value", float, np.ndarray)  # one message's component, or a group's column
+
+# The correction follows the filtered temperature once it has moved this far from where the correction
+# was evaluated (~1 ug of drift for 20 ug/degC sensors): per-message work stays a 3x3 product.
+TEMPERATURE_STEP_DEGC = 0.05
+# ...rounded to this many decimals (1 mdegC) first: the filter's last bits differ between one reading at a
+# time (the node) and a whole recording (a copy), and must never decide a step.
+TEMPERATURE_DECIMALS = 3
 
 
 def rep145_covariance(matrix: np.ndarray, noise_var_per_axis: float | None, bias_sigma: np.ndarray | None,
@@ -22,30 +39,39 @@ def rep145_covariance(matrix: np.ndarray, noise_var_per_axis: float | None, bias
     """linear_acceleration_covariance (REP-145) of a corrected sample, (3, 3) in (m/s^2)^2: the sensor's
     measured white noise carried through M, plus the calibration's own uncertainty at |a| = g (bias
     sigma through M; each row of M's sigma acting on a g-sized input spread over three axes).
-    None when neither is known (the driver's covariance is then kept)."""
+    None when neither is known."""
     if noise_var_per_axis is None and (bias_sigma is None or matrix_sigma is None):
         return None
     cov = np.zeros((3, 3))
     if noise_var_per_axis is not None:
-        cov += float(noise_var_per_axis) * (matrix @ matrix.T)
+        m = np.asarray(matrix, dtype=float)
+        cov += float(noise_var_per_axis) * np.einsum("ik,jk->ij", m, m)
     if bias_sigma is not None and matrix_sigma is not None:
-        cov += np.diag((matrix**2) @ bias_sigma**2 + (matrix_sigma**2).sum(axis=1) * gravity * gravity / 3)
+        m2 = np.asarray(matrix, dtype=float) ** 2
+        cov += np.diag((m2 * np.asarray(bias_sigma) ** 2).sum(axis=1)
+                       + (np.asarray(matrix_sigma) ** 2).sum(axis=1) * gravity * gravity / 3)
     return cov
 
 
 @dataclass(frozen=True)
 class Correction:
     """a_true = M (a_raw - b), then the reference15 quadratic inverted by fixed-point iteration, then the
-    segmented model's drift l a_raw^2 + m a_raw + n per axis added (the paper's eq. 5)."""
+    segmented model's drift l a_raw^2 + m a_raw + n per axis added (the paper's eq. 5); w_true = w_raw - b_g.
+
+    Covariance (REP-145): `covariance` when the sensor's noise is measured (noise through M plus the
+    calibration's own uncertainty); until then `calibration_covariance` (the calibration's part alone) is
+    added to what the driver reported, never put in its place: a filter must not be told the sensor is
+    quieter than its driver says."""
 
     matrix: Floats9  # row-major M at `temperature_degc`
     bias: Floats3
     quadratic: Floats3 | None = None
     gyro_bias_radps: Floats3 | None = None
-    covariance: Floats9 | None = None
+    covariance: Floats9 | None = None  # noise measured: the whole covariance of a corrected sample
     temperature_degc: float | None = None  # where the temperature terms were evaluated
     temperature_clamped: bool = False  # outside the calibrated range: evaluated at its edge
     drift: Floats9 | None = None  # segmented: l_x, l_y, l_z (s^2/m), m_x, m_y, m_z (1), n_x, n_y, n_z (m/s^2)
+    calibration_covariance: Floats9 | None = None  # the calibration's own part, added to the driver's
 
     @classmethod
     def build(cls, calibration: Calibration | None, temperature_degc: float | None = None,
@@ -62,19 +88,23 @@ class Correction:
                        and calibration.temperature_clamped(temperature_degc))
         cov = rep145_covariance(calibration.matrix, noise_var_per_axis, calibration.bias_sigma,
                                 calibration.matrix_sigma, calibration.gravity)
+        own = rep145_covariance(calibration.matrix, None, calibration.bias_sigma, calibration.matrix_sigma,
+                                calibration.gravity)
         return cls(
             matrix=_floats9(terms[:9]),
             bias=_floats3(terms[9:12]),
             quadratic=None if calibration.quadratic is None else _floats3(calibration.quadratic),
             gyro_bias_radps=None if calibration.gyro_bias_radps is None else _floats3(calibration.gyro_bias_radps),
-            covariance=None if cov is None else _floats9(cov),
+            covariance=None if cov is None or noise_var_per_axis is None else _floats9(cov),
             temperature_degc=temperature_degc if calibration.temperature is not None else None,
             temperature_clamped=clamped,
             drift=_floats9_or_none(calibration.drift_terms_at(temperature_degc)),
+            calibration_covariance=None if own is None else _floats9(own),
         )
 
-    def apply(self, ax: float, ay: float, az: float) -> Floats3:
-        """One sample in plain floats (~1 us; numpy per 3-vector costs more than it saves)."""
+    def apply(self, ax: Value, ay: Value, az: Value) -> tuple[Value, Value, Value]:
+        """Corrected acceleration of one sample (floats: ~1 us) or of a group (equal-length arrays), with
+        the same operations in the same order either way."""
         m00, m01, m02, m10, m11, m12, m20, m21, m22 = self.matrix
         b0, b1, b2 = self.bias
         x, y, z = ax - b0, ay - b1, az - b2
@@ -95,6 +125,86 @@ class Correction:
             return lx, ly, lz
         l0, l1, l2, s0, s1, s2, n0, n1, n2 = self.drift
         return (lx + (l0 * ax + s0) * ax + n0, ly + (l1 * ay + s1) * ay + n1, lz + (l2 * az + s2) * az + n2)
+
+    def apply_gyro(self, gx: Value, gy: Value, gz: Value) -> tuple[Value, Value, Value]:
+        """Corrected angular rate: the gyro bias taken off (raw passes through without one)."""
+        if self.gyro_bias_radps is None:
+            return gx, gy, gz
+        g0, g1, g2 = self.gyro_bias_radps
+        return gx - g0, gy - g1, gz - g2
+
+    def covariance_for(self, driver: np.ndarray) -> np.ndarray:
+        """linear_acceleration_covariance of corrected samples, from what the driver reported ((9,) or
+        (N, 9)): the measured one, else the driver's plus the calibration's own part. What the driver
+        says is unknown (all zeros) or absent (first element -1), REP-145, stays so until the noise is
+        measured: the calibration's part alone would claim a sensor thousands of times quieter than it is."""
+        driver = np.asarray(driver, dtype=float)
+        if self.covariance is not None:
+            return np.broadcast_to(np.asarray(self.covariance), driver.shape).copy()
+        if self.calibration_covariance is None:
+            return driver
+        known = (driver[..., :1] >= 0) & np.any(driver != 0, axis=-1, keepdims=True)
+        return np.where(known, driver + np.asarray(self.calibration_covariance), driver)
+
+
+def correction_temperatures(filtered_degc: np.ndarray, held_degc: float | None = None) -> np.ndarray:
+    """The temperature the correction is evaluated at after each filtered reading (in arrival order): it
+    follows the filtered value (rounded to TEMPERATURE_DECIMALS) once that has moved TEMPERATURE_STEP_DEGC
+    from where it was evaluated
+    (`held_degc`: where it was before the first). The node calls it one reading at a time, a corrected
+    copy with the whole recording's: the same rule gives the same temperatures."""
+    out = np.empty(len(filtered_degc))
+    held = held_degc
+    rounded = np.round(np.asarray(filtered_degc, dtype=float), TEMPERATURE_DECIMALS)
+    for index, value in enumerate(rounded.tolist()):
+        if held is None or abs(value - held) >= TEMPERATURE_STEP_DEGC:
+            held = value
+        out[index] = held
+    return out
+
+
+def correct_samples(calibration: Calibration, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
+                    covariance: np.ndarray | None = None,
+                    temperatures: tuple[np.ndarray, np.ndarray] | None = None,
+                    noise_var_per_axis: float | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """What the node publishes for these samples, as arrays: (accel, gyro, covariance (N, 9) or None
+    when none was given, which rows were corrected). `temperatures`: the filtered readings in arrival
+    order (stamps ns, degC), as TemperatureFilter.take gives them; each sample is corrected at the
+    correction temperature of the latest reading stamped at or before it (the node's latest reading),
+    the reference temperature before the first. A sample whose acceleration is not finite passes
+    unchanged, as the node passes it on."""
+    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    accel = np.array(accel_mps2, dtype=float).reshape(-1, 3)
+    gyro = np.array(gyro_radps, dtype=float).reshape(-1, 3)
+    cov = None if covariance is None else np.array(covariance, dtype=float).reshape(-1, 9)
+    finite = np.all(np.isfinite(accel), axis=1)
+    reading = np.full(len(t), -1)
+    held = np.zeros(0)
+    if temperatures is not None and calibration.temperature is not None and len(temperatures[0]):
+        stamps, filtered = temperatures
+        held = correction_temperatures(np.asarray(filtered, dtype=float))
+        reading = np.searchsorted(np.asarray(stamps, dtype=np.int64), t, side="right") - 1
+    # One Correction per distinct correction temperature (few: it moves in 0.05 degC steps).
+    keys = np.where(reading >= 0, held[np.clip(reading, 0, None)] if len(held) else 0.0, np.nan)
+    groups: dict[float | None, np.ndarray] = {}
+    if np.all(np.isnan(keys)):
+        groups[None] = np.flatnonzero(finite)
+    else:
+        for value in np.unique(keys[finite & ~np.isnan(keys)]).tolist():
+            groups[value] = np.flatnonzero(finite & (keys == value))
+        groups[None] = np.flatnonzero(finite & np.isnan(keys))
+    for temperature, rows in groups.items():
+        if not len(rows):
+            continue
+        correction = Correction.build(calibration, temperature, noise_var_per_axis)
+        assert correction is not None  # a calibration always gives one
+        a, g = accel[rows], gyro[rows]
+        accel[rows] = np.column_stack(correction.apply(a[:, 0], a[:, 1], a[:, 2]))
+        gyro[rows] = np.column_stack(correction.apply_gyro(g[:, 0], g[:, 1], g[:, 2]))
+        if cov is not None:
+            cov[rows] = correction.covariance_for(cov[rows])
+    return accel, gyro, cov, finite
 
 
 def _floats3(values: object) -> Floats3:

@@ -1,12 +1,12 @@
 """The calibration session: one pure object owns the chain screening -> detector -> pose store ->
-fit -> gates -> calibration, and keeps the counters. The live node feeds it messages (stream side
-on its executor, pose side on its worker), replay feeds it arrays, tests feed it either: a session
-gives the same calibration whichever door the samples came through. No ROS here.
+fit -> gates -> calibration, and keeps the counters. There is one sample path: arrays in parts through a
+RecordingFeed. Replay hands it a recording (`add_recording`, or `recording_feed` for a streamed one); the
+node's worker hands it what its Imu callback buffered, every few tens of milliseconds (`live_feed`), the
+armed/pause state as a per-sample collecting mask. So live equals replay by construction. No ROS here.
 
-Threads (the node): `add_temperature`, `add_sample`, `holding`, `set_collecting` touch the screen,
-temperature filter and detector; `add_pose`, `refit`, `calibrate`, `reset`, `progress` touch the store
-and the fit. Each half is used from one thread; they share nothing mutable but the counters (ints)
-and `implausible_means` (a tuple replaced whole).
+Threads (the node): the worker alone feeds, fits and judges; the stream's thread only reads
+`collecting` (set by `set_collecting` from the armed input and calibration/pause: a frozenset replaced
+whole) to mark each buffered sample.
 """
 from __future__ import annotations
 
@@ -109,13 +109,6 @@ class CalibrationSession:
         self.settings = settings
 
     # ------------------------------------------------------------------ stream side
-    def add_temperature(self, stamp_ns: int, degc: float) -> bool:
-        """One temperature reading; False (counted) when implausible."""
-        if self.temperature.update(stamp_ns, degc):
-            return True
-        self.counters.temperature_bad += 1
-        return False
-
     @property
     def collecting(self) -> bool:
         """False while collection is paused for any reason (the stream is still screened and corrected)."""
@@ -127,51 +120,20 @@ class CalibrationSession:
 
     def set_collecting(self, collecting: bool, reason: str) -> None:
         """Pause (False) or resume (True) collection for `reason` ("armed", "calibration/pause", ...);
-        collection resumes when no reason is left. Pausing drops the still interval in progress (it
-        may hold the take-off), so nothing of a flight is ever a pose, and the noise floor never sees it."""
-        was_collecting = not self._pause_reasons
+        collection resumes when no reason is left. The node marks each sample with `collecting` as it comes:
+        a paused sample drops the still interval in progress (it may hold the take-off), so nothing of a
+        flight is ever a pose, and the noise floor never sees it."""
         reasons = self._pause_reasons - {reason} if collecting else self._pause_reasons | {reason}
         self._pause_reasons = frozenset(reasons)
-        if was_collecting and reasons:
-            self.detector.discard()
-
-    def add_sample(self, t_ns: int, ax: float, ay: float, az: float,
-                   gx: float = 0.0, gy: float = 0.0, gz: float = 0.0) -> Pose | None:
-        """One IMU sample (SI, header stamp in ns). Returns a pose when a still interval ends."""
-        screen = self.screen
-        if not screen.check(t_ns, ax, ay, az, gx, gy, gz):
-            return None
-        ended = None
-        if screen.restarted:  # the clock jumped: the interval so far ends on its own clock
-            screen.restarted = False
-            ended = self._usable(self.detector.restart(), screen.time_base - 1)
-        if self._pause_reasons:
-            self.counters.samples_paused += 1
-            return ended
-        temperature = self.temperature.at(t_ns)
-        if temperature is None and self.temperature.value is not None:
-            self.counters.temperature_stale += 1
-        pose = self._usable(self.detector.update(t_ns, ax, ay, az, gx, gy, gz, temperature))
-        return ended if pose is None else pose
-
-    def holding(self) -> Pose | None:
-        """The still interval in progress as a pose (what a person holding a pose expects counted)."""
-        pose = self.detector.peek()
-        return pose if self._rejection(pose, self.screen.time_base) is None else None
-
-    def flush(self) -> Pose | None:
-        """End of a stream: the interval in progress, if long enough."""
-        return self._usable(self.detector.flush())
 
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,
                       temperature_degc: np.ndarray | None = None,
                       collecting: np.ndarray | None = None) -> list[Pose]:
-        """A whole recording in arrival order: the poses `add_sample` per sample then `flush` would give
-        (same screening, temperature filter and detector rules, with array operations). `collecting` (one
-        bool per sample, optional): False where collection was paused (armed, flying), as if
-        `set_collecting` had been called at each change. Fresh session only. The same as feeding it in
-        parts through `recording_feed` (it is done so, in parts of RecordingFeed.PART_ROWS)."""
+        """A whole recording in arrival order: its poses (screening, temperature filter and detector rules,
+        with array operations). `collecting` (one bool per sample, optional): False where collection was
+        paused (armed, flying). Fresh session only. The same as feeding it in parts through
+        `recording_feed` (it is done so, in parts of RecordingFeed.PART_ROWS) or `live_feed`."""
         has_temperature = temperature_stamps_ns is not None and temperature_degc is not None
         feed = self.recording_feed(has_temperature=has_temperature)
         if has_temperature:
@@ -185,6 +147,12 @@ class CalibrationSession:
         `has_temperature`: temperature readings will come (samples then wait for the readings of their
         time). Fresh session only."""
         return RecordingFeed(self, has_temperature)
+
+    def live_feed(self) -> RecordingFeed:
+        """The node's door: samples and temperature readings in whatever batches the stream gave, each part
+        processed as soon as the readings of its time have come (at most LIVE_TEMPERATURE_WAIT_NS late), poses
+        taken with `take_poses` as they end, the interval in progress seen with `holding`. Fresh session only."""
+        return RecordingFeed(self, has_temperature=True, live=True)
 
     def _rejection(self, pose: Pose | None, time_base: int) -> str | None:
         """Why a still interval is no pose: 'frozen' (it overlaps a frozen run), 'implausible' (|mean|
@@ -314,6 +282,14 @@ class CalibrationSession:
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id)
         return Verdict(True, "passed every gate" + left_out, replace(result, calibration=calibration), calibration)
 
+    def auto_verdict(self, result: FitResult | None) -> Verdict | None:
+        """With auto_calibrate on: the verdict to apply once the latest refit passes every gate (None when
+        nothing is to be applied)."""
+        if not self.settings.auto_calibrate or result is None or self.gates.check(result) is not None:
+            return None
+        verdict = self.calibrate()
+        return verdict if verdict.success else None
+
     def _missing_text(self, poses: Sequence[Pose]) -> str:
         missing = missing_directions(_directions(poses)) if poses else list(ALL_FACES)
         return "still missing: " + ", ".join(missing) if missing else "every face seen; hold more orientations"
@@ -396,10 +372,14 @@ class RecordingFeed:
 
     PART_ROWS = 1 << 14  # ~16 s at 1 kHz: a part and its temporaries stay in cache (2 workers then scale)
     MAX_LAG_PARTS = 8
+    # Live: a part waits this long (stamp span) at most for the temperature readings of its time; a node
+    # without a temperature topic then finds its poses this much later.
+    LIVE_TEMPERATURE_WAIT_NS = 1_000_000_000
 
-    def __init__(self, session: CalibrationSession, has_temperature: bool):
+    def __init__(self, session: CalibrationSession, has_temperature: bool, live: bool = False):
         self.session = session
         self.has_temperature = has_temperature
+        self.live = live
         self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._buffered = 0
         self._readings: list[tuple[np.ndarray, np.ndarray]] = []  # as they came
@@ -436,7 +416,31 @@ class RecordingFeed:
         self._run(final=True)
         return [pose for pose, base in self._found if self.session._usable(pose, base) is not None]
 
+    def take_poses(self) -> list[Pose]:
+        """Live: the poses ended since the last call (those that are poses: not frozen, plausible gravity)."""
+        found, self._found = self._found, []
+        return [pose for pose, base in found if self.session._usable(pose, base) is not None]
+
+    def drain(self) -> None:
+        """Live: everything buffered goes through now, without waiting for later temperature readings
+        (/calibrate counts what was held up to the moment it was called)."""
+        while self._buffered:
+            self._part(*self._take(min(self._buffered, self.PART_ROWS)), final=False)
+
+    def holding(self) -> Pose | None:
+        """Live: the still interval in progress as the pose it would end as now (what a person holding a
+        pose expects /calibrate to count), None when there is none or it is no pose."""
+        if self._paused_since:
+            return None
+        pose = self.session.detector.peek_open()
+        if pose is None:
+            return None
+        return self.session._usable(pose, self._segment_base)
+
     def _run(self, final: bool) -> None:
+        if self.live and not final:
+            self._run_live()
+            return
         while self._buffered >= self.PART_ROWS:
             t, accel, gyro, collecting = self._take(self.PART_ROWS)
             waiting = (self.has_temperature and (self._latest_reading is None or self._latest_reading <= t.max())
@@ -451,6 +455,20 @@ class RecordingFeed:
                 self._part(*self._take(self._buffered), final=True)
             elif self.session.detector.continuing:
                 self._part(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), None, final=True)
+
+    def _run_live(self) -> None:
+        """Each part as soon as its samples' temperature readings have come (a reading stamped after its
+        last sample), or it has waited LIVE_TEMPERATURE_WAIT_NS of stamps; at once while no reading ever came."""
+        while self._buffered:
+            t, accel, gyro, collecting = self._take(min(self._buffered, self.PART_ROWS))
+            # No reading yet: no temperature topic (or not yet): nothing to wait for.
+            waiting = self._latest_reading is not None and self._latest_reading <= t.max() \
+                and int(t.max()) - int(t.min()) < self.LIVE_TEMPERATURE_WAIT_NS
+            if waiting:
+                self._samples.insert(0, (t, accel, gyro, collecting))
+                self._buffered += len(t)
+                return
+            self._part(t, accel, gyro, collecting, final=False)
 
     def _take(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """The first `rows` buffered samples as arrays (joined from the pieces that came)."""
@@ -498,8 +516,6 @@ class RecordingFeed:
         time_base = session.screen.time_base
         keep, restart = session.screen.screen_arrays(t, accel, gyro)
         paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
-        if session._pause_reasons:
-            paused[:] = True
         session.counters.samples_paused += int(np.count_nonzero(keep & paused))
         rows = np.flatnonzero(keep & ~paused)  # what the detector sees
         # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a

@@ -475,6 +475,23 @@ class StaticDetector:
         finally:
             self._interval, self._pending, self._undecided = saved, pending, undecided
 
+    @property
+    def holding_still(self) -> bool:
+        """After process(..., final=False): a still interval is open at the end of what was processed."""
+        carry = self._batch_carry
+        return carry is not None and carry.opened is not None
+
+    def peek_open(self) -> Pose | None:
+        """After process(..., final=False): the interval still open as the pose process() would end it as
+        if the recording ended here, without ending it (a live /calibrate counts the pose being held)."""
+        from .static_detector_batch import peek_carry
+
+        pose = peek_carry(self)
+        if pose is None or self._layout is None:
+            return pose
+        offset = self._layout[0]  # the open interval is on the last segment's clock
+        return replace(pose, start_ns=pose.start_ns - offset, end_ns=pose.end_ns - offset)
+
     def flush(self) -> Pose | None:
         """End of stream: the ongoing still interval, if long enough."""
         return self._end_interval(keep_pending=True)

@@ -578,6 +578,18 @@ def _finish(d: StaticDetector, poses: list[Pose], carry: BatchCarry, t: np.ndarr
     return poses
 
 
+def peek_carry(d: StaticDetector) -> Pose | None:
+    """The pose the carried open interval would end as at the end of the recording (flushed), the carry
+    left as it was."""
+    carry = d._batch_carry
+    if carry is None or carry.opened is None:
+        return None
+    poses: list[Pose] = []
+    _finish(d, poses, carry, carry.t, carry.accel, carry.gyro, carry.temperature, True)
+    d._batch_carry = carry
+    return poses[0] if poses else None
+
+
 def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
           temps: np.ndarray | None, opened_window: int, opened: int, last: int, trim_end: bool, trim_ns: int) -> None:
     """The interval opened at row `opened` (its window's first row, `opened_window`, gives the start,

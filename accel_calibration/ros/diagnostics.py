@@ -1,0 +1,70 @@
+"""What the node says on /diagnostics: one DiagnosticStatus built from the worker's latest progress, the
+counters and the stream's health (a silent input is a WARN naming the resolved topic)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+from ..core.calibration import Calibration
+from ..core.screening import Counters
+from ..core.session import Progress
+
+
+@dataclass(frozen=True)
+class StreamHealth:
+    """Seconds since the last message on each input (None: none yet) and the resolved topic names."""
+
+    imu_topic: str
+    temperature_topic: str
+    imu_silent_s: float | None
+    temperature_silent_s: float | None
+    timeout_s: float
+
+    def problems(self) -> list[str]:
+        out = []
+        if self.imu_silent_s is None or self.imu_silent_s >= self.timeout_s:
+            since = "since start" if self.imu_silent_s is None else f"for {self.imu_silent_s:.0f} s"
+            out.append(f"no messages on {self.imu_topic} {since}")
+        if self.temperature_silent_s is not None and self.temperature_silent_s >= self.timeout_s:
+            out.append(f"no messages on {self.temperature_topic} for {self.temperature_silent_s:.0f} s "
+                       "(temperature stale)")
+        return out
+
+
+def diagnostic_status(name: str, level: bytes, message: str, progress: Progress, values: dict[str, str],
+                      counts: dict[str, int], errors: dict[str, int], calibration: Calibration | None,
+                      hardware_id: str, health: StreamHealth, pause_reasons: tuple[str, ...],
+                      in_force_since_start: bool) -> DiagnosticStatus:
+    if level == DiagnosticStatus.OK and any(v for k, v in counts.items() if k not in Counters.INFORMATIONAL):
+        level = DiagnosticStatus.WARN
+    silent = health.problems()
+    if silent and level == DiagnosticStatus.OK:
+        level = DiagnosticStatus.WARN
+    advice = progress.advice
+    if calibration is not None and not progress.ready and progress.poses < progress.min_poses:
+        # Calibrated (from a file, or earlier): the missing faces only refine it.
+        advice = f"calibration in force; more poses would refine it ({advice})"
+    entries = {
+        "poses": str(progress.poses),
+        "poses_needed": str(progress.min_poses),
+        "missing_directions": ", ".join(progress.missing) or "none",
+        "advice": advice,
+        "fit_residual_rms_mg": "" if progress.residual_rms_mg is None else f"{progress.residual_rms_mg:.3f}",
+        "fit_bias_sigma_max_mg": "" if progress.max_bias_sigma_mg is None else f"{progress.max_bias_sigma_mg:.3f}",
+        **values,
+        "imu_silent_s": "" if health.imu_silent_s is None else f"{health.imu_silent_s:.1f}",
+        "temperature_silent_s": "" if health.temperature_silent_s is None else f"{health.temperature_silent_s:.1f}",
+    }
+    span = progress.temperature_span_degc
+    entries["temperature_span_degc"] = "" if span is None else f"{span[0]:.1f}..{span[1]:.1f} ({span[1] - span[0]:.1f})"
+    entries["temperature_model"] = progress.temperature_status
+    entries.update({key: str(value) for key, value in counts.items()})
+    for callback, count in errors.items():
+        entries[f"callback_errors.{callback}"] = str(count)
+    if calibration is not None and calibration.quality is not None:
+        entries["calibration_residual_rms_mg"] = f"{calibration.quality.residual_rms_mg:.3f}"
+    paused = f" (collection paused: {', '.join(pause_reasons)})" if pause_reasons else ""
+    text = "; ".join([message, *silent, advice]) + paused
+    return DiagnosticStatus(level=level, name=name, message=text, hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in entries.items()])
