@@ -60,14 +60,20 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
     m = m[(m >= 1) & (2 * m < n)]
     # The running integral (phase), of the samples less their mean: keeps theta small, so the second
     # differences lose no digits to a 9.8 m/s^2 offset.
-    theta = np.zeros((n + 1, values.shape[1]))
-    np.cumsum(values - values.mean(axis=0), axis=0, out=theta[1:])
+    # One contiguous row per channel, and one scratch buffer reused for every tau (no temporaries).
+    theta = np.zeros((values.shape[1], n + 1))
+    np.cumsum((values - values.mean(axis=0)).T, axis=1, out=theta[:, 1:])
     theta *= tau0
     adev = np.empty((len(m), values.shape[1]))
+    scratch = np.empty((values.shape[1], n))
     for row, size in enumerate(m.tolist()):
-        second = theta[2 * size:] - 2.0 * theta[size:-size] + theta[:-2 * size]
+        length = n + 1 - 2 * size
+        second = scratch[:, :length]
+        np.subtract(theta[:, 2 * size:], theta[:, size:-size], out=second)
+        second -= theta[:, size:-size]
+        second += theta[:, :-2 * size]
         tau = size * tau0
-        adev[row] = np.sqrt(np.einsum("ij,ij->j", second, second) / (2.0 * tau * tau * (n + 1 - 2 * size)))
+        adev[row] = np.sqrt(np.einsum("ij,ij->i", second, second) / (2.0 * tau * tau * length))
     relative = 1.0 / np.sqrt(2.0 * np.maximum(n / m - 1.0, 1.0))
     return m * tau0, adev, relative
 
