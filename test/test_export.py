@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import shared_path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -22,7 +23,6 @@ from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import save_calibration
 from accel_calibration.io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
-from conftest import shared_path
 
 FLOAT32_SLACK_MG = 0.01  # the autopilots keep float32 parameters: ~1e-7 relative
 

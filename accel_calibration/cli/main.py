@@ -438,7 +438,9 @@ def main(argv=None) -> int:
         _check_finite(args)
         return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report,
                 "fleet": fleet_command.run, "history": history_command.run,
-                "export": export_command.run, "compare": compare_command.run, "noise": noise_command.run}[args.command](args)
+                "export": export_command.run,
+                "compare": compare_command.run,
+                "noise": noise_command.run}[args.command](args)
     except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1
