@@ -88,3 +88,44 @@ def test_noise_refuses_a_recording_too_short_saying_how_long(tmp_path, capsys):
     assert main(["noise", str(tmp_path / "short.csv"), "--whole"]) == 1
     error = capsys.readouterr().err
     assert "lasts 10.0 s" in error and "at least 20 s" in error and "h" in error
+
+
+def test_an_mcap_bag_and_a_csv_of_the_same_samples_give_the_same_figures(tmp_path, capsys):
+    from test_flight import write_imu_bag
+
+    rate = 100.0
+    rng = np.random.default_rng(11)
+    samples = int(300 * rate)
+    accel = simulate(rng, samples, rate, 2e-3, 1e-4, 2e-5, 10.0, channels=3) + [0.0, 0.0, 9.80665]
+    gyro = simulate(rng, samples, rate, 2e-4, 2e-5, 1e-5, 10.0, channels=3)
+    accel, gyro = np.round(accel, 9), np.round(gyro, 10)  # what the CSV's 9 significant digits keep
+    _write_csv(tmp_path / "still.csv", np.hstack([accel, gyro]), rate)
+    t_ns = 1_700_000_000_000_000_000 + (np.arange(samples) * 1e9 / rate).astype(np.int64)
+    write_imu_bag(tmp_path / "still_bag", t_ns, accel, gyro, storage="mcap")
+    figures = []
+    for source in (tmp_path / "still.csv", tmp_path / "still_bag"):
+        out = tmp_path / f"{source.name}.yaml"
+        assert main(["noise", str(source), "--kalibr", str(out)]) == 0  # still stretch by the detector
+        figures.append(yaml.safe_load(out.read_text()))
+    printed = capsys.readouterr().out
+    assert printed.count("min, ") == 2
+    for name in ("accelerometer_noise_density", "accelerometer_random_walk", "gyroscope_noise_density"):
+        assert figures[0][name] == pytest.approx(figures[1][name], rel=1e-4), name
+
+
+def test_the_still_stretch_joins_the_detectors_consecutive_poses_and_leaves_motion_out():
+    from accel_calibration.cli.noise import still_stretch
+
+    rate = 100.0
+    rng = np.random.default_rng(4)
+    moving = int(30 * rate)
+    samples = moving + int(300 * rate)
+    accel = rng.normal(scale=0.02, size=(samples, 3)) + [0.0, 0.0, 9.80665]
+    angle = np.linspace(0, 6 * np.pi, moving)
+    accel[:moving] = 9.80665 * np.column_stack([np.sin(angle), np.zeros(moving), np.cos(angle)])  # turning
+    gyro = rng.normal(scale=0.003, size=(samples, 3))
+    gyro[:moving, 1] = 6 * np.pi / 30
+    t_ns = (np.arange(samples) * 1e9 / rate).astype(np.int64)
+    first, last = still_stretch(t_ns, accel, gyro)
+    assert moving <= first < moving + 3 * rate  # the stillness after the turning, not before
+    assert last - first > 0.97 * (samples - moving)  # one stretch, not the detector's minute-long poses

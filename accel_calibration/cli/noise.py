@@ -46,15 +46,32 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
     return parser
 
 
+MERGE_GAP_S = 0.5  # the detector cuts a long still interval into poses a sample or a window apart
+MERGE_ANGLE_DEG = 1.0
+
+
 def still_stretch(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None) -> tuple[int, int]:
-    """[first, last) sample indices of the longest still interval the calibration session's detector finds."""
+    """[first, last) sample indices of the longest still stretch: the calibration session's still intervals
+    (poses), joined where one follows the other within MERGE_GAP_S in the same orientation (the detector
+    hands a long stillness over as consecutive poses of about a minute)."""
     session = CalibrationSession()
-    poses = session.add_recording(t_ns, accel, gyro if gyro is not None else np.zeros_like(accel))
+    poses = sorted(session.add_recording(t_ns, accel, gyro if gyro is not None else np.zeros_like(accel)),
+                   key=lambda pose: pose.start_ns)
     if not poses:
         raise CalibrationError("no still stretch found: hold the sensor still (or give --whole if it was)")
-    longest = max(poses, key=lambda pose: pose.end_ns - pose.start_ns)
-    first = int(np.searchsorted(t_ns, longest.start_ns, side="left"))
-    last = int(np.searchsorted(t_ns, longest.end_ns, side="right"))
+    stretches: list[list[int]] = []
+    previous = None
+    for pose in poses:
+        joined = (previous is not None and pose.start_ns - previous.end_ns <= MERGE_GAP_S * 1e9
+                  and float(np.dot(pose.direction, previous.direction)) >= np.cos(np.radians(MERGE_ANGLE_DEG)))
+        if joined:
+            stretches[-1][1] = pose.end_ns
+        else:
+            stretches.append([pose.start_ns, pose.end_ns])
+        previous = pose
+    start_ns, end_ns = max(stretches, key=lambda stretch: stretch[1] - stretch[0])
+    first = int(np.searchsorted(t_ns, start_ns, side="left"))
+    last = int(np.searchsorted(t_ns, end_ns, side="right"))
     return first, last
 
 
