@@ -94,7 +94,7 @@ class Figure:
 @dataclass(frozen=True)
 class AxisNoise:
     white_density: Figure  # sigma at tau = 1 s on the -1/2 line
-    random_walk: Figure  # on the +1/2 line, sqrt(3) x its value at tau = 3 s / 3 ... K itself
+    random_walk: Figure  # K of the +1/2 line sigma = K sqrt(tau / 3), i.e. its value at tau = 3 s
     bias_instability: Figure  # min sigma / 0.664, at_tau_s the minimum's tau
 
 
