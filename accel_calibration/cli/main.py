@@ -30,8 +30,11 @@ from ..io.calibration_file import (
 )
 from ..io.output_paths import check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
+from . import compare as compare_command
+from . import export as export_command
 from . import fleet as fleet_command
 from . import history as history_command
+from . import noise as noise_command
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -135,6 +138,9 @@ def _parser() -> argparse.ArgumentParser:
     apply_cmd.add_argument("output", help="CSV to write")
     fleet_command.add_parser(commands)
     history_command.add_parser(commands)
+    export_command.add_parser(commands)
+    compare_command.add_parser(commands)
+    noise_command.add_parser(commands)
     return parser
 
 
@@ -431,7 +437,10 @@ def main(argv=None) -> int:
         args = _parser().parse_args(argv)
         _check_finite(args)
         return {"fit": _fit, "apply": _apply, "replay": _replay, "report": _report,
-                "fleet": fleet_command.run, "history": history_command.run}[args.command](args)
+                "fleet": fleet_command.run, "history": history_command.run,
+                "export": export_command.run,
+                "compare": compare_command.run,
+                "noise": noise_command.run}[args.command](args)
     except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1

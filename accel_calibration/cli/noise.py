@@ -1,0 +1,163 @@
+"""accel-calib noise: accelerometer and gyroscope noise figures from the still stretch of a recording
+(any format open_recording reads), by overlapping Allan deviation (core/allan.py): a plain table, the
+Kalibr fields (--kalibr imu.yaml) and a log-log figure (--plot)."""
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.allan import Figure, NoiseFit, fit_noise, overlapping_adev, required_duration_s
+from ..core.errors import CalibrationError
+from ..core.session import CalibrationSession
+from ..io.calibration_file import write_text_atomically
+from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
+from ..io.output_paths import check_outputs, write_bytes_atomically
+
+MIN_STILL_S = 20.0  # tau up to ~2 s with 9 clusters: the white-noise density at tau = 1 s, and no more
+UNITS = {"accelerometer": "m/s^2", "gyroscope": "rad/s"}
+DENSITY_UNITS = {"accelerometer": "m/s^2/sqrt(Hz)", "gyroscope": "rad/s/sqrt(Hz)"}
+WALK_UNITS = {"accelerometer": "m/s^3/sqrt(Hz)", "gyroscope": "rad/s^2/sqrt(Hz)"}
+
+
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    parser = commands.add_parser(
+        "noise", help="noise density, random walk and bias instability from a still recording (Allan deviation)",
+        description="Overlapping Allan deviation per axis of the longest still stretch of the recording; white "
+                    "noise density (-1/2 line at tau = 1 s), random walk (+1/2 line at tau = 3 s) and bias "
+                    "instability (the minimum / 0.664), each with its 95 %% interval.")
+    parser.add_argument("recording", metavar="RECORDING",
+                        help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples")
+    parser.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "csv"), default=None)
+    parser.add_argument("--imu-topic", default=None, help="bags: sensor_msgs/Imu topic (default: the only one)")
+    parser.add_argument("--instance", type=int, default=None, metavar="N", help="ULog: sensor_accel instance N")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None, help="CSV: time column unit")
+    parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None, help="CSV: units of ax,ay,az")
+    parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS", help="CSV with --units counts")
+    parser.add_argument("--whole", action="store_true",
+                        help="use the whole recording (known to be still) instead of the longest still stretch "
+                             "the detector finds")
+    parser.add_argument("--kalibr", default=None, metavar="IMU.yaml", help="write Kalibr's imu.yaml")
+    parser.add_argument("--rostopic", default="/imu0", help="--kalibr: the IMU topic (default /imu0)")
+    parser.add_argument("--plot", default=None, metavar="FIG.png", help="write the log-log figure")
+    return parser
+
+
+MERGE_GAP_S = 0.5  # the detector cuts a long still interval into poses a sample or a window apart
+MERGE_ANGLE_DEG = 1.0
+
+
+def still_stretch(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None) -> tuple[int, int]:
+    """[first, last) sample indices of the longest still stretch: the calibration session's still intervals
+    (poses), joined where one follows the other within MERGE_GAP_S in the same orientation (the detector
+    hands a long stillness over as consecutive poses of about a minute)."""
+    session = CalibrationSession()
+    poses = sorted(session.add_recording(t_ns, accel, gyro if gyro is not None else np.zeros_like(accel)),
+                   key=lambda pose: pose.start_ns)
+    if not poses:
+        raise CalibrationError("no still stretch found: hold the sensor still (or give --whole if it was)")
+    stretches: list[list[int]] = []
+    previous = None
+    for pose in poses:
+        joined = (previous is not None and pose.start_ns - previous.end_ns <= MERGE_GAP_S * 1e9
+                  and float(np.dot(pose.direction, previous.direction)) >= np.cos(np.radians(MERGE_ANGLE_DEG)))
+        if joined:
+            stretches[-1][1] = pose.end_ns
+        else:
+            stretches.append([pose.start_ns, pose.end_ns])
+        previous = pose
+    start_ns, end_ns = max(stretches, key=lambda stretch: stretch[1] - stretch[0])
+    first = int(np.searchsorted(t_ns, start_ns, side="left"))
+    last = int(np.searchsorted(t_ns, end_ns, side="right"))
+    return first, last
+
+
+def sample_rate_hz(t_ns: np.ndarray) -> float:
+    """The rate of evenly spaced stamps; refuses gaps (Allan deviation assumes one sample per tau0)."""
+    steps = np.diff(t_ns.astype(np.int64))
+    if len(steps) < 2 or np.any(steps <= 0):
+        raise CalibrationError("stamps must increase: Allan deviation needs samples in time order")
+    median = float(np.median(steps))
+    gaps = int(np.count_nonzero(steps > 2.5 * median))
+    if gaps > max(1, len(steps) // 1000):
+        raise CalibrationError(f"{gaps} gaps of more than 2.5 sample periods in the still stretch: Allan deviation "
+                               "needs an unbroken stream")
+    return float(len(steps) * 1e9 / (t_ns[-1] - t_ns[0]))
+
+
+def _figure_text(figure: Figure, scale: float = 1.0) -> str:
+    if not figure.resolved and figure.needs_s is not None:
+        return f"< {figure.high * scale:.3g} (not resolved: needs {figure.needs_s / 3600:.1f} h still)"
+    text = f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
+    return text + ("" if figure.resolved else " (curve still falling: a bound)")
+
+
+def noise_table(fits: dict[str, list[NoiseFit]]) -> str:
+    rows = [f"{'channel':8s} {'white noise density':>34s} {'random walk':>34s} {'bias instability':>40s}"]
+    for sensor, axes in fits.items():
+        rows.append(f"{sensor}: density {DENSITY_UNITS[sensor]}, random walk {WALK_UNITS[sensor]}, "
+                    f"bias instability {UNITS[sensor]} (95 % intervals)")
+        for axis, fit in zip("xyz", axes):
+            n = fit.noise
+            bias = _figure_text(n.bias_instability) + f" at {n.bias_instability.at_tau_s:.3g} s"
+            rows.append(f"  {sensor[0]}{axis:6s} {_figure_text(n.white_density):>34s} "
+                        f"{_figure_text(n.random_walk):>34s} {bias:>40s}")
+    return "\n".join(rows)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..bag.recording import open_recording
+
+    check_outputs([("--kalibr", args.kalibr), ("--plot", args.plot)], [args.recording])
+    recording = open_recording(args.recording, args.format, imu_topic=args.imu_topic, instance=args.instance,
+                               time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    t_ns = recording.t_ns
+    if len(t_ns) < 3:
+        raise CalibrationError(f"{args.recording}: {len(t_ns)} samples: too few for noise figures")
+    first, last = (0, len(t_ns)) if args.whole else still_stretch(t_ns, recording.accel_mps2, recording.gyro_radps)
+    t = t_ns[first:last]
+    duration_s = float(t[-1] - t[0]) * 1e-9 if len(t) > 1 else 0.0
+    if duration_s < MIN_STILL_S:
+        raise CalibrationError(
+            f"{args.recording}: the still stretch lasts {duration_s:.1f} s: the noise density needs at least "
+            f"{MIN_STILL_S:g} s still, the random walk within +-25 % about {required_duration_s(800.0) / 3600:.0f} h")
+    rate = sample_rate_hz(t)
+    channels = {"accelerometer": recording.accel_mps2[first:last]}
+    if recording.gyro_radps is not None:
+        channels["gyroscope"] = recording.gyro_radps[first:last]
+    fits: dict[str, list[NoiseFit]] = {}
+    for sensor, values in channels.items():
+        tau, adev, relative = overlapping_adev(values, rate)
+        fits[sensor] = [fit_noise(tau, adev[:, axis], relative, duration_s) for axis in range(3)]
+    print(f"{args.recording}: {recording.stream}, still {t_ns[first] * 1e-9:.1f}..{t_ns[last - 1] * 1e-9:.1f} s "
+          f"({duration_s / 60:.1f} min, {len(t)} samples at {rate:.1f} Hz)")
+    print(noise_table(fits))
+    if args.kalibr:
+        if "gyroscope" not in fits:
+            raise CalibrationError(f"{args.recording}: no gyroscope in the recording: Kalibr's imu.yaml needs its "
+                                   "figures too")
+        figures = NoiseFigures(  # the largest axis of each: Kalibr takes one figure per sensor
+            accelerometer_noise_density=max(f.noise.white_density.value for f in fits["accelerometer"]),
+            accelerometer_random_walk=max(f.noise.random_walk.value for f in fits["accelerometer"]),
+            gyroscope_noise_density=max(f.noise.white_density.value for f in fits["gyroscope"]),
+            gyroscope_random_walk=max(f.noise.random_walk.value for f in fits["gyroscope"]),
+            update_rate_hz=rate)
+        comment = (f"accel-calib noise {Path(args.recording).name}: the largest axis of each figure; "
+                   f"{duration_s / 60:.1f} min still at {rate:.1f} Hz")
+        unresolved = [s for s, axes in fits.items() if not all(f.noise.random_walk.resolved for f in axes)]
+        if unresolved:
+            comment += f"\nrandom walk of {', '.join(unresolved)} not resolved: an upper bound (record longer)"
+        write_text_atomically(args.kalibr, kalibr_imu_yaml(figures, args.rostopic, comment))
+        print(f"written {args.kalibr}")
+    if args.plot:
+        from ..io.noise_figure import write_noise_figure
+
+        with tempfile.TemporaryDirectory(prefix="accel-calib-noise-") as scratch:
+            rendered = Path(scratch) / "noise.png"
+            write_noise_figure(fits, UNITS, rendered, title=Path(args.recording).name)
+            write_bytes_atomically(args.plot, rendered.read_bytes())
+        print(f"figure {args.plot}")
+    return 0

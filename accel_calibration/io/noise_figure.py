@@ -1,0 +1,40 @@
+"""The Allan deviation figure of `accel-calib noise`: log-log curves per axis with their 95 % bands and
+the fitted -1/2 (white noise), +1/2 (random walk) lines and the bias-instability floor."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..core.allan import BIAS_INSTABILITY_FACTOR, Z95, NoiseFit
+
+
+def write_noise_figure(fits: dict[str, list[NoiseFit]], units: dict[str, str], path: str | Path, title: str) -> None:
+    """One panel per sensor ("accelerometer", "gyroscope"), three axes each, written as a PNG to `path`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, panels = plt.subplots(1, len(fits), figsize=(6.5 * len(fits), 5), squeeze=False)
+    colours = ("tab:red", "tab:green", "tab:blue")
+    for panel, (sensor, axes) in zip(panels[0], fits.items()):
+        for axis, fit, colour in zip("xyz", axes, colours):
+            band = Z95 * fit.relative_error
+            panel.loglog(fit.tau_s, fit.adev, "o-", color=colour, markersize=3, label=f"{axis}")
+            panel.fill_between(fit.tau_s, fit.adev * np.maximum(1 - band, 1e-3), fit.adev * (1 + band),
+                               color=colour, alpha=0.15)
+            noise = fit.noise
+            panel.loglog(fit.tau_s, noise.white_density.value / np.sqrt(fit.tau_s), "--", color=colour, lw=0.8)
+            if noise.random_walk.resolved:
+                panel.loglog(fit.tau_s, noise.random_walk.value * np.sqrt(fit.tau_s / 3.0), ":", color=colour, lw=0.8)
+            panel.axhline(noise.bias_instability.value * BIAS_INSTABILITY_FACTOR, color=colour, lw=0.5, alpha=0.5)
+        panel.set_xlabel("tau (s)")
+        panel.set_ylabel(f"Allan deviation ({units[sensor]})")
+        panel.set_title(f"{sensor}: -- white (-1/2), : random walk (+1/2), - bias floor")
+        panel.grid(True, which="both", alpha=0.3)
+        panel.legend()
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
