@@ -28,6 +28,24 @@ class BagError(AccelCalibrationError):
     """A bag that cannot be used: the message names the bag and what was found."""
 
 
+# Third-party modules whose pip name differs from the import name (rosbags, lz4, pyulog, pyarrow,
+# dask, SQLAlchemy 2 and psycopg 3 have no rosdep key: a ROS install from rosdep alone lacks them).
+PIP_NAMES = {"backports": "backports.zstd", "yaml": "PyYAML", "sqlalchemy": "SQLAlchemy>=2",
+             "dask": "dask[distributed]", "psycopg": "psycopg[binary]"}
+
+
+def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
+    """What to install, for a third-party module that is not installed (None for one of ours: a bug, not
+    an install to fix). Never read as a damaged recording: the recording was not looked at."""
+    module = (error.name or "").split(".")[0]
+    if not module or module in ("accel_calibration", "msg_tools"):
+        return None
+    where = f"{path}: cannot be read here: " if path is not None else ""
+    install = PIP_NAMES.get(module, module)
+    return BagError(f"{where}the Python module '{module}' is not installed (pip install '{install}'; "
+                    "or pip install -r requirements.txt into the ROS environment)")
+
+
 @dataclass
 class ImuData:
     topic: str
