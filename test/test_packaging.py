@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import importlib.util
 import re
+import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from glob import glob
@@ -20,6 +21,7 @@ LAUNCH_FILE = REPO / "launch" / "calibration.launch.py"
 CONFIG_FILE = REPO / "config" / "accel_calibration.yaml"
 CODE_DIRS = [REPO / "accel_calibration", REPO / "msg_tools"]
 FIRST_PARTY = {"accel_calibration", "msg_tools"}
+PYTHON = sys.executable  # as started (some tests stand another in for it)
 
 # ROS interface packages: their Python modules are the package names themselves.
 ROS_INTERFACE = re.compile(r"^[a-z0-9_]+_(msgs|srvs|interfaces)$")
@@ -279,3 +281,77 @@ def test_config_lists_every_parameter_at_its_default():
     assert sorted(set(listed) - set(expected)) == [], "example file sets parameters the node does not have"
     for name, default in expected.items():
         assert listed[name] == pytest.approx(default) if isinstance(default, float) else listed[name] == default, name
+
+
+# --- console scripts as installed ------------------------------------------------------------
+
+def _fake_script(directory: Path, name: str) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    path.write_text("#!/bin/sh\nexit 0\n")
+    path.chmod(0o755)
+    return path
+
+
+@pytest.fixture
+def nothing_installed(tmp_path, monkeypatch):
+    """No console script beside the interpreter, no ament index, an empty PATH, no override."""
+    from msg_tools import node_process
+
+    monkeypatch.setattr(node_process.sys, "executable", str(tmp_path / "bare" / "python3"))
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    monkeypatch.delenv(node_process.BIN_ENV, raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    return tmp_path
+
+
+@pytest.mark.parametrize("name", ["accel-calib", "calibration_node"])
+def test_console_scripts_are_found_through_the_ament_index(nothing_installed, monkeypatch, name):
+    """Where colcon installs them (install/accel_calibration/lib/accel_calibration/) and `ros2 run` finds them."""
+    from msg_tools.node_process import installed_command
+
+    prefix = nothing_installed / "install" / PACKAGE
+    _fake_script(prefix / "share" / "ament_index" / "resource_index" / "packages", PACKAGE)
+    script = _fake_script(prefix / "lib" / PACKAGE, name)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", f"{nothing_installed / 'elsewhere'}:{prefix}")
+    assert installed_command(name) == [str(script)]
+
+
+def test_console_scripts_beside_the_interpreter_come_first(nothing_installed, monkeypatch):
+    """A virtualenv's own install (make venv) wins over a sourced workspace's."""
+    from msg_tools import node_process
+
+    prefix = nothing_installed / "install" / PACKAGE
+    _fake_script(prefix / "share" / "ament_index" / "resource_index" / "packages", PACKAGE)
+    _fake_script(prefix / "lib" / PACKAGE, "accel-calib")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    beside = _fake_script(nothing_installed / "venv" / "bin", "accel-calib")
+    monkeypatch.setattr(node_process.sys, "executable", str(beside.parent / "python3"))
+    assert node_process.installed_command("accel-calib") == [str(beside)]
+
+
+def test_console_scripts_on_path_and_the_override(nothing_installed, monkeypatch):
+    from msg_tools.node_process import BIN_ENV, installed_command
+
+    on_path = _fake_script(nothing_installed / "usr-bin", "calibration_node")
+    monkeypatch.setenv("PATH", str(on_path.parent))
+    assert installed_command("calibration_node") == [str(on_path)]
+    chosen = _fake_script(nothing_installed / "chosen", "calibration_node")
+    monkeypatch.setenv(BIN_ENV, str(chosen.parent))
+    assert installed_command("calibration_node") == [str(chosen)]
+    monkeypatch.setenv(BIN_ENV, str(nothing_installed / "nowhere"))
+    with pytest.raises(FileNotFoundError, match=BIN_ENV):
+        installed_command("calibration_node")
+    with pytest.raises(ValueError, match="not a console script"):
+        installed_command("calibration-node")
+
+
+def test_console_scripts_fall_back_to_python_m_and_that_runs(nothing_installed):
+    from msg_tools.node_process import installed_command
+
+    command = installed_command("accel-calib")
+    assert command[1:] == ["-m", "accel_calibration.cli.main"]
+    command[0] = PYTHON  # the fixture's stand-in interpreter does not exist
+    run = subprocess.run([*command, "--help"], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert run.returncode == 0 and "usage: accel-calib" in run.stdout, run.stderr
+    assert installed_command("calibration_node")[1:] == ["-m", "accel_calibration.ros.node"]
