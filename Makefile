@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt setup.py setup.cfg package.xml
+$(STAMP): requirements.txt requirements-ros.txt setup.py setup.cfg package.xml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.txt
@@ -42,7 +42,7 @@ COLCON_VENV ?= .venv-colcon
 COLCON_WS ?= build/colcon-ws
 COLCON_STAMP := $(COLCON_VENV)/.installed
 
-$(COLCON_STAMP): requirements.txt requirements-colcon.txt
+$(COLCON_STAMP): requirements.txt requirements-ros.txt requirements-colcon.txt
 	test -x $(COLCON_VENV)/bin/python || python3 -m venv $(COLCON_VENV)
 	$(COLCON_VENV)/bin/python -m pip install --quiet --upgrade pip
 	$(COLCON_VENV)/bin/python -m pip install --quiet -r requirements.txt -r requirements-colcon.txt

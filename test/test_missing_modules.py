@@ -60,7 +60,7 @@ def test_replay_without_a_module_says_what_to_install(tmp_path, capsys, hide, sa
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
     assert "damaged" not in err and f"'{module}'" in err and "not installed" in err and install in err, err
-    assert "requirements.txt" in err, err
+    assert "pip install -r requirements-ros.txt" in err, err
 
 
 def test_replay_of_a_csv_stream_without_pyarrow(tmp_path, capsys, hide, samples):
@@ -72,7 +72,7 @@ def test_replay_of_a_csv_stream_without_pyarrow(tmp_path, capsys, hide, samples)
     assert main(["replay", str(path)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "damaged" not in err, err
-    assert "'pyarrow' is not installed (pip install 'pyarrow'" in err, err
+    assert "'pyarrow' is not installed: pip install 'pyarrow'" in err, err
 
 
 def test_replay_of_a_ulog_without_pyulog(shared, capsys, hide):
@@ -81,7 +81,7 @@ def test_replay_of_a_ulog_without_pyulog(shared, capsys, hide):
     assert main(["replay", str(path)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "damaged" not in err, err
-    assert "'pyulog' is not installed (pip install 'pyulog'" in err, err
+    assert "'pyulog' is not installed: pip install 'pyulog'" in err, err
 
 
 def test_history_without_sqlalchemy(tmp_path, capsys, hide):
@@ -91,7 +91,7 @@ def test_history_without_sqlalchemy(tmp_path, capsys, hide):
     assert main(["history", "--history", str(history)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
-    assert "'sqlalchemy' is not installed (pip install 'SQLAlchemy>=2'" in err, err
+    assert "'sqlalchemy' is not installed: pip install 'SQLAlchemy>=2'" in err, err
 
 
 def test_a_missing_module_of_our_own_is_a_bug_not_an_install(hide, tmp_path):

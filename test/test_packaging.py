@@ -366,7 +366,7 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "pyth
                "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "rosbags": "python3-rosbags-pip"}
 TEST_ROSDEP_KEYS = {"pytest": "python3-pytest", "hypothesis": "python3-hypothesis"}
 # No key (or, for SQLAlchemy, only one too old: Debian's and Ubuntu's 1.4; psycopg's is psycopg 2): a
-# colcon user installs these with `pip install -r requirements.txt` (README, "In a ROS 2 workspace").
+# colcon user installs these with `pip install -r requirements-ros.txt` (README, "In a ROS 2 workspace").
 NO_ROSDEP_KEY = {"lz4", "backports", "pyulog", "pyarrow", "dask", "distributed", "sqlalchemy", "psycopg"}
 # Of those, the ones rosbags requires (pip install rosbags, which python3-rosbags-pip runs, brings them).
 WITH_ROSBAGS = {"lz4", "backports"}
@@ -392,22 +392,30 @@ def test_package_xml_declares_every_dependency_that_has_a_rosdep_key():
 
 
 def test_dependencies_without_a_rosdep_key_are_in_requirements_and_the_readme():
-    requirements = {_normalise(_requirement_name(line)) for line in
-                    (REPO / "requirements.txt").read_text(encoding="utf-8").splitlines()
-                    if line.strip() and not line.startswith("#")}
+    """requirements-ros.txt (what a ROS workspace pip-installs) holds exactly what rosdep cannot install,
+    and requirements.txt includes it (it also brings PyPI's ROS wheels, unwanted in a ROS install)."""
     from importlib.metadata import requires
 
+    def names(path: Path) -> list[str]:
+        return [_normalise(_requirement_name(line)) for line in path.read_text(encoding="utf-8").splitlines()
+                if line.strip() and not line.startswith(("#", "-"))]
+
+    ros_requirements = names(REPO / "requirements-ros.txt")
+    assert "-r requirements-ros.txt" in (REPO / "requirements.txt").read_text(encoding="utf-8").splitlines()
+    assert not set(ros_requirements) & set(names(REPO / "requirements.txt")), "pinned twice"
     with_rosbags = {_normalise(_requirement_name(r)) for r in requires("rosbags") or [] if "extra ==" not in r}
+    expected = set()
     for module in NO_ROSDEP_KEY:
         distribution = _normalise(DISTRIBUTION.get(module, module))
         if module in WITH_ROSBAGS:
-            assert distribution in with_rosbags, f"{module}: rosbags no longer requires it; pin it in requirements"
+            assert distribution in with_rosbags, f"{module}: rosbags no longer requires it; pin it"
         else:
-            assert distribution in requirements, module
+            expected.add(distribution)
+    assert set(ros_requirements) == expected
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     assert "## In a ROS 2 workspace" in readme
     section = readme.split("## In a ROS 2 workspace", 1)[1].split("\n## ", 1)[0]
-    for command in ("rosdep install", "pip install -r", "requirements.txt", "colcon build", "colcon test",
+    for command in ("rosdep install", "pip install -r", "requirements-ros.txt", "colcon build", "colcon test",
                     "ros2 run accel_calibration calibration_node", "ros2 launch accel_calibration"):
         assert command in section, command
 

@@ -42,8 +42,8 @@ def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
         return None
     where = f"{path}: cannot be read here: " if path is not None else ""
     install = PIP_NAMES.get(module, module)
-    return BagError(f"{where}the Python module '{module}' is not installed (pip install '{install}'; "
-                    "or pip install -r requirements.txt into the ROS environment)")
+    return BagError(f"{where}the Python module '{module}' is not installed: pip install '{install}' "
+                    "(in a ROS 2 workspace: pip install -r requirements-ros.txt; README)")
 
 
 @dataclass
