@@ -28,8 +28,8 @@ class BagError(AccelCalibrationError):
     """A bag that cannot be used: the message names the bag and what was found."""
 
 
-# Third-party modules whose pip name differs from the import name (rosbags, lz4, pyulog, pyarrow,
-# dask, SQLAlchemy 2 and psycopg 3 have no rosdep key: a ROS install from rosdep alone lacks them).
+# Third-party modules whose pip name differs from the import name. (lz4, backports.zstd, pyulog, pyarrow,
+# Dask, SQLAlchemy 2 and psycopg 3 have no rosdep key: a ROS install from rosdep alone lacks them.)
 PIP_NAMES = {"backports": "backports.zstd", "yaml": "PyYAML", "sqlalchemy": "SQLAlchemy>=2",
              "dask": "dask[distributed]", "psycopg": "psycopg[binary]"}
 
