@@ -3,11 +3,11 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test lint demo bench clean
+.PHONY: venv test lint demo bench clean colcon-test
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt setup.py setup.cfg package.xml
+$(STAMP): requirements.txt requirements-ros.txt setup.py setup.cfg package.xml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.txt
@@ -45,3 +45,27 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) build *.egg-info
+
+# colcon build, then colcon test (the whole suite, ~5 min), as in a ROS 2 workspace: a fresh one in
+# build/colcon-ws from this checkout's files, colcon and ament_package from PyPI in their own virtualenv
+# (.venv-colcon: requirements.txt + requirements-colcon.txt). COLCON_BUILD_ARGS=--symlink-install for
+# that build; COLCON_TEST_ARGS="--pytest-args test/test_cli.py" for a part of the suite.
+COLCON_VENV ?= .venv-colcon
+COLCON_WS ?= build/colcon-ws
+COLCON_STAMP := $(COLCON_VENV)/.installed
+
+$(COLCON_STAMP): requirements.txt requirements-ros.txt requirements-colcon.txt
+	test -x $(COLCON_VENV)/bin/python || python3 -m venv $(COLCON_VENV)
+	$(COLCON_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(COLCON_VENV)/bin/python -m pip install --quiet -r requirements.txt -r requirements-colcon.txt
+	touch $(COLCON_STAMP)
+
+colcon-test: $(COLCON_STAMP)
+	rm -rf $(COLCON_WS) && mkdir -p $(COLCON_WS)/src/accel_calibration
+	git ls-files -co --exclude-standard | tar -cf - -T - | tar -xf - -C $(COLCON_WS)/src/accel_calibration
+	test ! -d ../shared || ln -s $(abspath ../shared) $(COLCON_WS)/src/shared
+	cd $(COLCON_WS) && export PATH="$(abspath $(COLCON_VENV))/bin:$$PATH" && \
+	colcon build --base-paths src/accel_calibration $(COLCON_BUILD_ARGS) && \
+	{ ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST colcon test --base-paths src/accel_calibration \
+	    --return-code-on-test-failure $(COLCON_TEST_ARGS); status=$$?; \
+	  colcon test-result --verbose; exit $$status; }

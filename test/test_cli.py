@@ -1,7 +1,5 @@
 """accel-calib from the outside: real processes for the entry point, main() for the many bad inputs."""
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,9 +7,10 @@ import yaml
 
 from accel_calibration import Calibration, load_calibration, save_calibration
 from accel_calibration.cli.main import main
+from msg_tools.node_process import installed_command
 
 G = 9.80665
-BIN = Path(sys.executable).parent
+ACCEL_CALIB = installed_command("accel-calib")
 
 
 def write_poses(path, rng, n=20, units="mps2", temperature=False):
@@ -35,7 +34,7 @@ def test_fit_then_apply_as_a_user_would(tmp_path):
     rng = np.random.default_rng(1)
     bias, matrix = write_poses(tmp_path / "poses.csv", rng, temperature=True)
     run = subprocess.run(
-        [BIN / "accel-calib", "fit", tmp_path / "poses.csv", "--output", tmp_path / "cal.yaml"],
+        [*ACCEL_CALIB, "fit", tmp_path / "poses.csv", "--output", tmp_path / "cal.yaml"],
         capture_output=True, text=True, check=False,
     )
     assert run.returncode == 0, run.stderr
@@ -46,7 +45,7 @@ def test_fit_then_apply_as_a_user_would(tmp_path):
 
     (tmp_path / "in.csv").write_text("t,ax,ay,az\n1.5,0.25,-0.4,10.0\n2.5,10.0,-0.4,0.15\n")
     run = subprocess.run(
-        [BIN / "accel-calib", "apply", "--calibration", tmp_path / "cal.yaml", tmp_path / "in.csv",
+        [*ACCEL_CALIB, "apply", "--calibration", tmp_path / "cal.yaml", tmp_path / "in.csv",
          tmp_path / "out.csv"],
         capture_output=True, text=True, check=False,
     )
@@ -113,7 +112,7 @@ def test_missing_file_and_bad_calibration_in_a_real_process(tmp_path):
         (["fit", "--model", "ellipse", "p.csv", "-o", "x"], "invalid choice"),
         (["frobnicate"], "invalid choice"),
     ]:
-        run = subprocess.run([BIN / "accel-calib", *map(str, args)], capture_output=True, text=True, check=False)
+        run = subprocess.run([*ACCEL_CALIB, *map(str, args)], capture_output=True, text=True, check=False)
         assert run.returncode != 0
         assert "Traceback" not in run.stderr
         assert run.stderr.count("\n") == 1 and message in run.stderr, run.stderr

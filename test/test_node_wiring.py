@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ import pytest
 import yaml
 
 from accel_calibration import load_calibration
+from msg_tools.node_process import installed_command
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 pytestmark = pytest.mark.ros
@@ -104,7 +104,7 @@ def test_sigints_until_it_has_exited_still_exit_0(tmp_path, tester, node_process
     (["--params-file", "/nonexistent/params.yaml"], "cannot read --params-file /nonexistent/params.yaml"),
 ])
 def test_bad_startup_parameters_are_one_line_and_exit_2(tmp_path, args, says):
-    process = subprocess.run([str(Path(sys.executable).parent / "calibration_node"), "--ros-args", *args],
+    process = subprocess.run([*installed_command("calibration_node"), "--ros-args", *args],
                              capture_output=True, text=True, timeout=30)
     output = (process.stdout + process.stderr).strip()
     assert process.returncode == 2 and says in output and len(output.splitlines()) == 1, output

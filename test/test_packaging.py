@@ -6,6 +6,8 @@ from __future__ import annotations
 import ast
 import importlib.util
 import re
+import shutil
+import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from glob import glob
@@ -20,6 +22,7 @@ LAUNCH_FILE = REPO / "launch" / "calibration.launch.py"
 CONFIG_FILE = REPO / "config" / "accel_calibration.yaml"
 CODE_DIRS = [REPO / "accel_calibration", REPO / "msg_tools"]
 FIRST_PARTY = {"accel_calibration", "msg_tools"}
+PYTHON = sys.executable  # as started (some tests stand another in for it)
 
 # ROS interface packages: their Python modules are the package names themselves.
 ROS_INTERFACE = re.compile(r"^[a-z0-9_]+_(msgs|srvs|interfaces)$")
@@ -279,3 +282,197 @@ def test_config_lists_every_parameter_at_its_default():
     assert sorted(set(listed) - set(expected)) == [], "example file sets parameters the node does not have"
     for name, default in expected.items():
         assert listed[name] == pytest.approx(default) if isinstance(default, float) else listed[name] == default, name
+
+
+# --- console scripts as installed ------------------------------------------------------------
+
+def _fake_script(directory: Path, name: str) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    path.write_text("#!/bin/sh\nexit 0\n")
+    path.chmod(0o755)
+    return path
+
+
+@pytest.fixture
+def nothing_installed(tmp_path, monkeypatch):
+    """No console script beside the interpreter, no ament index, an empty PATH, no override."""
+    from msg_tools import node_process
+
+    monkeypatch.setattr(node_process.sys, "executable", str(tmp_path / "bare" / "python3"))
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    monkeypatch.delenv(node_process.BIN_ENV, raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    return tmp_path
+
+
+@pytest.mark.parametrize("name", ["accel-calib", "calibration_node"])
+def test_console_scripts_are_found_through_the_ament_index(nothing_installed, monkeypatch, name):
+    """Where colcon installs them (install/accel_calibration/lib/accel_calibration/) and `ros2 run` finds them."""
+    from msg_tools.node_process import installed_command
+
+    prefix = nothing_installed / "install" / PACKAGE
+    _fake_script(prefix / "share" / "ament_index" / "resource_index" / "packages", PACKAGE)
+    script = _fake_script(prefix / "lib" / PACKAGE, name)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", f"{nothing_installed / 'elsewhere'}:{prefix}")
+    assert installed_command(name) == [str(script)]
+
+
+def test_console_scripts_beside_the_interpreter_come_first(nothing_installed, monkeypatch):
+    """A virtualenv's own install (make venv) wins over a sourced workspace's."""
+    from msg_tools import node_process
+
+    prefix = nothing_installed / "install" / PACKAGE
+    _fake_script(prefix / "share" / "ament_index" / "resource_index" / "packages", PACKAGE)
+    _fake_script(prefix / "lib" / PACKAGE, "accel-calib")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    beside = _fake_script(nothing_installed / "venv" / "bin", "accel-calib")
+    monkeypatch.setattr(node_process.sys, "executable", str(beside.parent / "python3"))
+    assert node_process.installed_command("accel-calib") == [str(beside)]
+
+
+def test_console_scripts_on_path_and_the_override(nothing_installed, monkeypatch):
+    from msg_tools.node_process import BIN_ENV, installed_command
+
+    on_path = _fake_script(nothing_installed / "usr-bin", "calibration_node")
+    monkeypatch.setenv("PATH", str(on_path.parent))
+    assert installed_command("calibration_node") == [str(on_path)]
+    chosen = _fake_script(nothing_installed / "chosen", "calibration_node")
+    monkeypatch.setenv(BIN_ENV, str(chosen.parent))
+    assert installed_command("calibration_node") == [str(chosen)]
+    monkeypatch.setenv(BIN_ENV, str(nothing_installed / "nowhere"))
+    with pytest.raises(FileNotFoundError, match=BIN_ENV):
+        installed_command("calibration_node")
+    with pytest.raises(ValueError, match="not a console script"):
+        installed_command("calibration-node")
+
+
+def test_console_scripts_fall_back_to_python_m_and_that_runs(nothing_installed):
+    from msg_tools.node_process import installed_command
+
+    command = installed_command("accel-calib")
+    assert command[1:] == ["-m", "accel_calibration.cli.main"]
+    command[0] = PYTHON  # the fixture's stand-in interpreter does not exist
+    run = subprocess.run([*command, "--help"], capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert run.returncode == 0 and "usage: accel-calib" in run.stdout, run.stderr
+    assert installed_command("calibration_node")[1:] == ["-m", "accel_calibration.ros.node"]
+
+
+# --- rosdep keys -----------------------------------------------------------------------------
+
+# Import -> its rosdep key, for every third-party import that has one (ros/rosdistro rosdep/python.yaml,
+# 2026-08): rosdep installs these from package.xml.
+ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
+               "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "rosbags": "python3-rosbags-pip"}
+TEST_ROSDEP_KEYS = {"pytest": "python3-pytest", "hypothesis": "python3-hypothesis"}
+# No key (or, for SQLAlchemy, only one too old: Debian's and Ubuntu's 1.4; psycopg's is psycopg 2): a
+# colcon user installs these with `pip install -r requirements-ros.txt` (README, "In a ROS 2 workspace").
+NO_ROSDEP_KEY = {"lz4", "backports", "pyulog", "pymavlink", "pyarrow", "dask", "distributed", "sqlalchemy", "psycopg"}
+# Of those, the ones rosbags requires (pip install rosbags, which python3-rosbags-pip runs, brings them).
+WITH_ROSBAGS = {"lz4", "backports"}
+
+
+def _third_party(directories: list[Path]) -> set[str]:
+    ros = set(_depends("exec_depend")) | {"rclpy"}
+    return {m for m in _imports(directories) if m not in sys.stdlib_module_names and m not in STDLIB_ELSEWHERE
+            and m not in FIRST_PARTY and m not in ros and not ROS_INTERFACE.match(m)}
+
+
+def test_package_xml_declares_every_dependency_that_has_a_rosdep_key():
+    imported = _third_party(CODE_DIRS)
+    unknown = sorted(imported - set(ROSDEP_KEYS) - NO_ROSDEP_KEY)
+    assert not unknown, f"new third-party imports: look up their rosdep keys and add them here: {unknown}"
+    declared = set(_depends("exec_depend"))
+    missing = sorted(ROSDEP_KEYS[m] for m in imported & set(ROSDEP_KEYS) if ROSDEP_KEYS[m] not in declared)
+    assert not missing, f"<exec_depend> missing from package.xml: {missing}"
+    tests = _third_party([REPO / "test"]) & set(TEST_ROSDEP_KEYS)
+    missing = sorted(TEST_ROSDEP_KEYS[m] for m in tests if TEST_ROSDEP_KEYS[m] not in set(_depends("test_depend")))
+    assert not missing, f"<test_depend> missing from package.xml: {missing}"
+    assert "python3-setuptools" in _depends("build_depend")
+
+
+def test_dependencies_without_a_rosdep_key_are_in_requirements_and_the_readme():
+    """requirements-ros.txt (what a ROS workspace pip-installs) holds exactly what rosdep cannot install,
+    and requirements.txt includes it (it also brings PyPI's ROS wheels, unwanted in a ROS install)."""
+    from importlib.metadata import requires
+
+    def names(path: Path) -> list[str]:
+        return [_normalise(_requirement_name(line)) for line in path.read_text(encoding="utf-8").splitlines()
+                if line.strip() and not line.startswith(("#", "-"))]
+
+    ros_requirements = names(REPO / "requirements-ros.txt")
+    assert "-r requirements-ros.txt" in (REPO / "requirements.txt").read_text(encoding="utf-8").splitlines()
+    assert not set(ros_requirements) & set(names(REPO / "requirements.txt")), "pinned twice"
+    with_rosbags = {_normalise(_requirement_name(r)) for r in requires("rosbags") or [] if "extra ==" not in r}
+    expected = set()
+    for module in NO_ROSDEP_KEY:
+        distribution = _normalise(DISTRIBUTION.get(module, module))
+        if module in WITH_ROSBAGS:
+            assert distribution in with_rosbags, f"{module}: rosbags no longer requires it; pin it"
+        else:
+            expected.add(distribution)
+    assert set(ros_requirements) == expected
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert "## In a ROS 2 workspace" in readme
+    section = readme.split("## In a ROS 2 workspace", 1)[1].split("\n## ", 1)[0]
+    for command in ("rosdep install", "pip install -r", "requirements-ros.txt", "colcon build", "colcon test",
+                    "ros2 run accel_calibration calibration_node", "ros2 launch accel_calibration"):
+        assert command in section, command
+
+
+# --- colcon build --------------------------------------------------------------------------------
+
+BUILD_INPUTS = ["accel_calibration", "msg_tools", "launch", "config", "resource", "package.xml", "setup.py",
+                "setup.cfg"]
+
+
+@pytest.mark.parametrize("symlink", [False, True], ids=["plain", "symlink-install"])
+def test_colcon_build_installs_what_ros2_run_and_launch_find(tmp_path, monkeypatch, symlink):
+    """`colcon build` (plain and --symlink-install) of this package in a fresh workspace; the console
+    scripts run from where the ament index says (as ros2 run finds them). Needs colcon (make colcon-test
+    installs it: requirements-colcon.txt)."""
+    colcon = shutil.which("colcon") or (str(Path(PYTHON).parent / "colcon")
+                                        if (Path(PYTHON).parent / "colcon").exists() else None)
+    if colcon is None:
+        pytest.skip("colcon not installed (make colcon-test installs it into .venv-colcon)")
+    source = tmp_path / "ws" / "src" / PACKAGE
+    source.mkdir(parents=True)
+    for name in BUILD_INPUTS:
+        if (REPO / name).is_dir():
+            shutil.copytree(REPO / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(REPO / name, source / name)
+    build = subprocess.run([colcon, "build", *(["--symlink-install"] if symlink else [])], cwd=tmp_path / "ws",
+                           capture_output=True, text=True, timeout=300)
+    assert build.returncode == 0, build.stdout + build.stderr
+    prefix = tmp_path / "ws" / "install" / PACKAGE
+    share = prefix / "share" / PACKAGE
+    for installed in ("package.xml", "launch/calibration.launch.py", "config/accel_calibration.yaml"):
+        assert (share / installed).is_file(), installed
+    assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
+
+    from msg_tools import node_process
+
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    monkeypatch.setattr(node_process.sys, "executable", str(tmp_path / "bare" / "python3"))
+    monkeypatch.delenv(node_process.BIN_ENV, raising=False)
+    accel_calib = node_process.installed_command("accel-calib")
+    node = node_process.installed_command("calibration_node")
+    assert accel_calib == [str(prefix / "lib" / PACKAGE / "accel-calib")]
+    assert node == [str(prefix / "lib" / PACKAGE / "calibration_node")]
+    monkeypatch.undo()
+    # As a user runs them: the workspace's setup sourced, from elsewhere than this checkout.
+    setup = tmp_path / "ws" / "install" / "setup.bash"
+    assert setup.is_file()
+
+    def sourced(*command: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["bash", "-c", 'source "$0" && exec "$@"', str(setup), *command],
+                              capture_output=True, text=True, timeout=60, cwd=tmp_path)
+
+    run = sourced(*accel_calib, "--help")
+    assert run.returncode == 0 and "usage: accel-calib" in run.stdout, run.stderr
+    run = sourced(*node, "--ros-args", "-p", "static.window_s:=0.0")
+    output = (run.stdout + run.stderr).strip()
+    assert run.returncode == 2 and "static.window_s must be within" in output, output
+    run = sourced(PYTHON, "-c", "import accel_calibration; print(accel_calibration.__file__)")
+    assert run.returncode == 0 and run.stdout.startswith(str(tmp_path / "ws")), run.stdout + run.stderr

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,10 @@ from accel_calibration.bag.bag_io import decode_imus, write_session_bag
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.main import main
 from msg_tools.calibration_client import CalibrationClient
-from msg_tools.node_process import NodeProcess
+from msg_tools.node_process import NodeProcess, installed_command
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
-BIN = Path(sys.executable).parent
+ACCEL_CALIB = installed_command("accel-calib")
 START_NS = 1_700_000_000 * 10**9
 
 
@@ -53,7 +52,7 @@ def test_bulk_decoder_matches_rosbags_on_real_bags(shared, name):
 
 @pytest.mark.parametrize("name", ["test2_sqlite3", "test2_mcap_zstd"])
 def test_real_drive_without_a_pose_session_is_refused_in_one_line(shared, name):
-    run = subprocess.run([BIN / "accel-calib", "replay", shared(f"real/bags/{name}")], capture_output=True, text=True,
+    run = subprocess.run([*ACCEL_CALIB, "replay", shared(f"real/bags/{name}")], capture_output=True, text=True,
                          check=False)
     assert run.returncode == 1
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr

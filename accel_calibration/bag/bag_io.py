@@ -28,6 +28,24 @@ class BagError(AccelCalibrationError):
     """A bag that cannot be used: the message names the bag and what was found."""
 
 
+# Third-party modules whose pip name differs from the import name. (lz4, backports.zstd, pyulog, pyarrow,
+# Dask, SQLAlchemy 2 and psycopg 3 have no rosdep key: a ROS install from rosdep alone lacks them.)
+PIP_NAMES = {"backports": "backports.zstd", "yaml": "PyYAML", "sqlalchemy": "SQLAlchemy>=2",
+             "dask": "dask[distributed]", "psycopg": "psycopg[binary]"}
+
+
+def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
+    """What to install, for a third-party module that is not installed (None for one of ours: a bug, not
+    an install to fix). Never read as a damaged recording: the recording was not looked at."""
+    module = (error.name or "").split(".")[0]
+    if not module or module in ("accel_calibration", "msg_tools"):
+        return None
+    where = f"{path}: cannot be read here: " if path is not None else ""
+    install = PIP_NAMES.get(module, module)
+    return BagError(f"{where}the Python module '{module}' is not installed: pip install '{install}' "
+                    "(in a ROS 2 workspace: pip install -r requirements-ros.txt; README)")
+
+
 @dataclass
 class ImuData:
     topic: str

@@ -18,7 +18,7 @@ from ..core.pose import Pose
 from ..core.session import CalibrationSession
 from ..core.settings import Settings
 from ..core.temperature_filter import TemperatureFilter
-from .bag_io import BagError
+from .bag_io import BagError, missing_module
 
 
 @dataclass(frozen=True)
@@ -129,6 +129,10 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
         recording = open_recording(path, progress=progress, through_rosbags=through_rosbags, **s.reader_options())
     except BagError as error:
         raise ReplayError(str(error)) from None
+    except ModuleNotFoundError as error:  # an install without a reader's module, not a damaged recording
+        if (missing := missing_module(error, path)) is None:
+            raise
+        raise ReplayError(str(missing)) from None
     except (Exception, RecursionError) as error:  # noqa: BLE001 - the bag layer's boundary: a damaged
         # recording makes the readers (sqlite3, zstd, lz4, rosbags, pyulog) raise their own types
         first_line = str(error).splitlines()[0][:120] if str(error) else ""

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..bag.bag_io import missing_module
 from ..core.calibration import MG, STANDARD_GRAVITY
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.fit import fit
@@ -443,6 +444,11 @@ def main(argv=None) -> int:
                 "noise": noise_command.run}[args.command](args)
     except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 1
+    except ModuleNotFoundError as error:  # an install without a third-party module: say what to install
+        if (missing := missing_module(error)) is None:
+            raise
+        print(f"{PROG}: error: {missing}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
