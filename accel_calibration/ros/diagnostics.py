@@ -13,19 +13,22 @@ from ..core.session import Progress
 
 @dataclass(frozen=True)
 class StreamHealth:
-    """Seconds since the last message on each input (None: none yet) and the resolved topic names."""
+    """Seconds since the last message on each input (None: none yet), the node's age and the resolved
+    topic names."""
 
     imu_topic: str
     temperature_topic: str
     imu_silent_s: float | None
     temperature_silent_s: float | None
     timeout_s: float
+    uptime_s: float
 
     def problems(self) -> list[str]:
         out = []
-        if self.imu_silent_s is None or self.imu_silent_s >= self.timeout_s:
-            since = "since start" if self.imu_silent_s is None else f"for {self.imu_silent_s:.0f} s"
-            out.append(f"no messages on {self.imu_topic} {since}")
+        if self.imu_silent_s is None and self.uptime_s >= self.timeout_s:
+            out.append(f"no messages on {self.imu_topic} since start ({self.uptime_s:.0f} s)")
+        elif self.imu_silent_s is not None and self.imu_silent_s >= self.timeout_s:
+            out.append(f"no messages on {self.imu_topic} for {self.imu_silent_s:.0f} s")
         if self.temperature_silent_s is not None and self.temperature_silent_s >= self.timeout_s:
             out.append(f"no messages on {self.temperature_topic} for {self.temperature_silent_s:.0f} s "
                        "(temperature stale)")

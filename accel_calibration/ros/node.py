@@ -333,23 +333,17 @@ class CalibrationNode(Node):
 
     def _health(self) -> StreamHealth:
         now = time.monotonic()
-        imu = None if self._last_imu is None else now - self._last_imu
-        if imu is None and now - self._started >= self._stream_timeout_s:
-            imu = now - self._started
-        return StreamHealth(self._imu_topic, self._temperature_topic, imu,
+        return StreamHealth(self._imu_topic, self._temperature_topic,
+                            None if self._last_imu is None else now - self._last_imu,
                             None if self._last_temperature is None else now - self._last_temperature,
-                            self._stream_timeout_s)
+                            self._stream_timeout_s, now - self._started)
 
     def _publish_diagnostics(self) -> None:
         level, message = self._status
         calibration = self._in_force.calibration
         health = self._health()
         for problem in health.problems():
-            if self._last_imu is not None or time.monotonic() - self._started >= self._stream_timeout_s:
-                self.get_logger().warning(problem, throttle_duration_sec=LOG_THROTTLE_S)
-        if self._last_imu is None and time.monotonic() - self._started < self._stream_timeout_s:
-            health = StreamHealth(health.imu_topic, health.temperature_topic, 0.0, health.temperature_silent_s,
-                                  health.timeout_s)  # starting: not yet a silence
+            self.get_logger().warning(problem, throttle_duration_sec=LOG_THROTTLE_S)
         temperature = self._in_force.temperature_degc
         values = {
             "detector_state": "still" if self._still else "moving",

@@ -1,0 +1,157 @@
+"""The node as a ROS user finds it (issue 26) and as a hostile round left it (issue 25), in-process: a real
+rclpy node whose callbacks the test calls, its log and diagnostics captured. No DDS timing decides."""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+import yaml
+from rclpy.parameter import Parameter
+
+from accel_calibration.core.calibration import Calibration
+from accel_calibration.io.calibration_file import save_calibration
+from msg_tools.conversions import make_imu
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def log_lines(monkeypatch):
+    """Every line the node logs (after rclpy's own throttling), as (severity, text)."""
+    from rclpy.impl import rcutils_logger
+
+    lines = []
+    real = rcutils_logger._rclpy.rclpy_logging_rcutils_log
+
+    def record(severity, name, message, *args):
+        lines.append((int(severity), str(message)))
+        return real(severity, name, message, *args)
+
+    monkeypatch.setattr(rcutils_logger._rclpy, "rclpy_logging_rcutils_log", record)
+    return lines
+
+
+@pytest.fixture
+def make_node(ros, tmp_path):
+    made = []
+
+    def make(*, cli_args=None, **parameters):
+        from accel_calibration.ros.node import CalibrationNode
+
+        overrides = [Parameter("calibration_file", value=str(tmp_path / "cal.yaml"))]
+        overrides += [Parameter(name, value=value) for name, value in parameters.items()]
+        node = CalibrationNode(parameter_overrides=overrides, cli_args=cli_args)
+        made.append(node)
+        return node
+
+    yield make
+    for node in made:
+        node.close()
+        node.destroy_node()
+
+
+def diagnostics_of(node) -> dict:
+    published = []
+    real = node._diagnostics.publish
+    node._diagnostics.publish = published.append
+    try:
+        node._publish_diagnostics()
+    finally:
+        node._diagnostics.publish = real
+    status = published[-1].status[0]
+    return {"level": int.from_bytes(status.level, "little") if isinstance(status.level, bytes) else status.level,
+            "message": status.message, "hardware_id": status.hardware_id,
+            **{kv.key: kv.value for kv in status.values}}
+
+
+def test_a_dump_loads_back_quietly(make_node, log_lines, tmp_path):
+    """Finding: a `ros2 param dump` given back as --params-file warned "unknown parameter
+    'calibration.bias' ignored" for each read-only mirror and for rclpy's start_type_description_service,
+    and `ros2 param load` of it failed 31 times (read-only)."""
+    calibration = Calibration(bias=np.array([0.01, -0.02, 0.03]), matrix=np.eye(3) * 1.001)
+    save_calibration(calibration, tmp_path / "cal.yaml")
+    first = make_node()
+    dump = {p.name: p.value for p in first.get_parameters(first.list_parameters([], 0).names)}
+    assert "calibration.bias" in dump and "start_type_description_service" in dump
+    overrides = {name: value for name, value in dump.items() if name != "calibration_file"}
+    second = make_node(**overrides)
+    warnings = [text for severity, text in log_lines if severity >= 30]
+    assert not [w for w in warnings if "unknown parameter" in w], warnings
+    # `ros2 param load`: every value of the dump set again, all accepted, nothing changed.
+    # (start_type_description_service is rclpy's own, read-only by rclpy: `ros2 param load` skips nothing of ours.)
+    results = second.set_parameters([Parameter(name, value=value) for name, value in dump.items()
+                                     if name != "start_type_description_service"])
+    assert [r.reason for r in results if not r.successful] == []
+    # A real change of a fixed parameter or a mirror is still refused, with the reason.
+    refused = second.set_parameters([Parameter("merge_angle_deg", value=17.0),
+                                     Parameter("calibration.bias", value=[1.0, 2.0, 3.0])])
+    assert "fixed at start-up" in refused[0].reason and "read-only mirror" in refused[1].reason
+    assert list(second.get_parameter("calibration.bias").value) == pytest.approx([0.01, -0.02, 0.03])
+
+
+def test_min_poses_set_at_run_time_shows_at_once(make_node):
+    """Finding: after `ros2 param set ... min_poses 16`, poses_needed read 12 until the next pose came."""
+    node = make_node()
+    assert diagnostics_of(node)["poses_needed"] == "12"
+    assert node.set_parameters([Parameter("min_poses", value=16)])[0].successful
+    node._worker.submit(lambda: None).result(timeout=10)  # the worker has taken it
+    assert diagnostics_of(node)["poses_needed"] == "16"
+
+
+def test_silence_on_the_input_is_a_warning_naming_the_resolved_topic(make_node, log_lines):
+    """Finding: with a wrong remap /diagnostics stayed OK for ever with samples 0; when the driver stopped it
+    stayed OK with detector_state still."""
+    node = make_node(cli_args=["--ros-args", "-r", "imu/data_raw:=/wrong/topic"], stream_timeout_s=0.5)
+    assert "no messages" not in diagnostics_of(node)["message"]  # starting: not yet a silence
+    node._started -= 1.0
+    status = diagnostics_of(node)
+    assert status["level"] == 1 and "no messages on /wrong/topic since start (1 s)" in status["message"]
+    assert any("no messages on /wrong/topic" in text for severity, text in log_lines if severity == 30)
+    # Data comes: OK; the driver stops: WARN again, with how long.
+    node._on_imu(make_imu(1_000_000_000, [0.0, 0.0, 9.8], [0.0, 0.0, 0.0]))
+    assert "no messages" not in diagnostics_of(node)["message"]
+    node._last_imu = time.monotonic() - 3.0
+    status = diagnostics_of(node)
+    assert status["level"] == 1 and "no messages on /wrong/topic for 3 s" in status["message"]
+    assert status["hardware_id"] == "imu_link"  # no sensor_id: the frame names the hardware
+
+
+def test_armed_flapping_at_1_khz_does_not_flood_the_log(make_node, log_lines):
+    """Finding (hostile round): the armed input flipping at 1 kHz logged 1,564 INFO lines in 6 s."""
+    from std_msgs.msg import Bool
+
+    node = make_node()
+    before = len(log_lines)
+    for k in range(2000):
+        node._on_armed(Bool(data=k % 2 == 0))
+    armed_lines = [text for _, text in log_lines[before:] if "armed" in text]
+    assert 1 <= len(armed_lines) <= 2
+    assert node._session.collecting  # ended disarmed
+
+
+@pytest.mark.parametrize("kind", ["fifo", "deep", "binary", "huge"])
+def test_a_params_file_that_would_hang_or_crash_rcl_is_one_line(kind, tmp_path, capsys):
+    """Finding (hostile round): a FIFO hung the node before it started, 100,000-deep nesting gave a
+    RecursionError traceback, a non-UTF-8 file a UnicodeDecodeError traceback (exit 1), a 50 MB file had not
+    started the node after 140 s. All are refused before rcl parses anything: exit 2, one line."""
+    from accel_calibration.ros.node import main
+
+    path = tmp_path / "params.yaml"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "deep":
+        path.write_text("/**:\n  ros__parameters:\n    x: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    elif kind == "binary":
+        path.write_bytes(b"/**:\n  ros__parameters:\n    sensor_id: \xff\xfe\n")
+    else:
+        with open(path, "w") as stream:
+            stream.write("/**:\n  ros__parameters:\n")
+            stream.write("    # padding\n" * 5_000_000)
+    started = time.monotonic()
+    assert main(["--ros-args", "--params-file", str(path)]) == 2
+    assert time.monotonic() - started < 5
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("calibration_node: error:") and str(path) in err[0]
+    assert yaml  # (the checks parse YAML themselves only after these)
