@@ -149,9 +149,10 @@ def test_analytic_jacobian_matches_differences():
     measured = paper_positions_g()
     _, jacobian = model.residual_and_jacobian(p, measured)
     step = 1e-6
-    numeric = np.column_stack([
-        (model.residual_and_jacobian(p + step * e, measured)[0] - model.residual_and_jacobian(p - step * e, measured)[0])
-        / (2 * step) for e in np.eye(len(p))])
+    def residual(x):
+        return model.residual_and_jacobian(x, measured)[0]
+
+    numeric = np.column_stack([(residual(p + step * e) - residual(p - step * e)) / (2 * step) for e in np.eye(len(p))])
     np.testing.assert_allclose(jacobian, numeric, rtol=0, atol=1e-9)
 
 
@@ -201,12 +202,14 @@ def test_the_file_holds_the_papers_terms_and_apply_uses_m_and_b(tmp_path):
     result = fit_dividing_head(np.radians(ALPHA_DEG), np.radians(BETA_DEG), accel)
     assert calibration.dividing_head == result.calibration.dividing_head  # the round trip is exact
     # `apply` corrects with M and b (and its plausibility gates accept the model), as for reference12.
-    (tmp_path / "raw.csv").write_text("ax,ay,az\n" + "\n".join(",".join(repr(float(v)) for v in row) for row in accel) + "\n")
+    rows = "\n".join(",".join(repr(float(v)) for v in row) for row in accel)
+    (tmp_path / "raw.csv").write_text("ax,ay,az\n" + rows + "\n")
     assert main(["apply", "-c", str(tmp_path / "cal.yaml"), str(tmp_path / "raw.csv"), str(tmp_path / "out.csv")]) == 0
     out = np.loadtxt(tmp_path / "out.csv", delimiter=",", skiprows=1)
     true_directions = nominal_directions(np.radians(ALPHA_DEG),
                                          np.radians(BETA_DEG) + np.repeat(PAPER_TRUTH[12:], 8))
-    assert np.abs(np.linalg.norm(out - G * true_directions, axis=1)).max() < 0.8 * MG  # noise-level, not the mg of ref12
+    # Noise-level errors, not reference12's mg:
+    assert np.abs(np.linalg.norm(out - G * true_directions, axis=1)).max() < 0.8 * MG
 
 
 @pytest.mark.parametrize("alpha_deg, beta_deg, message", [

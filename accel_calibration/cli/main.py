@@ -48,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
 
     fit_cmd = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
-    fit_cmd.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] "
+    fit_cmd.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "
                                        "(dividing-head: alpha_deg,beta_deg or pos k-j)")
     fit_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
     fit_cmd.add_argument("--model", choices=MODELS + (DIVIDING_HEAD,), default="sphere9",
@@ -205,6 +205,7 @@ def _fit(args) -> int:
         frame_id=args.frame_id,
         temperature_model=args.temperature_model,
         temperature_options=options,
+        pose_sigma_mps2=table.pose_sigma_mps2,
     )
     if not result.success:
         raise CalibrationError(f"fit failed: {result.message}")
