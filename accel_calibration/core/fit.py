@@ -580,7 +580,8 @@ def _reweighted(first: FitResult, pose_sigma: np.ndarray, dof: int,
     for _ in range(MAX_REWEIGHTS):
         calibration = current.calibration
         assert calibration is not None  # only successful fits are reweighted
-        gain = float(np.mean(np.linalg.norm(calibration.matrix, axis=1)))
+        # rms of M's row norms: what pose_mean_sigma's trace / 3 of isotropic noise becomes through M.
+        gain = math.sqrt(float(np.sum(calibration.matrix**2)) / 3.0)
         squared = (current.residuals_mg * (MG / gain)) ** 2
         new_tau2 = extra_variance(squared, variance, dof)
         if abs(new_tau2 - tau2) <= TAU_TOLERANCE * (new_tau2 + float(np.median(variance))):
