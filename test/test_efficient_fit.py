@@ -129,3 +129,43 @@ def test_poses_out_carries_sigma_mg_and_fit_reads_it_back(tmp_path, capsys):
     assert "poses weighted by their own noise" in capsys.readouterr().out
     direct = fit(poses)  # Pose objects: the same sigmas from their covariance and sample count
     assert direct.pose_extra_sigma is not None
+
+
+def test_imu_tk_xsens_recording_weights_come_out_nearly_equal(shared):
+    """The imu_tk Xsens MTi recording (raw counts, local g 9.81744): its 39 poses scatter ~3x beyond their
+    sample noise (11-54 ug per pose mean); tau comes out near 110 ug, so the weights are nearly equal and
+    the fit stays today's. Weights 1 / s_i^2 from the sample count alone would make every parameter's
+    variance 3-43 % worse (sandwich covariance with the noise s_i^2 + tau^2 the poses show)."""
+    import gzip
+
+    from accel_calibration.core.fit import _sphere_rows, pose_mean_sigma
+    from accel_calibration.core.static_detector import StaticDetector
+
+    accel = np.loadtxt(gzip.open(shared("real/imu_tk/xsens_acc.txt.gz")))
+    gyro = np.loadtxt(gzip.open(shared("real/imu_tk/xsens_gyro.txt.gz")))
+    poses = StaticDetector().process((accel[:, 0] * 1e9).astype(np.int64), accel[:, 1:], gyro[:, 1:])
+    gravity = 9.81744
+    means = np.array([p.accel_mps2 for p in poses])
+    sigma = pose_mean_sigma(poses)  # counts
+    plain, weighted = fit(means, gravity=gravity), fit(poses, gravity=gravity)
+    assert len(poses) == 39 and plain.success and weighted.success and weighted.outliers == ()
+    counts_per_ug = 1e-6 * G / np.sqrt(np.sum(plain.calibration.matrix**2) / 3)
+    assert 10 < sigma.min() / counts_per_ug and sigma.max() / counts_per_ug < 55
+    tau = weighted.pose_extra_sigma
+    assert 95 < tau / counts_per_ug < 125, tau / counts_per_ug
+    model = SphereModel("sphere9")
+    step = (model.pack(weighted.calibration.bias, weighted.calibration.matrix)
+            - model.pack(plain.calibration.bias, plain.calibration.matrix))
+    assert np.all(np.abs(step) < 0.1 * model.pack(plain.sigma.bias, plain.sigma.matrix))
+    rows = _sphere_rows(plain.calibration, means, None)
+    variance = sigma**2 + tau**2
+
+    def covariance(weights):
+        inverse = np.linalg.inv(rows.T @ (rows * weights[:, None]))
+        return np.diag(inverse @ (rows.T @ (rows * (weights**2 * variance)[:, None])) @ inverse)
+
+    today = covariance(np.ones(len(poses)))
+    sample_count_only = covariance(1 / sigma**2) / today
+    assert sample_count_only.min() > 1.02 and sample_count_only.max() > 1.4, sample_count_only
+    assert np.all(covariance(1 / variance) / today < 1.001)
+    assert (1 / variance).max() / (1 / variance).min() < 1.3
