@@ -558,7 +558,7 @@ def _fit_without_temperature(accel: np.ndarray, model: str, gravity: float, temp
             return first
         assert pose_sigma is not None
         return _reweighted(first, pose_sigma, n - parameter_count(model), lambda w, start: _fit_sphere(
-            accel, model, gravity, start, ref_temperature, frame_id, weights=w))
+            accel, model, gravity, None, ref_temperature, frame_id, weights=w, start=start))
     assert ref is not None  # _check_arguments requires reference directions for the reference models
     first = _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
     if not weighting_applies(pose_sigma) or first.calibration is None:
@@ -653,14 +653,19 @@ def _standard_deviations(solution: LeastSquaresSolution, n: int) -> np.ndarray:
 
 
 def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibration | None,
-                ref_temperature: float | None, frame_id: str, weights: np.ndarray | None = None) -> FitResult:
-    """weights: of each pose's residual (mean 1), or None: each pose alike."""
+                ref_temperature: float | None, frame_id: str, weights: np.ndarray | None = None,
+                start: Calibration | None = None) -> FitResult:
+    """weights: of each pose's residual (mean 1), or None: each pose alike. start: a fit of this model to
+    these poses to start from as it is (M already in the model's form: no projection)."""
     model = SphereModel(name)
     n = len(accel)
     # The poses as rows of x, y and z: what the residual function and the direction checks work on
     # (whole contiguous rows instead of strided columns).
     accel_t = np.ascontiguousarray(accel.T)
-    if initial is not None:
+    if start is not None:
+        bias0, matrix0 = start.bias, start.matrix
+        x0 = model.pack(bias0, matrix0)
+    elif initial is not None:
         bias0, matrix0 = initial.bias, initial.matrix
         x0 = model.project(bias0, matrix0)
     else:

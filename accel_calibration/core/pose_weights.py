@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-# Paule-Mandel iterations (a weighted refit each); tau^2 settles to 1e-4 of the typical variance in 2-4.
+# Paule-Mandel iterations (a weighted refit each). They stop when tau^2 moves less than this fraction of a
+# typical pose's variance: the weights then move by as little, which moves the estimate by a negligible
+# fraction of its sigma (chi^2/dof is 1 to about as much). One or two refits.
 MAX_REWEIGHTS = 8
-TAU_TOLERANCE = 1e-4
+TAU_TOLERANCE = 1e-3
 
 
 def weighting_applies(pose_sigma: np.ndarray | None) -> bool:
