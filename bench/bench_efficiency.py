@@ -57,10 +57,28 @@ def cramer_rao(directions, matrix, bias, pose_variance):
     return p, np.diag(np.linalg.inv(information))
 
 
-def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, rate_mg: float) -> None:
+def reference_cramer_rao(directions, matrix, bias, pose_variance):
+    """reference12 as fitted, forward a_raw = b + S g u per axis (S = M^-1): the parameters [b, S row-major]
+    and the diagonal of the inverse Fisher information (each axis a linear model in [1, g u])."""
+    design = np.column_stack([np.ones(len(directions)), G * directions])
+    per_axis = np.diag(np.linalg.inv(design.T @ (design / pose_variance[:, None])))
+    forward = np.linalg.inv(matrix)
+    return np.concatenate([bias, forward.ravel()]), np.concatenate([[per_axis[0]] * 3, np.tile(per_axis[1:], 3)])
+
+
+def estimate(model, calibration, sigma):
+    """The parameters the bound is for, and their reported sigma (NaN where the fit reports none: S)."""
+    if model == "sphere9":
+        return MODEL.pack(calibration.bias, calibration.matrix), MODEL.pack(sigma.bias, sigma.matrix)
+    return (np.concatenate([calibration.bias, np.linalg.inv(calibration.matrix).ravel()]),
+            np.concatenate([sigma.bias, np.full(9, np.nan)]))
+
+
+def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, rate_mg: float,
+        model: str = "sphere9") -> None:
     rng = np.random.default_rng(seed)
     extra = extra_ug * 1e-6 * G
-    dof = POSES - MODEL.size
+    dof = POSES - (MODEL.size if model == "sphere9" else 4)
     ratios = {"unweighted": [], "weighted": []}  # per geometry: (9,) MSE / CRB
     z = {"unweighted": [], "weighted": []}  # per geometry: (draws, 9) |error| / sigma
     taus = []
@@ -68,7 +86,8 @@ def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, ra
     for _ in range(geometries):
         directions, matrix, bias, length_s = geometry(rng, equal)
         sigma = rate_mg * MG / np.sqrt(length_s)
-        truth, bound = cramer_rao(directions, matrix, bias, sigma**2 + extra**2)
+        bound_of = cramer_rao if model == "sphere9" else reference_cramer_rao
+        truth, bound = bound_of(directions, matrix, bias, sigma**2 + extra**2)
         clean = (G * directions) @ np.linalg.inv(matrix).T + bias
         samples = np.round(length_s * SAMPLE_RATE_HZ).astype(int)
         errors = {name: [] for name in ratios}
@@ -78,11 +97,12 @@ def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, ra
             # The sigma a replay would report: the samples' spread (3 axes, n - 1 dof each) over sqrt(n).
             estimated = sigma * np.sqrt(rng.chisquare(3 * (samples - 1)) / (3 * (samples - 1)))
             for name, given in (("unweighted", None), ("weighted", estimated)):
-                result = fit(noisy, model="sphere9", outlier_options=NO_OUTLIERS, pose_sigma_mps2=given)
+                result = fit(noisy, model=model, outlier_options=NO_OUTLIERS, pose_sigma_mps2=given,
+                             reference=None if model == "sphere9" else directions)
                 assert result.success, result.message
-                c, s = result.calibration, result.sigma
-                errors[name].append(MODEL.pack(c.bias, c.matrix) - truth)
-                sigmas[name].append(MODEL.pack(s.bias, s.matrix))
+                value, reported = estimate(model, result.calibration, result.sigma)
+                errors[name].append(value - truth)
+                sigmas[name].append(reported)
                 if name == "weighted":
                     taus.append(result.pose_extra_sigma or 0.0)
         for name in ratios:
@@ -90,9 +110,10 @@ def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, ra
             ratios[name].append((e**2).mean(axis=0) / bound)
             z[name].append(np.abs(e) / s)
     elapsed = time.perf_counter() - started
-    names = MODEL.parameter_names()
+    names = MODEL.parameter_names() if model == "sphere9" else (
+        [f"b_{a}" for a in "xyz"] + [f"S_{a}{b}" for a in "xyz" for b in "xyz"])
     expected = [2 * student_t.cdf(k, dof) - 1 for k in (1, 2, 3)]
-    print(f"{geometries} geometries x {draws} draws, {POSES} poses of "
+    print(f"{model}: {geometries} geometries x {draws} draws, {POSES} poses of "
           f"{'5.5 s each' if equal else '1-10 s'} ({rate_mg:g} mg sqrt(s) of noise), extra error {extra_ug:g} ug "
           f"per pose; {elapsed:.0f} s")
     print("MSE / Cramer-Rao bound per parameter (mean over geometries; worst geometry):")
@@ -105,8 +126,10 @@ def run(geometries: int, draws: int, extra_ug: float, equal: bool, seed: int, ra
           + " / ".join(f"{v:.3f}" for v in expected) + "):")
     for name in z:
         pooled = np.concatenate(z[name])
+        reported = np.isfinite(pooled[0])  # reference12 reports sigma of M, not of S: b only
+        pooled = pooled[:, reported]
         cover = [float((pooled <= k).mean()) for k in (1, 2, 3)]
-        lowest = min(float((zz[:, j] <= 2).mean()) for zz in z[name] for j in range(MODEL.size))
+        lowest = min(float((zz[:, j] <= 2).mean()) for zz in z[name] for j in np.flatnonzero(reported))
         print(f"  {name:>11s} 1/2/3 sigma " + " / ".join(f"{v:.3f}" for v in cover)
               + f"; lowest 2 sigma of any geometry and parameter {lowest:.3f}")
     taus = np.array(taus)
@@ -122,9 +145,11 @@ def main() -> None:
     parser.add_argument("--rate-mg", type=float, default=RATE_MG_SQRT_S,
                         help="noise of a pose mean of 1 s, mg per axis (default 0.3; 0.05 gives the imu_tk Xsens "
                              "recording's 16-50 ug per pose)")
+    parser.add_argument("--model", choices=("sphere9", "reference12"), default="sphere9",
+                        help="reference12: the bound is for b and S = M^-1 (its linear parameters); coverage of b")
     parser.add_argument("--seed", type=int, default=22)
     args = parser.parse_args()
-    run(args.geometries, args.draws, args.extra_ug, args.equal, args.seed, args.rate_mg)
+    run(args.geometries, args.draws, args.extra_ug, args.equal, args.seed, args.rate_mg, args.model)
 
 
 if __name__ == "__main__":
