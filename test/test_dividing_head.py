@@ -263,3 +263,22 @@ def test_bad_arguments_raise_calibration_error():
         fit_dividing_head(np.zeros(2), np.zeros(2), [[0, 0, np.nan], [0, 0, 1]])
     with pytest.raises(CalibrationError, match="gravity must be a positive number"):
         fit_dividing_head(np.zeros(1), np.zeros(1), [[0, 0, 1]], gravity=-1.0)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda b: b["dividing_head"].pop("sigma"), "dividing_head is missing sigma"),
+    (lambda b: b["dividing_head"].__setitem__("scale", [1.0, "1e5", 1.0]), r"scale must be a list of numbers"),
+    (lambda b: b["dividing_head"].__setitem__("tilt_error_mrad", [1.0]), "one number per tilt_deg"),
+    (lambda b: b["dividing_head"]["sigma"].__setitem__("bias_mg", [0.1, -0.1, 0.1]), "sigma.bias_mg must hold 3"),
+    (lambda b: b.__setitem__("model", "reference12"), "a dividing_head block belongs to model dividing-head"),
+    (lambda b: b.__setitem__("dividing_head", [1, 2]), "dividing_head must be a mapping"),
+])
+def test_a_bad_dividing_head_block_is_refused_in_one_line(tmp_path, edit, message):
+    from accel_calibration.io.calibration_file import CalibrationFileError, calibration_from_dict, calibration_to_dict
+
+    result = fit_dividing_head(np.radians(ALPHA_DEG), np.radians(BETA_DEG), paper_positions_g() * G)
+    document = calibration_to_dict(result.calibration)
+    assert calibration_from_dict(document) == result.calibration
+    edit(document["accel_calibration"])
+    with pytest.raises(CalibrationFileError, match=message):
+        calibration_from_dict(document, "cal.yaml")
