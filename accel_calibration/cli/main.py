@@ -18,7 +18,7 @@ from ..bag.bag_io import missing_module
 from ..core.calibration import MG, STANDARD_GRAVITY
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.fit import fit
-from ..core.models import MODELS, REFERENCE_MODELS
+from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
 from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC, plausibility_problem
 from ..core.settings import Settings
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
@@ -32,6 +32,7 @@ from ..io.calibration_file import (
 from ..io.output_paths import check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
 from . import compare as compare_command
+from . import dividing_head as dividing_head_command
 from . import export as export_command
 from . import fleet as fleet_command
 from . import history as history_command
@@ -51,9 +52,11 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
 
     fit_cmd = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
-    fit_cmd.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z]")
+    fit_cmd.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "
+                                       "(dividing-head: alpha_deg,beta_deg or pos k-j)")
     fit_cmd.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
-    fit_cmd.add_argument("--model", choices=MODELS, default="sphere9", help="error model (default sphere9)")
+    fit_cmd.add_argument("--model", choices=MODELS + (DIVIDING_HEAD,), default="sphere9",
+                         help="error model (default sphere9)")
     fit_cmd.add_argument("--gravity", type=float, default=STANDARD_GRAVITY,
                          help="local gravity, m/s^2 (default 9.80665)")
     fit_cmd.add_argument("--frame-id", default="", help="sensor frame id stored in the file")
@@ -185,6 +188,8 @@ def _fit(args) -> int:
         raise CalibrationError(f"--reference-temperature must be a sensor temperature within {low:g}..{high:g} degC, "
                                f"got {args.reference_temperature:g}")
     check_outputs([("--output", args.output)], [args.poses])
+    if args.model == DIVIDING_HEAD:
+        return dividing_head_command.fit_table(args, UNIT_SCALE[args.units])
     table = read_table(args.poses)
     if args.model in REFERENCE_MODELS and table.reference is None:
         raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
@@ -207,6 +212,7 @@ def _fit(args) -> int:
         frame_id=args.frame_id,
         temperature_model=args.temperature_model,
         temperature_options=options,
+        pose_sigma_mps2=table.pose_sigma_mps2,
     )
     if not result.success:
         raise CalibrationError(f"fit failed: {result.message}")

@@ -10,8 +10,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .dividing_head import DividingHeadTerms
 from .errors import CalibrationError
-from .models import MODELS, apply_forward_inverse
+from .models import CALIBRATION_MODELS, DIVIDING_HEAD, apply_forward_inverse
 from .temperature_models import TemperatureModel
 
 STANDARD_GRAVITY = 9.80665
@@ -95,6 +96,8 @@ class Calibration:
     reference_temperature_degc: float | None = None
     gyro_bias_radps: np.ndarray | None = None  # (3,) mean gyro output at rest, from the static poses
     temperature: TemperatureModel | None = None  # bias/scale drift with temperature
+    # Model dividing-head: the fitted terms in the paper's words (scale, mounting, tilt errors, ...).
+    dividing_head: DividingHeadTerms | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -110,6 +113,11 @@ class Calibration:
             # one is folded into M and b, which the quadratic's inversion does not allow.
             raise CalibrationError("a polynomial temperature model cannot be combined with the quadratic "
                                    "(reference15) term")
+        if self.dividing_head is not None:
+            if not isinstance(self.dividing_head, DividingHeadTerms):
+                raise CalibrationError("dividing_head must be a DividingHeadTerms or None")
+            if self.model != DIVIDING_HEAD:
+                raise CalibrationError(f"a dividing_head block belongs to model {DIVIDING_HEAD}, not {self.model}")
         if self.gyro_bias_radps is not None:
             set_(self, "gyro_bias_radps", _frozen(self.gyro_bias_radps, (3,), "gyro_bias_radps"))
         if self.bias_sigma is not None:
@@ -143,8 +151,8 @@ class Calibration:
     def _check_model_gravity_matrix(self) -> None:
         """The checks both constructors make (gravity becomes a float): a known model, a positive finite
         gravity, and M not singular."""
-        if self.model not in MODELS:
-            raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(MODELS)}")
+        if self.model not in CALIBRATION_MODELS:
+            raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(CALIBRATION_MODELS)}")
         if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
             raise CalibrationError(f"gravity must be a positive number of m/s^2, got {self.gravity!r}")
         object.__setattr__(self, "gravity", float(self.gravity))
@@ -237,6 +245,7 @@ class Calibration:
             == (other.model, other.gravity, other.quality, other.created, other.frame_id, other.sensor_id)
             and self.reference_temperature_degc == other.reference_temperature_degc
             and _same_temperature(self.temperature, other.temperature)
+            and self.dividing_head == other.dividing_head
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

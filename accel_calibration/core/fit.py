@@ -34,6 +34,7 @@ from .errors import CalibrationError
 from .gauss_newton import LeastSquaresSolution, gauss_newton, gauss_newton_stacked
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS, SphereModel, parameter_count, seed_sphere
 from .pose import Pose
+from .pose_weights import MAX_REWEIGHTS, TAU_TOLERANCE, extra_variance, pose_weights, weighting_applies
 from .temperature_models import (
     TEMPERATURE_MODELS,
     TemperatureModel,
@@ -123,6 +124,9 @@ class FitResult:
     # Leverage of each pose fitted (sphere fits without a temperature model): lets the outlier test
     # see at once that no pose can be one, without forming the Jacobian and its inverse again.
     leverage: np.ndarray | None = field(default=None, repr=False, compare=False)
+    # Poses weighted by 1 / (s_i^2 + tau^2) (their own noise given, unequal): tau, the common extra error
+    # per pose estimated so that chi^2/dof = 1 (raw units); None for an unweighted fit.
+    pose_extra_sigma: float | None = None
 
     @property
     def outlier_indices(self) -> tuple[int, ...]:
@@ -140,6 +144,9 @@ class FitResult:
         left_out = f" (and {len(self.outliers)} left out)" if self.outliers else ""
         lines.append(f"poses {self.poses}{left_out}, iterations {self.iterations}, "
                      f"condition number {self.condition_number:.3g}")
+        if self.pose_extra_sigma is not None:
+            lines.append("poses weighted by their own noise and a common extra error of "
+                         f"{self.pose_extra_sigma / MG:.3f} mg per pose (1 / (s_i^2 + tau^2))")
         lines.append(
             "bias b (raw units; m/s^2 for SI input):  "
             + "  ".join(f"{AXES[i]} {c.bias[i]:+.6g} ± {s.bias[i]:.2g}" for i in range(3))
@@ -267,8 +274,11 @@ def fit(
     temperature_options: orders, segment width, minimum span, T_ref, blend (TemperatureOptions).
     outlier_options: when a pose off the sphere is left out (OutlierOptions; default on, threshold 5 mg);
     the result names it (`outliers`) and is then the fit of the other poses.
-    pose_sigma_mps2: 1-sigma noise of each pose mean (N, raw units), the floor under the outlier test's
-    scale; taken from the poses' covariance and sample count when Pose objects are given.
+    pose_sigma_mps2: 1-sigma noise of each pose mean (N, raw units; per axis); taken from the poses' covariance
+    and sample count when Pose objects are given. When every pose has one and they differ, the sphere and
+    reference fits (without a temperature model) weight pose i by 1 / (s_i^2 + tau^2), tau the common extra
+    error estimated so that chi^2/dof = 1, and report sigma from (J^T W J)^-1 rescaled by chi^2/dof; equal
+    ones give the unweighted fit exactly. Also the floor under the outlier test's scale.
     """
     if pose_sigma_mps2 is None and isinstance(accel_mps2, (list, tuple)) and accel_mps2 \
             and all(isinstance(p, Pose) for p in accel_mps2):
@@ -306,11 +316,12 @@ def fit(
         a = accel if keep is None else accel[keep]
         t = temps if temps is None or keep is None else temps[keep]
         r = ref if ref is None or keep is None else ref[keep]
+        s = pose_sigma if pose_sigma is None or keep is None else pose_sigma[keep]
         if options is not None:
             assert t is not None  # checked above: a temperature model needs temperature_degc
             result = _fit_with_temperature(a, t, model, gravity, options, initial, frame_id, r)
         else:
-            result = _fit_without_temperature(a, model, gravity, t, r, initial, frame_id)
+            result = _fit_without_temperature(a, model, gravity, t, r, initial, frame_id, s)
         return _with_uncertainty(result, a, t, gravity)
 
     try:
@@ -528,7 +539,8 @@ LARGEST_VALUE = 1e150
 
 
 def _fit_without_temperature(accel: np.ndarray, model: str, gravity: float, temps: np.ndarray | None,
-                             ref: np.ndarray | None, initial: Calibration | None, frame_id: str) -> FitResult:
+                             ref: np.ndarray | None, initial: Calibration | None, frame_id: str,
+                             pose_sigma: np.ndarray | None = None) -> FitResult:
     n = len(accel)
     # Reference models are separate linear fits per axis (4 or 5 unknowns each), sphere models one joint fit.
     size = {"reference12": 4, "reference15": 5}.get(model, parameter_count(model))
@@ -541,9 +553,45 @@ def _fit_without_temperature(accel: np.ndarray, model: str, gravity: float, temp
                          "the fit; drop the corrupt pose or give the data in smaller units", model, poses=n)
     ref_temperature = None if temps is None else float(temps.mean())
     if model in SPHERE_MODELS:
-        return _fit_sphere(accel, model, gravity, initial, ref_temperature, frame_id)
+        first = _fit_sphere(accel, model, gravity, initial, ref_temperature, frame_id)
+        if not weighting_applies(pose_sigma) or first.calibration is None:
+            return first
+        assert pose_sigma is not None
+        return _reweighted(first, pose_sigma, n - parameter_count(model), lambda w, start: _fit_sphere(
+            accel, model, gravity, None, ref_temperature, frame_id, weights=w, start=start))
     assert ref is not None  # _check_arguments requires reference directions for the reference models
-    return _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
+    first = _fit_reference(accel, ref, model, gravity, ref_temperature, frame_id)
+    if not weighting_applies(pose_sigma) or first.calibration is None:
+        return first
+    assert pose_sigma is not None
+    return _reweighted(first, pose_sigma, 3 * (n - size), lambda w, _: _fit_reference(
+        accel, ref, model, gravity, ref_temperature, frame_id, weights=w))
+
+
+def _reweighted(first: FitResult, pose_sigma: np.ndarray, dof: int,
+                fit_with: Callable[[np.ndarray, Calibration], FitResult]) -> FitResult:
+    """The fit with each pose weighted by 1 / (s_i^2 + tau^2), from the unweighted one (`first`): tau^2 from
+    its residuals so that chi^2 = dof, then the weighted refit, its residuals, tau^2 again, until tau^2
+    settles (Paule-Mandel). Residuals are compared in raw units: the corrected ones (mg; a reference fit's
+    are the norm of the pose's three, dof counting all three) over the correction's gain. A weighted refit
+    that fails leaves the unweighted fit."""
+    variance = pose_sigma * pose_sigma
+    current, tau2 = first, -1.0
+    for _ in range(MAX_REWEIGHTS):
+        calibration = current.calibration
+        assert calibration is not None  # only successful fits are reweighted
+        # rms of M's row norms: what pose_mean_sigma's trace / 3 of isotropic noise becomes through M.
+        gain = math.sqrt(float(np.sum(calibration.matrix**2)) / 3.0)
+        squared = (current.residuals_mg * (MG / gain)) ** 2
+        new_tau2 = extra_variance(squared, variance, dof)
+        if abs(new_tau2 - tau2) <= TAU_TOLERANCE * (new_tau2 + float(np.median(variance))):
+            break
+        tau2 = new_tau2
+        weighted = fit_with(pose_weights(variance, tau2), calibration)
+        if not weighted.success or weighted.calibration is None:
+            return first
+        current = replace(weighted, pose_extra_sigma=math.sqrt(tau2))
+    return current
 
 
 def _numerical_failure(accel: np.ndarray, temps: np.ndarray | None, reason: str, *, model: str,
@@ -605,13 +653,19 @@ def _standard_deviations(solution: LeastSquaresSolution, n: int) -> np.ndarray:
 
 
 def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibration | None,
-                ref_temperature: float | None, frame_id: str) -> FitResult:
+                ref_temperature: float | None, frame_id: str, weights: np.ndarray | None = None,
+                start: Calibration | None = None) -> FitResult:
+    """weights: of each pose's residual (mean 1), or None: each pose alike. start: a fit of this model to
+    these poses to start from as it is (M already in the model's form: no projection)."""
     model = SphereModel(name)
     n = len(accel)
     # The poses as rows of x, y and z: what the residual function and the direction checks work on
     # (whole contiguous rows instead of strided columns).
     accel_t = np.ascontiguousarray(accel.T)
-    if initial is not None:
+    if start is not None:
+        bias0, matrix0 = start.bias, start.matrix
+        x0 = model.pack(bias0, matrix0)
+    elif initial is not None:
         bias0, matrix0 = initial.bias, initial.matrix
         x0 = model.project(bias0, matrix0)
     else:
@@ -640,13 +694,20 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
             missing_directions=missing,
             poses=n,
         )
-    solution = gauss_newton_stacked(lambda p: model.stacked(p, accel_t, gravity), x0)
+    if weights is None:
+        solution = gauss_newton_stacked(lambda p: model.stacked(p, accel_t, gravity), x0)
+        residuals_mg = solution.residuals / MG
+    else:
+        # Rows of J and r scaled by sqrt(w): the solver minimises sum w r^2, and its normal matrix, cost and
+        # leverages are the weighted ones, so sigma below is (J^T W J)^-1 times chi^2/dof.
+        root = np.sqrt(weights)
+        solution = gauss_newton_stacked(lambda p: model.stacked(p, accel_t, gravity) * root, x0)
+        residuals_mg = solution.residuals / root / MG
     # One normal matrix (the solver's, when it formed it at the solution) for the condition number,
     # sigma, the uncertainty and the outlier leverages.
     jacobian = solution.jacobian
     normal = solution.normal if solution.normal is not None else jacobian.T @ jacobian
     condition, inverse = condition_and_inverse(normal)
-    residuals_mg = solution.residuals / MG
     common: dict[str, Any] = dict(
         model=name,
         iterations=solution.iterations,
@@ -719,8 +780,9 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
 
 
 def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity: float,
-                   ref_temperature: float | None, frame_id: str) -> FitResult:
-    """Forward model per axis j: a_raw_j = b_j + sum_k S_jk a_k (+ q_j a_j^2), linear least squares."""
+                   ref_temperature: float | None, frame_id: str, weights: np.ndarray | None = None) -> FitResult:
+    """Forward model per axis j: a_raw_j = b_j + sum_k S_jk a_k (+ q_j a_j^2), linear least squares
+    (weighted by `weights` of the poses, mean 1, when given: sigma from (X^T W X)^-1 times chi^2/dof)."""
     n = len(accel)
     true = gravity * directions
     quadratic = name == "reference15"
@@ -748,12 +810,20 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
         if n <= k:
             return _no_degree_of_freedom(n, f"{k} parameters per axis of model {name}", name,
                                          condition_number=condition, missing_directions=missing)
-        solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
-        coefficients[j] = solution
-        residual_raw[:, j] = accel[:, j] - design @ solution
         dof = n - k
-        variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof
-        covariances[j] = variance * np.linalg.inv(design.T @ design)
+        if weights is None:
+            solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
+            coefficients[j] = solution
+            residual_raw[:, j] = accel[:, j] - design @ solution
+            variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof
+            covariances[j] = variance * np.linalg.inv(design.T @ design)
+        else:
+            root = np.sqrt(weights)
+            solution, *_ = np.linalg.lstsq(design * root[:, None], accel[:, j] * root, rcond=None)
+            coefficients[j] = solution
+            residual_raw[:, j] = accel[:, j] - design @ solution
+            variance = float(weights @ residual_raw[:, j] ** 2) / dof
+            covariances[j] = variance * np.linalg.inv((design * weights[:, None]).T @ design)
     bias = coefficients[:, 0]
     forward = coefficients[:, 1:4]
     q = coefficients[:, 4] if quadratic else None
@@ -806,7 +876,7 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
         calibration=calibration,
         sigma=sigma,
         residuals_mg=residuals_mg,
-        cost=0.5 * float(np.sum(residual_raw**2)),
+        cost=0.5 * float(np.sum(residual_raw**2) if weights is None else weights @ np.sum(residual_raw**2, axis=1)),
         condition_number=condition,
         missing_directions=missing,
         poses=n,

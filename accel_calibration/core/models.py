@@ -11,6 +11,8 @@ Reference models fit poses with known gravity directions by linear least squares
 direction a_raw = b + S a_true (+ q * a_true^2), S = M^-1, because the noise lives in a_raw:
 - ``reference12``: full S and b.
 - ``reference15``: reference12 plus a per-axis quadratic term q (Song & Qin 2009's six-position model).
+``dividing-head`` (Gao et al. 2016) is fitted from a dividing head's nominal angles with its tilt errors
+(core/dividing_head.py); its calibration is a full M and b like reference12's.
 """
 from __future__ import annotations
 
@@ -24,7 +26,10 @@ from scipy.linalg.lapack import dposv as posv
 
 SPHERE_MODELS = ("six", "sphere9")
 REFERENCE_MODELS = ("reference12", "reference15")
-MODELS = SPHERE_MODELS + REFERENCE_MODELS
+MODELS = SPHERE_MODELS + REFERENCE_MODELS  # what fit() fits
+# Fitted from a dividing head's angles (dividing_head_fit.py); its Calibration corrects like reference12's.
+DIVIDING_HEAD = "dividing-head"
+CALIBRATION_MODELS = MODELS + (DIVIDING_HEAD,)  # what a Calibration (and its file) may name
 AXES = "xyz"
 
 # Free entries of M for each sphere model, as (row, column).

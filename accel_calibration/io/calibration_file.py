@@ -12,6 +12,8 @@ Layout (keys other tools read are the first six; the rest is ours):
       uncertainty: {bias: [..], matrix: [[..]..]}   # 1 sigma
       quadratic: [qx, qy, qz]   # reference15 only, s^2/m
       gyro_bias_radps: [..]     # mean gyro output at rest (rad/s), when the poses had a gyro
+      dividing_head: {scale, bias_mg, mounting_mrad, nonorthogonality_mrad, tilt_error_mrad, tilt_deg,
+                      sigma: {..1 sigma of each..}, residual_sigma_mg}   # model dividing-head only
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
 """
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numpy as np
 import yaml
 
 from ..core.calibration import Calibration, Quality
+from ..core.dividing_head import DividingHeadTerms
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TemperatureModel
 from .output_paths import stale_temp_files, write_bytes_atomically
@@ -112,6 +115,8 @@ def calibration_to_dict(calibration: Calibration) -> dict:
             block["segment_blend"] = bool(t.segment_blend)
             block["units"] = dict(SEGMENT_UNITS)
         body["temperature"] = block
+    if c.dividing_head is not None:
+        body["dividing_head"] = _dividing_head_block(c.dividing_head)
     if c.reference_temperature_degc is not None:
         body["reference_temperature_degc"] = float(c.reference_temperature_degc)
     body["units"] = {"bias": "m/s^2", "matrix": "1", "gravity": "m/s^2", "quadratic": "s^2/m"}
@@ -119,6 +124,34 @@ def calibration_to_dict(calibration: Calibration) -> dict:
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
     return {ROOT_KEY: body}
+
+
+def _dividing_head_block(terms: DividingHeadTerms) -> dict:
+    block: dict = {name: list(getattr(terms, name)) for name in (*DividingHeadTerms.VALUES, "tilt_deg")}
+    block["sigma"] = {name: list(values) for name, values in terms.sigma.items()}
+    block["residual_sigma_mg"] = terms.residual_sigma_mg
+    return block
+
+
+def _dividing_head_terms(block) -> DividingHeadTerms:
+    """The `dividing_head:` block read back (DividingHeadTerms checks lengths, finiteness and signs)."""
+    if not isinstance(block, dict):
+        raise CalibrationFileError("dividing_head must be a mapping")
+    names = (*DividingHeadTerms.VALUES, "tilt_deg", "sigma", "residual_sigma_mg")
+    missing = [name for name in names if name not in block]
+    if missing:
+        raise CalibrationFileError(f"dividing_head is missing {', '.join(missing)}")
+    sigma = block["sigma"]
+    if not isinstance(sigma, dict):
+        raise CalibrationFileError("dividing_head.sigma must be a mapping")
+    lists = [(f"dividing_head.{name}", block[name]) for name in (*DividingHeadTerms.VALUES, "tilt_deg")]
+    for name, values in lists + [(f"dividing_head.sigma.{key}", value) for key, value in sigma.items()]:
+        for item in _list(values, name):  # numbers only: numpy would read text '1e5' or true as one
+            if isinstance(item, bool) or not isinstance(item, (int, float)):
+                raise CalibrationFileError(f"{name} must be a list of numbers, got {item!r:.40}")
+    return DividingHeadTerms(**{name: block[name] for name in (*DividingHeadTerms.VALUES, "tilt_deg")},
+                             sigma=dict(sigma), residual_sigma_mg=_number(block["residual_sigma_mg"],
+                                                                            "dividing_head.residual_sigma_mg"))
 
 
 # The segmented block (issue 11 on): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
@@ -261,7 +294,9 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
                 )
             except (TypeError, ValueError) as error:
                 raise CalibrationFileError(f"temperature block: {error}") from None
+        dividing_head = None if body.get("dividing_head") is None else _dividing_head_terms(body["dividing_head"])
         return Calibration(
+            dividing_head=dividing_head,
             temperature=temperature,
             bias=body["bias"],
             matrix=body["matrix"],

@@ -1,5 +1,6 @@
-"""CSV tables of poses or samples: a header row, then numbers. `ax,ay,az` required; `temperature`
-and `ref_x,ref_y,ref_z` optional. Every problem is one CalibrationError naming the row and column."""
+"""CSV tables of poses or samples: a header row, then numbers. `ax,ay,az` required; `temperature`,
+`ref_x,ref_y,ref_z` and `sigma_mg` (each pose mean's own 1-sigma noise per axis, mg; 0 = unknown) optional.
+Every problem is one CalibrationError naming the row and column."""
 from __future__ import annotations
 
 import csv
@@ -16,6 +17,8 @@ from .calibration_file import read_regular_file
 ACCEL_COLUMNS = ("ax", "ay", "az")
 REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
 TEMPERATURE_COLUMN = "temperature"
+SIGMA_COLUMN = "sigma_mg"
+MG_MPS2 = 9.80665e-3
 MAX_TABLE_BYTES = 256 << 20  # ~3 M rows of samples; parsing holds several times this in memory
 # |value| beyond this is no acceleration in any unit (raw counts of a 24-bit part at 16 g: ~1e8), and
 # keeps every product of the fit and of the correction far from overflow.
@@ -30,6 +33,7 @@ class Table:
     accel: np.ndarray  # (N, 3) in the file's units
     temperature_degc: np.ndarray | None
     reference: np.ndarray | None
+    pose_sigma_mps2: np.ndarray | None = None  # from sigma_mg: the pose means' own noise, m/s^2
 
 
 def read_text(path) -> str:
@@ -99,7 +103,10 @@ def read_table(path) -> Table:
         if not all(present):
             raise CalibrationError(f"{path}: reference columns must be all of {','.join(REFERENCE_COLUMNS)}")
         reference = _numbers(rows, header, REFERENCE_COLUMNS, path)
-    return Table(header, rows, accel, temperature, reference)
+    pose_sigma = None
+    if SIGMA_COLUMN in header:
+        pose_sigma = _numbers(rows, header, (SIGMA_COLUMN,), path, (0.0, MAX_ACCEL))[:, 0] * MG_MPS2
+    return Table(header, rows, accel, temperature, reference, pose_sigma)
 
 
 def table_with_accel(table: Table, accel: np.ndarray) -> str:
