@@ -62,7 +62,7 @@ class GyroTruth:
 
     matrix: np.ndarray = field(default_factory=lambda: np.eye(3))
     bias_radps: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    noise_density: float = 1.7e-4  # rad/s/sqrt(Hz) (0.01 deg/s/sqrt(Hz), a good MEMS part)
+    noise_density: float = 8.7e-5  # rad/s/sqrt(Hz) (0.005 deg/s/sqrt(Hz), the MPU-6050 datasheet value)
     bias_walk: float = 5e-6  # rad/s/sqrt(s): bias instability as a random walk
 
     @classmethod

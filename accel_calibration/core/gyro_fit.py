@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -31,6 +31,7 @@ from .calibration import Calibration, GyroQuality
 from .coverage import condition_and_inverse
 from .errors import CalibrationError
 from .gauss_newton import gauss_newton
+from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
 from .rotation_integration import IntervalSet, skew
 
@@ -297,20 +298,51 @@ def _check_inputs(poses: Sequence[Pose], motions: Sequence[Motion | None], accel
 
 
 def _directions(poses: Sequence[Pose], accel: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """Gravity directions of the poses in the accelerometer's calibrated frame, and the 1-sigma noise of
-    each (rad per tangent component) from the pose's sample covariance."""
+    """Gravity directions u of the poses in the accelerometer's calibrated frame (n, 3), and how the noise of
+    the poses' accelerometer means moves them: D (3n, 3n) with du = D xi, xi independent unit normals (3 per
+    pose, scaled by the pose's covariance over its sample count). For the sphere models the accelerometer's
+    own fit is linearised too: the same pose means set its bias and matrix, so every direction moves with
+    every pose's noise (the calibrated frame itself is uncertain). The reference models' frame comes from
+    the reference directions: each direction moves with its own pose only."""
     raw = np.array([p.accel_mps2 for p in poses], dtype=float)
     temps = [p.temperature_degc for p in poses]
     corrected = accel.apply(raw, None if any(t is None for t in temps) else np.array(temps, dtype=float))
     norms = np.linalg.norm(corrected, axis=1)
     directions = corrected / norms[:, None]
-    matrix = accel.matrix
-    sigma = np.array([math.sqrt(max(float(np.trace(matrix @ p.accel_cov @ matrix.T)), 0.0) / 3.0 / max(p.samples, 1))
-                      for p in poses]) / norms
-    return directions, sigma
+    count = len(poses)
+    matrix, bias = accel.matrix, accel.bias
+    roots = np.zeros((count, 3, 3))  # square roots of each pose mean's covariance
+    for i, pose in enumerate(poses):
+        covariance = np.asarray(pose.accel_cov, dtype=float) / max(pose.samples, 1)
+        values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+        roots[i] = vectors * np.sqrt(np.clip(values, 0.0, None))
+    # du_i = (I - u u^T) / |c_i| dc_i, c_i = M (a_i - b)
+    tangential = (np.eye(3) - directions[:, :, None] * directions[:, None, :]) / norms[:, None, None]
+    own = np.zeros((3 * count, 3 * count))  # dc_i / d xi from pose i's own noise: M L_i
+    for i in range(count):
+        own[3 * i:3 * i + 3, 3 * i:3 * i + 3] = matrix @ roots[i]
+    d_corrected = own
+    if accel.model not in REFERENCE_MODELS:
+        # The sphere fit: residual_i = |c_i| - g over p = (b, free entries of M); dp = -(Ja^T Ja)^-1 Ja^T da_res
+        entries = matrix_entries(accel.model)
+        offsets = raw - bias
+        d_c_d_p = np.zeros((count, 3, 3 + len(entries)))
+        d_c_d_p[:, :, :3] = -matrix
+        for column, (row, col) in enumerate(entries):
+            d_c_d_p[:, row, 3 + column] = offsets[:, col]
+        fit_jacobian = np.einsum("ia,iap->ip", directions, d_c_d_p)  # d|c_i| / dp
+        d_residual = np.zeros((count, 3 * count))
+        for i in range(count):
+            d_residual[i] = directions[i] @ own[3 * i:3 * i + 3]
+        d_parameters = -np.linalg.lstsq(fit_jacobian, d_residual, rcond=None)[0]  # (P, 3n)
+        d_corrected = own + (d_c_d_p.reshape(3 * count, -1) @ d_parameters)
+    sensitivity = np.zeros((3 * count, 3 * count))
+    for i in range(count):
+        sensitivity[3 * i:3 * i + 3] = tangential[i] @ d_corrected[3 * i:3 * i + 3]
+    return directions, sensitivity
 
 
-def _pose_times_ns(pose: Pose) -> float:
+def _pose_time_ns(pose: Pose) -> float:
     return 0.5 * (pose.start_ns + pose.end_ns)
 
 
@@ -363,92 +395,187 @@ def _count(refused: Sequence[RefusedMotion]) -> dict[str, int]:
     return counts
 
 
+def _tangent_basis(directions: np.ndarray) -> np.ndarray:
+    """(n, 3, 2): two unit vectors perpendicular to each direction and to each other."""
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    first = np.cross(directions, helper)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    second = np.cross(directions, first)
+    basis: np.ndarray = np.stack([first, second], axis=2)
+    return basis
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What the residuals need besides the parameters."""
+
+    intervals: IntervalSet
+    start: np.ndarray  # (K, 3) u_i of each motion used
+    end: np.ndarray  # (K, 3) u_{i+1}
+    projection: np.ndarray  # (K, 3, 2) basis of the plane perpendicular to u_{i+1}
+    used: list[int]
+    with_bias: bool
+
+    def unpack(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return x[:9].reshape(3, 3), (x[9:] if self.with_bias else np.zeros(3))
+
+    def evaluate(self, x: np.ndarray) -> _Evaluation:
+        matrix, bias_change = self.unpack(x)
+        rotations, d_phi, d_pose_bias = self.intervals.rotations_and_derivatives(matrix, bias_change, self.with_bias)
+        moved = np.einsum("kba,kb->ka", rotations, self.start)  # R^T u_i
+        residual = np.einsum("kai,ka->ki", self.projection, moved - self.end)
+        # d(R^T u) = [R^T u]x d phi
+        jacobian = np.einsum("kai,kab,kbp->kip", self.projection, skew(moved), d_phi)
+        return _Evaluation(residual.ravel(), jacobian.reshape(-1, d_phi.shape[2]), rotations, moved, d_pose_bias)
+
+    def residuals_mrad(self, x: np.ndarray) -> np.ndarray:
+        matrix, bias_change = self.unpack(x)
+        moved = np.einsum("kba,kb->ka", self.intervals.rotations(matrix, bias_change), self.start)
+        result: np.ndarray = np.linalg.norm(moved - self.end, axis=1) * 1e3
+        return result
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    # (2K,) R^T u_i - u_{i+1} in the plane perpendicular to u_{i+1} (its third component is second order)
+    residual: np.ndarray
+    jacobian: np.ndarray  # (2K, P)
+    rotations: np.ndarray  # (K, 3, 3)
+    moved: np.ndarray  # (K, 3) R^T u_i
+    d_pose_bias: np.ndarray  # (K, 2, 3, 3) d phi / d (earlier, later) pose's gyro mean
+
+
+@dataclass(frozen=True)
+class _Noise:
+    """What is known of the noise: how the poses' accelerometer noise moves the gravity directions, the
+    gyro's white noise per sample (raw, per axis), the poses' sample counts and each motion's sum of dt^2."""
+
+    direction_noise: np.ndarray  # (3n, 3n): du = D xi
+    gyro_radps: np.ndarray
+    samples: np.ndarray
+    sum_dt2: np.ndarray
+
+    def covariance(self, problem: _Problem, evaluation: _Evaluation, matrix: np.ndarray) -> np.ndarray:
+        """Covariance (2K, 2K) of the projected residuals: each pose's accelerometer mean (through its own
+        direction and the accelerometer's fit, see _directions), each pose's gyro mean (the bias is
+        interpolated from it: the gyro noise over its samples) and the gyro's white noise integrated over
+        each motion. A pose joins two motions, so neighbouring residuals are correlated."""
+        motions, poses = len(problem.used), len(self.samples)
+        white = float(np.mean(self.gyro_radps**2))
+        bias_sigma = np.sqrt(white / np.maximum(self.samples, 1.0))
+        moved_skew = skew(evaluation.moved)
+        # Sources: 3 accelerometer and 3 gyro-bias components per pose.
+        directions = self.direction_noise
+        sources = np.zeros((motions, 3, 6 * poses))
+        for row, k in enumerate(problem.used):
+            # u_i enters rotated (R^T u_i), u_{i+1} as it is, with a minus.
+            sources[row, :, :3 * poses] = (evaluation.rotations[row].T @ directions[3 * k:3 * k + 3]
+                                           - directions[3 * k + 3:3 * k + 6])
+            for share, pose in ((0, k), (1, k + 1)):
+                sources[row, :, 3 * poses + 3 * pose:3 * poses + 3 * pose + 3] = (
+                    moved_skew[row] @ evaluation.d_pose_bias[row, share] * bias_sigma[pose])
+        projected = np.einsum("kai,kas->kis", problem.projection, sources).reshape(2 * motions, -1)
+        covariance: np.ndarray = projected @ projected.T
+        # The white noise integrated (each sample weighs about dt), isotropic: M_g M_g^T ~ |M_g|^2 / 3.
+        gain = float(np.sum(matrix**2) / 3.0)
+        covariance[np.diag_indices_from(covariance)] += np.repeat(white * gain * self.sum_dt2, 2)
+        return covariance
+
+
 def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int], refused: list[RefusedMotion],
          accel: Calibration, noise: np.ndarray | None, initial: np.ndarray, options: GyroFitOptions
          ) -> GyroFitResult:
-    directions, direction_sigma = _directions(poses, accel)
+    directions, direction_noise = _directions(poses, accel)
     pose_gyro = np.array([p.gyro_radps for p in poses], dtype=float)
     samples = np.array([p.samples for p in poses], dtype=float)
-    weights_by_samples = samples / samples.sum()
-    mean_bias = weights_by_samples @ pose_gyro
-    stamps, rates, durations, sum_dt2 = [], [], [], []
+    mean_bias = (samples / samples.sum()) @ pose_gyro
+    stamps, rates, shares, sum_dt2 = [], [], [], []
     for k in used:
         motion = motions[k]
         assert motion is not None  # used motions were checked
         t = np.asarray(motion.stamps_ns, dtype=np.int64)
-        before, after = _pose_times_ns(poses[k]), _pose_times_ns(poses[k + 1])
-        fraction = np.clip((t - before) / (after - before), 0.0, 1.0)[:, None]
-        bias = (1.0 - fraction) * pose_gyro[k] + fraction * pose_gyro[k + 1]
+        before, after = _pose_time_ns(poses[k]), _pose_time_ns(poses[k + 1])
+        share = np.clip((t - before) / (after - before), 0.0, 1.0)
         stamps.append(t)
-        rates.append(np.asarray(motion.gyro_radps, dtype=float) - bias)
-        dt = np.diff(t) * 1e-9
-        durations.append(float(dt.sum()))
-        sum_dt2.append(float(np.sum(dt**2)))
-    intervals = IntervalSet(stamps, rates)
-    start, end = directions[used], directions[[k + 1 for k in used]]
-    duration = np.array(durations)
-    # Predicted 1-sigma of each residual component: both poses' direction noise, the gyro's white noise
-    # integrated (sum dt^2 sigma^2, the trapezoid gives each sample about dt), and the interpolated bias's
-    # noise (each pose mean's, over its samples) times the motion's duration.
-    variance = direction_sigma[used] ** 2 + direction_sigma[[k + 1 for k in used]] ** 2
-    if noise is not None:
-        gain = float(np.linalg.norm(initial) / math.sqrt(3.0))
-        white = float(np.mean(noise**2)) * gain**2
-        variance = variance + white * np.array(sum_dt2) + white * duration**2 * 0.25 * (
-            1.0 / samples[used] + 1.0 / samples[[k + 1 for k in used]])
-    else:
-        variance = np.ones(len(used))  # imu_tk's unweighted cost; sigma from the scatter alone
-    weight = 1.0 / np.sqrt(variance)
+        rates.append(np.asarray(motion.gyro_radps, dtype=float)
+                     - ((1.0 - share)[:, None] * pose_gyro[k] + share[:, None] * pose_gyro[k + 1]))
+        shares.append(share)
+        sum_dt2.append(float(np.sum((np.diff(t) * 1e-9) ** 2)))
+    intervals = IntervalSet(stamps, rates, shares)
+    later = [k + 1 for k in used]
+    problem = _Problem(intervals, directions[used], directions[later], _tangent_basis(directions[later]), used,
+                       options.fit_bias)
     turned_deg = np.degrees(np.sum(np.abs(intervals.mean_rate) * intervals.dt_s[:, None], axis=0))
-    with_bias = options.fit_bias
+    x0 = np.concatenate([initial.ravel(), np.zeros(3 if options.fit_bias else 0)])
+    evaluations: dict[bytes, _Evaluation] = {}
 
-    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return x[:9].reshape(3, 3), (x[9:] if with_bias else np.zeros(3))
+    def evaluate(x: np.ndarray) -> _Evaluation:
+        key = x.tobytes()
+        if key not in evaluations:
+            evaluations.clear()  # the last point is all that is asked again
+            evaluations[key] = problem.evaluate(x)
+        return evaluations[key]
+
+    known = None if noise is None else _Noise(direction_noise, noise, samples, np.array(sum_dt2))
+    # Weights: the noise covariance at the start (whitened by its Cholesky factor); without the gyro's
+    # noise, imu_tk's equal weights.
+    whitening = None if known is None else _whitening(known.covariance(problem, evaluate(x0), initial))
 
     def residual_and_jacobian(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        matrix, bias_change = unpack(x)
-        rotations, d_phi = intervals.rotations_and_derivatives(matrix, bias_change, with_bias)
-        moved = np.einsum("kba,kb->ka", rotations, start)  # R^T u_i
-        residual = (moved - end) * weight[:, None]
-        # d(R^T u) = [R^T u]x d phi
-        jacobian = (skew(moved) @ d_phi) * weight[:, None, None]
-        return residual.ravel(), jacobian.reshape(-1, d_phi.shape[2])
+        evaluation = evaluate(x)
+        if whitening is None:
+            return evaluation.residual, evaluation.jacobian
+        return whitening @ evaluation.residual, whitening @ evaluation.jacobian
 
-    x0 = np.concatenate([initial.ravel(), np.zeros(3 if with_bias else 0)])
-    before_rotations = intervals.rotations(initial, np.zeros(3))
-    before = np.linalg.norm(np.einsum("kba,kb->ka", before_rotations, start) - end, axis=1) * 1e3
-    common = dict(used=tuple(used), refused=tuple(refused), turned_deg=turned_deg, residuals_before_mrad=before,
-                  bias_fitted=with_bias)
+    residuals_before = problem.residuals_mrad(x0)
+    used_, refused_ = tuple(used), tuple(refused)
     # ftol 1e-10: the last step then moves M_g by ~1e-6 of its sigma; a tighter one costs an evaluation more.
     solution = gauss_newton(residual_and_jacobian, x0, ftol=1e-10, max_iterations=options.max_iterations)
     if not solution.success:
-        return GyroFitResult(False, f"gyro: the fit did not converge ({solution.message})",
-                             solution.iterations, **common)
-    matrix, bias_change = unpack(solution.x)
-    after_rotations = intervals.rotations(matrix, bias_change)
-    residuals = np.linalg.norm(np.einsum("kba,kb->ka", after_rotations, start) - end, axis=1) * 1e3
-    normal = solution.normal if solution.normal is not None else solution.jacobian.T @ solution.jacobian
-    condition, inverse = condition_and_inverse(normal)
-    dof = 2 * len(used) - len(x0)
-    chi2 = 2.0 * solution.cost
-    scatter = math.sqrt(chi2 / dof) if dof > 0 else float("inf")
-    factor = max(1.0, scatter**2) if noise is not None else scatter**2
-    if inverse is None or not math.isfinite(factor):
-        sigma = np.full(len(x0), np.inf)
+        return GyroFitResult(False, f"gyro: the fit did not converge ({solution.message})", solution.iterations,
+                             used=used_, refused=refused_, turned_deg=turned_deg,
+                             residuals_before_mrad=residuals_before, bias_fitted=options.fit_bias)
+    x = solution.x
+    matrix, bias_change = problem.unpack(x)
+    final = evaluate(x)
+    dof = len(final.residual) - len(x)
+    # sigma of the estimate with the weights used and the noise covariance at the solution (the
+    # sandwich (J'WJ)^-1 J'W C W J (J'WJ)^-1), scaled up when the residuals scatter more than C says.
+    weighted = final.jacobian if whitening is None else whitening @ final.jacobian
+    condition, inverse = condition_and_inverse(weighted.T @ weighted)
+    middle = None
+    if known is None:
+        scatter_squared = float(final.residual @ final.residual) / dof if dof > 0 else math.inf
+        factor = scatter_squared
     else:
-        sigma = np.sqrt(np.maximum(np.diag(inverse), 0.0) * factor)
-    matrix_sigma = sigma[:9].reshape(3, 3)
-    bias_sigma = sigma[9:] if with_bias else None
+        assert whitening is not None
+        covariance = known.covariance(problem, final, matrix)
+        scatter_squared = (float(np.sum((_whitening(covariance) @ final.residual) ** 2)) / dof if dof > 0
+                           else math.inf)
+        factor = max(1.0, scatter_squared)
+        applied = whitening.T @ weighted  # C0^-1 J
+        middle = applied.T @ covariance @ applied
+    if inverse is None or not math.isfinite(factor):
+        sigma = np.full(len(x), np.inf)
+    else:
+        parameter_covariance = inverse if middle is None else inverse @ middle @ inverse
+        sigma = np.sqrt(np.maximum(np.diag(parameter_covariance), 0.0) * factor)
     result = GyroFitResult(
         True, "gyro: fitted", solution.iterations, matrix=matrix, bias_radps=mean_bias + bias_change,
-        matrix_sigma=matrix_sigma, bias_sigma_radps=bias_sigma, residuals_mrad=residuals,
-        condition_number=condition, scatter=scatter, **common)
+        matrix_sigma=sigma[:9].reshape(3, 3), bias_sigma_radps=sigma[9:] if options.fit_bias else None,
+        residuals_mrad=problem.residuals_mrad(x), residuals_before_mrad=residuals_before, used=used_, refused=refused_,
+        turned_deg=turned_deg, condition_number=condition, scatter=math.sqrt(scatter_squared),
+        bias_fitted=options.fit_bias)
     loose = unobserved_axes(result)
     if loose:
-        return GyroFitResult(False, turn_advice(loose), solution.iterations, matrix=matrix,
-                             bias_radps=mean_bias + bias_change, matrix_sigma=matrix_sigma,
-                             bias_sigma_radps=bias_sigma, residuals_mrad=residuals, condition_number=condition,
-                             scatter=scatter, **common)
+        return replace(result, success=False, message=turn_advice(loose))
+    return result
+
+
+def _whitening(covariance: np.ndarray) -> np.ndarray:
+    """L^-1 for covariance = L L^T: residuals times it have unit covariance."""
+    lower = np.linalg.cholesky(covariance)
+    result: np.ndarray = np.linalg.inv(lower)
     return result
 
 

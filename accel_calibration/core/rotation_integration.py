@@ -159,7 +159,10 @@ class IntervalSet:
     motion. Holds what does not depend on the gyro matrix: the bias-free raw rates' mean, cross product
     and difference per interval, and the durations."""
 
-    def __init__(self, stamps_ns: list[np.ndarray], rates: list[np.ndarray]):
+    def __init__(self, stamps_ns: list[np.ndarray], rates: list[np.ndarray], later_share: list[np.ndarray]):
+        """stamps_ns, rates (bias removed) and later_share per motion, one per sample: how much of the later
+        pose's bias (against the earlier's) the sample's bias was interpolated from (0 at the start, 1 at
+        the end)."""
         counts = np.array([len(t) - 1 for t in stamps_ns])
         self.motions = len(counts)
         self.first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)  # first interval per motion
@@ -171,8 +174,10 @@ class IntervalSet:
         self.difference = end - start
         self.cross = np.cross(start, end)
         self.coning_weight = self.dt_s**2 / 12.0
+        share = np.concatenate([0.5 * (f[:-1] + f[1:]) for f in later_share])  # per interval
         # The columns of what d theta_j is linear in that do not change with the parameters (see below).
-        self._fixed_factors = np.concatenate([self.coning_weight[:, None] * self.difference, self.dt_s[:, None]],
+        self._fixed_factors = np.concatenate([self.coning_weight[:, None] * self.difference, self.dt_s[:, None],
+                                              (self.dt_s * (1.0 - share))[:, None], (self.dt_s * share)[:, None]],
                                              axis=1)
 
     def _rates(self, bias_change: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,9 +208,11 @@ class IntervalSet:
         return self._running(self.rotation_vectors(matrix, bias_change))[1]
 
     def rotations_and_derivatives(self, matrix: np.ndarray, bias_change: np.ndarray,
-                                  with_bias: bool) -> tuple[np.ndarray, np.ndarray]:
-        """R per motion and d phi / d x (motions, 3, 9 or 12): x the gyro matrix row-major, then the bias
-        change when `with_bias`; R(x + dx) = R exp([d phi / d x dx]) to first order."""
+                                  with_bias: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """R per motion, d phi / d x (motions, 3, 9 or 12): x the gyro matrix row-major, then the bias
+        change when `with_bias`; R(x + dx) = R exp([d phi / d x dx]) to first order. And d phi / d b
+        (motions, 2, 3, 3) for an error in the earlier and in the later pose's bias (the coning term's
+        share, a few ppm of it, left out): what the noise of the poses' gyro means does to the motion."""
         mean, cross = self._rates(bias_change)
         dt, coning_weight = self.dt_s, self.coning_weight
         cof = cofactor(matrix)
@@ -218,9 +225,9 @@ class IntervalSet:
         frames = quaternion_to_matrix(running)
         weights = (frames @ right_jacobian(theta)).reshape(-1, 9)  # row a*3+b
         factors = np.concatenate([dt[:, None] * mean, coning_weight[:, None] * cross, self._fixed_factors],
-                                 axis=1)  # (N, 10)
+                                 axis=1)  # (N, 12)
         sums = np.stack([weights[s:e + 1].T @ factors[s:e + 1] for s, e in zip(self.first, self.last)])
-        sums = sums.reshape(self.motions, 3, 3, 10)  # [k, a, b, column]
+        sums = sums.reshape(self.motions, 3, 3, 12)  # [k, a, b, column]
         d_matrix = sums[..., 0:3] + np.einsum("kabc,bcpq->kapq", sums[..., 3:6], cofactor_derivative(matrix))
         columns = [d_matrix.reshape(self.motions, 3, 9)]
         if with_bias:
@@ -230,4 +237,5 @@ class IntervalSet:
             columns.append(d_bias)
         ends = np.transpose(frames[self.last], (0, 2, 1))
         d_phi: np.ndarray = ends @ np.concatenate(columns, axis=2)
-        return rotations, d_phi
+        d_pose_bias = -np.stack([ends @ sums[..., 10], ends @ sums[..., 11]], axis=1) @ matrix
+        return rotations, d_phi, d_pose_bias
