@@ -93,12 +93,13 @@ class MotionSession:
         return [(self.still[i][1], self.still[i + 1][0]) for i in range(len(self.still) - 1)]
 
 
-def _pose_orientations(rng: np.random.Generator, count: int) -> list[np.ndarray]:
-    """Body-to-world rotations: each from the last by 60-150 deg about a random axis, so the turns go
-    about every axis of the body and the gravity directions spread over the sphere."""
+def _pose_orientations(rng: np.random.Generator, count: int, axes: np.ndarray) -> list[np.ndarray]:
+    """Body-to-world rotations: each from the last by 60-150 deg about a random axis of the body (its
+    components outside `axes`, a 0/1 mask, zero), so the turns go about those axes and the gravity
+    directions spread over the sphere."""
     orientations = [rotation_matrix(rng.normal(size=3) * 1.5)]
     for _ in range(count - 1):
-        axis = rng.normal(size=3)
+        axis = rng.normal(size=3) * axes
         axis /= np.linalg.norm(axis)
         orientations.append(orientations[-1] @ rotation_matrix(axis * np.radians(rng.uniform(60, 150))))
     return orientations
@@ -115,12 +116,15 @@ def simulate_session(
     first_hold_s: float = 10.0,
     jitter: float = 0.05,  # stamp jitter, fraction of the period
     latitude_deg: float = 48.0,
+    earth_rate_radps: float = EARTH_RATE_RADPS,
+    turn_axes: str = "xyz",  # the body axes the hand turns about (and wobbles about)
 ) -> MotionSession:
     gyro = GyroTruth.random(rng) if gyro is None else gyro
+    axes = np.array([float(axis in turn_axes) for axis in "xyz"])
     accel_matrix = np.diag(1.0 + rng.uniform(-0.02, 0.02, 3))
     accel_matrix[np.tril_indices(3, -1)] = rng.uniform(-0.01, 0.01, 3)
     accel_bias = rng.uniform(-0.3, 0.3, 3)
-    orientations = _pose_orientations(rng, poses)
+    orientations = _pose_orientations(rng, poses, axes)
     # Timeline: hold, move, hold, ... with the move times drawn here.
     holds = [first_hold_s] + list(rng.uniform(*hold_s, poses - 1))
     moves = list(rng.uniform(*move_s, poses - 1))
@@ -153,7 +157,7 @@ def simulate_session(
         rho = rotation_vector(orientations[i].T @ orientations[i + 1])
         ramp = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
         ramp_rate = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / duration
-        c1, c2 = rng.normal(0, 0.25, 3), rng.normal(0, 0.25, 3)
+        c1, c2 = rng.normal(0, 0.25, 3) * axes, rng.normal(0, 0.25, 3) * axes
         bump = np.sin(np.pi * tau) ** 2
         bump_rate = 2 * np.pi * np.sin(np.pi * tau) * np.cos(np.pi * tau) / duration
         wave, wave_rate = np.sin(2 * np.pi * tau), 2 * np.pi * np.cos(2 * np.pi * tau) / duration
@@ -168,7 +172,7 @@ def simulate_session(
         s, c = np.sin(np.pi * tau), np.cos(np.pi * tau)
         linear_accel_world[moving] = displacement * (np.pi**2 * (12 * s**2 * c**2 - 4 * s**4) / duration**2)[:, None]
     latitude = np.radians(latitude_deg)
-    earth_world = EARTH_RATE_RADPS * np.array([0.0, np.cos(latitude), np.sin(latitude)])
+    earth_world = earth_rate_radps * np.array([0.0, np.cos(latitude), np.sin(latitude)])
     true_rate = body_rate + np.einsum("nba,b->na", rotation, earth_world)
     up = np.array([0.0, 0.0, STANDARD_GRAVITY])
     specific_force = np.einsum("nba,nb->na", rotation, up + linear_accel_world)

@@ -606,7 +606,7 @@ def turn_advice(loose: Sequence[int]) -> str:
     """'gyro: motions turned about x and y only; turn about z' for the axes not pinned down."""
     turned = [q for q in range(3) if q not in loose]
     if not turned:
-        return ("gyro: the motions pin down no axis; turn about each of x, y and z between poses (not about "
-                "the vertical)")
+        return ("gyro: the motions pin down no axis well enough; turn about each of x, y and z between poses "
+                "(not about the vertical), in more motions")
     return (f"gyro: motions turned about {_axes_text(turned)} only; turn about {_axes_text(loose)} between poses "
             "(not about the vertical)")
