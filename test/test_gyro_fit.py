@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from gyro_sessions import poses_and_motions
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
@@ -17,7 +18,6 @@ from accel_calibration.core.gyro_gates import GyroGates
 from accel_calibration.core.rotation_integration import IntervalSet, prefix_product, quaternion_exp
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
-from gyro_sessions import poses_and_motions
 from msg_tools.synthetic_motion import GyroTruth, simulate_session
 
 OFF_DIAGONAL = ~np.eye(3, dtype=bool)
@@ -320,3 +320,23 @@ def test_xsens_recording(shared):
         theirs_mrad = np.linalg.norm(rotation.T @ directions[k] - directions[k + 1]) * 1e3
         used = result.used.index(k)
         assert abs(theirs_mrad - result.residuals_mrad[used]) < 0.05
+
+
+# ------------------------------------------------------------------ gates
+def test_gates_name_themselves_and_what_to_do():
+    _, good = simulated_fit(11)
+    gates = GyroGates()
+    assert gates.check(good) is None
+    noisy = replace(good, residuals_mrad=good.residuals_mrad * 0 + 12.0)
+    assert gates.check(noisy).startswith("gyro: gate residual: motions miss the next pose by 12.0 mrad rms, above 10")
+    wrong_units = replace(good, matrix=good.matrix * 57.3)
+    assert gates.check(wrong_units).startswith("gyro: gate scale: correction gain x 58.0")
+    assert "rad/s" in gates.check(wrong_units)
+    loose = replace(good, matrix_sigma=good.matrix_sigma * np.array([[1, 1, 100], [1, 1, 100], [1, 1, 100]]))
+    assert gates.check(loose).endswith("motions turned about x and y only; turn about z between poses (not about "
+                                       "the vertical)")
+    assert GyroGates(min_motions=20).check(good).startswith("gyro: gate motions: 17 usable motions between poses, "
+                                                            "need 20")
+    for bad in (dict(min_motions=2), dict(max_residual_rms_mrad=0), dict(scale_band=(1.0, 1.1))):
+        with pytest.raises(CalibrationError):
+            GyroGates(**bad)
