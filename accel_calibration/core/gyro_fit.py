@@ -428,12 +428,6 @@ class _Problem:
         jacobian = np.einsum("kai,kab,kbp->kip", self.projection, skew(moved), d_phi)
         return _Evaluation(residual.ravel(), jacobian.reshape(-1, d_phi.shape[2]), rotations, moved, d_pose_bias)
 
-    def residuals_mrad(self, x: np.ndarray) -> np.ndarray:
-        matrix, bias_change = self.unpack(x)
-        moved = np.einsum("kba,kb->ka", self.intervals.rotations(matrix, bias_change), self.start)
-        result: np.ndarray = np.linalg.norm(moved - self.end, axis=1) * 1e3
-        return result
-
 
 @dataclass(frozen=True)
 class _Evaluation:
@@ -443,6 +437,11 @@ class _Evaluation:
     rotations: np.ndarray  # (K, 3, 3)
     moved: np.ndarray  # (K, 3) R^T u_i
     d_pose_bias: np.ndarray  # (K, 2, 3, 3) d phi / d (earlier, later) pose's gyro mean
+
+    def residuals_mrad(self, end: np.ndarray) -> np.ndarray:
+        """|R^T u_i - u_{i+1}| per motion, mrad."""
+        result: np.ndarray = np.linalg.norm(self.moved - end, axis=1) * 1e3
+        return result
 
 
 @dataclass(frozen=True)
@@ -463,17 +462,17 @@ class _Noise:
         motions, poses = len(problem.used), len(self.samples)
         white = float(np.mean(self.gyro_radps**2))
         bias_sigma = np.sqrt(white / np.maximum(self.samples, 1.0))
+        used = np.array(problem.used)
+        rows = np.arange(motions)
+        # Sources: 3 accelerometer components per pose (u_i enters rotated, R^T u_i, and u_{i+1} as it is,
+        # with a minus), then 3 gyro-bias components per pose.
+        by_pose = self.direction_noise.reshape(poses, 3, 3 * poses)
+        accel_part = np.transpose(evaluation.rotations, (0, 2, 1)) @ by_pose[used] - by_pose[used + 1]
+        bias_part = np.zeros((motions, poses, 3, 3))
         moved_skew = skew(evaluation.moved)
-        # Sources: 3 accelerometer and 3 gyro-bias components per pose.
-        directions = self.direction_noise
-        sources = np.zeros((motions, 3, 6 * poses))
-        for row, k in enumerate(problem.used):
-            # u_i enters rotated (R^T u_i), u_{i+1} as it is, with a minus.
-            sources[row, :, :3 * poses] = (evaluation.rotations[row].T @ directions[3 * k:3 * k + 3]
-                                           - directions[3 * k + 3:3 * k + 6])
-            for share, pose in ((0, k), (1, k + 1)):
-                sources[row, :, 3 * poses + 3 * pose:3 * poses + 3 * pose + 3] = (
-                    moved_skew[row] @ evaluation.d_pose_bias[row, share] * bias_sigma[pose])
+        bias_part[rows, used] = moved_skew @ evaluation.d_pose_bias[:, 0] * bias_sigma[used, None, None]
+        bias_part[rows, used + 1] = moved_skew @ evaluation.d_pose_bias[:, 1] * bias_sigma[used + 1, None, None]
+        sources = np.concatenate([accel_part, np.transpose(bias_part, (0, 2, 1, 3)).reshape(motions, 3, -1)], axis=2)
         projected = np.einsum("kai,kas->kis", problem.projection, sources).reshape(2 * motions, -1)
         covariance: np.ndarray = projected @ projected.T
         # The white noise integrated (each sample weighs about dt), isotropic: M_g M_g^T ~ |M_g|^2 / 3.
@@ -527,7 +526,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
             return evaluation.residual, evaluation.jacobian
         return whitening @ evaluation.residual, whitening @ evaluation.jacobian
 
-    residuals_before = problem.residuals_mrad(x0)
+    residuals_before = evaluate(x0).residuals_mrad(problem.end)
     used_, refused_ = tuple(used), tuple(refused)
     # ftol 1e-10: the last step then moves M_g by ~1e-6 of its sigma; a tighter one costs an evaluation more.
     solution = gauss_newton(residual_and_jacobian, x0, ftol=1e-10, max_iterations=options.max_iterations)
@@ -563,8 +562,8 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
     result = GyroFitResult(
         True, "gyro: fitted", solution.iterations, matrix=matrix, bias_radps=mean_bias + bias_change,
         matrix_sigma=sigma[:9].reshape(3, 3), bias_sigma_radps=sigma[9:] if options.fit_bias else None,
-        residuals_mrad=problem.residuals_mrad(x), residuals_before_mrad=residuals_before, used=used_, refused=refused_,
-        turned_deg=turned_deg, condition_number=condition, scatter=math.sqrt(scatter_squared),
+        residuals_mrad=final.residuals_mrad(problem.end), residuals_before_mrad=residuals_before, used=used_,
+        refused=refused_, turned_deg=turned_deg, condition_number=condition, scatter=math.sqrt(scatter_squared),
         bias_fitted=options.fit_bias)
     loose = unobserved_axes(result)
     if loose:

@@ -28,6 +28,9 @@ LEVI_CIVITA[0, 1, 2] = LEVI_CIVITA[1, 2, 0] = LEVI_CIVITA[2, 0, 1] = 1.0
 LEVI_CIVITA[0, 2, 1] = LEVI_CIVITA[2, 1, 0] = LEVI_CIVITA[1, 0, 2] = -1.0
 # Small angles take the series of the Jacobian's coefficients (their closed forms lose digits there).
 _SMALL_ANGLE = 1e-4
+# Below this squared angle (0.1 rad, 5.7 deg per sample interval) the series to t^8 is exact in doubles:
+# the first term left out, t^10 / 12!, is below 1e-19.
+_SERIES_SQUARED = 0.01
 
 
 def quaternion_product(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -78,11 +81,16 @@ def right_jacobian(theta: np.ndarray) -> np.ndarray:
     first order. J_r = I - f1 [t]x + f2 [t]x^2 = (1 - f2 |t|^2) I - f1 [t]x + f2 t t^T."""
     x, y, z = theta[:, 0], theta[:, 1], theta[:, 2]
     squared = x * x + y * y + z * z
-    angle = np.sqrt(squared)
-    small = angle < _SMALL_ANGLE
-    safe = np.where(small, 1.0, angle)
-    f1 = np.where(small, 0.5 - squared / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
-    f2 = np.where(small, 1.0 / 6.0 - squared / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
+    if len(squared) and float(squared.max()) < _SERIES_SQUARED:
+        # Per sample the angle is small: the coefficients' series (next terms below 1e-16 relative).
+        f1 = 0.5 + squared * (-1 / 24 + squared * (1 / 720 + squared * (-1 / 40320 + squared / 3628800)))
+        f2 = 1 / 6 + squared * (-1 / 120 + squared * (1 / 5040 + squared * (-1 / 362880 + squared / 39916800)))
+    else:
+        angle = np.sqrt(squared)
+        small = angle < _SMALL_ANGLE
+        safe = np.where(small, 1.0, angle)
+        f1 = np.where(small, 0.5 - squared / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+        f2 = np.where(small, 1.0 / 6.0 - squared / 120.0, (safe - np.sin(safe)) / (safe * safe * safe))
     diagonal = 1.0 - f2 * squared
     fx, fy, fz = f2 * x, f2 * y, f2 * z
     gx, gy, gz = f1 * x, f1 * y, f1 * z
