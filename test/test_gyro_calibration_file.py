@@ -106,3 +106,19 @@ def test_gyro_quality_is_a_value():
     with pytest.raises(CalibrationError, match="gyro_quality.matrix_sigma must have shape"):
         GyroQuality(matrix_sigma=np.zeros(3), residual_rms_mrad=1.0, residual_max_mrad=2.0, motions=1)
     assert Calibration.identity() == Calibration.identity().replace(gyro_matrix=None)
+
+
+def test_apply_gyro_and_its_covariance(calibrated):
+    calibration, result = calibrated
+    raw = np.array([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]) + result.bias_radps
+    np.testing.assert_allclose(calibration.apply_gyro(raw), (raw - result.bias_radps) @ result.matrix.T, rtol=1e-15)
+    bias_only = calibration.replace(gyro_matrix=None, gyro_quality=None)
+    np.testing.assert_allclose(bias_only.apply_gyro(raw), raw - result.bias_radps, rtol=1e-15)
+    np.testing.assert_array_equal(Calibration.identity().apply_gyro(raw[0]), raw[0])
+    with pytest.raises(CalibrationError, match="raw angular rates"):
+        calibration.apply_gyro([1.0, 2.0])
+    # At 2 rad/s about x: the noise through M_g plus the x column's sigma times 2 rad/s on the diagonal.
+    covariance = calibration.gyro_rate_covariance(raw[0], 0.002)
+    expected = 0.002**2 * result.matrix @ result.matrix.T + np.diag(4.0 * result.matrix_sigma[:, 0] ** 2)
+    np.testing.assert_allclose(covariance, expected, rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(covariance) > 0)

@@ -242,6 +242,36 @@ class Calibration:
         corrected: np.ndarray = ((rows - self.bias - drift) / scale) @ self.matrix.T
         return corrected.reshape(array.shape)
 
+    def apply_gyro(self, raw_radps: ArrayLike) -> np.ndarray:
+        """Correct raw angular rates, (3,) or (N, 3): w = gyro_matrix (w_raw - gyro_bias_radps), each term
+        left out when the calibration has none (the bias alone before a gyro fit)."""
+        array = np.asarray(raw_radps, dtype=float)
+        if array.shape[-1:] != (3,) or array.ndim > 2:
+            raise CalibrationError(f"raw angular rates must have shape (3,) or (N, 3), got {array.shape}")
+        if self.gyro_bias_radps is not None:
+            array = array - self.gyro_bias_radps
+        if self.gyro_matrix is None:
+            return array.copy() if self.gyro_bias_radps is None else array
+        corrected: np.ndarray = array @ self.gyro_matrix.T
+        return corrected
+
+    def gyro_rate_covariance(self, raw_radps: ArrayLike, noise_radps: ArrayLike) -> np.ndarray:
+        """(3, 3) covariance of one corrected angular rate (REP-145 angular_velocity_covariance): the raw
+        white noise (per axis, rad/s, 1 sigma) through the gyro matrix, plus the gyro calibration's own
+        uncertainty at this rate (its matrix sigma times the bias-free raw rate, and its bias sigma, entries
+        taken as independent)."""
+        raw = np.asarray(raw_radps, dtype=float).reshape(3)
+        noise = np.broadcast_to(np.asarray(noise_radps, dtype=float), (3,))
+        matrix = np.eye(3) if self.gyro_matrix is None else self.gyro_matrix
+        unbiased = raw if self.gyro_bias_radps is None else raw - self.gyro_bias_radps
+        covariance: np.ndarray = (matrix * noise**2) @ matrix.T
+        quality = self.gyro_quality
+        if quality is not None:
+            covariance = covariance + np.diag((quality.matrix_sigma**2) @ unbiased**2)
+            if quality.bias_sigma_radps is not None:
+                covariance = covariance + (matrix * quality.bias_sigma_radps**2) @ matrix.T
+        return covariance
+
     def temperature_clamped(self, temperature: ArrayLike | None) -> np.ndarray:
         """Which temperatures lie outside the calibrated range (and are clamped by `apply`)."""
         if self.temperature is None or temperature is None:
