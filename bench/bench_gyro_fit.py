@@ -120,7 +120,7 @@ def main() -> int:
               f"{'OK' if best < 0.1 else 'ABOVE'} the 0.1 s target")
         print("  M_g =", np.array2string(result.matrix, precision=5).replace("\n", ""),
               " scale sigma ppm", np.round(result.scale_sigma_ppm()).tolist(),
-              " misalignment sigma max %.2f mrad" % result.misalignment_sigma_mrad().max())
+              f" misalignment sigma max {result.misalignment_sigma_mrad().max():.2f} mrad")
     directions = accel.apply(np.array([p.accel_mps2 for p in poses]))
     directions /= np.linalg.norm(directions, axis=1)[:, None]
     theirs = ImuTkMethod(stamps, gyro, poses, directions)
