@@ -38,7 +38,7 @@ from .rotation_integration import IntervalSet, skew
 AXES = "xyz"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Motion:
     """Raw gyro samples recorded between two consecutive still poses, gap-free, in stamp order.
 
