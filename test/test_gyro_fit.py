@@ -338,3 +338,16 @@ def test_gates_name_themselves_and_what_to_do():
     for bad in (dict(min_motions=2), dict(max_residual_rms_mrad=0), dict(scale_band=(1.0, 1.1))):
         with pytest.raises(CalibrationError):
             GyroGates(**bad)
+
+
+def test_replay_path_poses_from_the_detector():
+    """The poses as our session's detector finds them in a simulated recording, the motions cut between
+    them by motions_between: every motion used, the targets met."""
+    simulated = simulate_session(np.random.default_rng(1), poses=20, rate_hz=400.0)
+    poses = CalibrationSession().add_recording(simulated.stamps_ns, simulated.accel_mps2, simulated.gyro_radps)
+    assert len(poses) == 20
+    motions = motions_between(poses, simulated.stamps_ns, simulated.gyro_radps)
+    result = fit_gyro(poses, motions, fit(poses).calibration, gyro_noise_radps=simulated.gyro_noise_radps)
+    assert result.success and result.motions_used == 19 and not result.refused
+    scale, misalignment = errors(result, simulated.gyro.matrix)
+    assert np.abs(scale).max() < 5e-4 and np.abs(misalignment).max() < 0.3e-3
