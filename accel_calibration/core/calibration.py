@@ -75,6 +75,50 @@ class Quality:
     condition_number: float | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class GyroQuality:
+    """How well the gyro calibration explains the motions between the poses it was fitted to."""
+
+    matrix_sigma: np.ndarray  # (3, 3) 1 sigma of the gyro matrix's entries
+    residual_rms_mrad: float  # |R^T u_i - u_{i+1}| over the motions used
+    residual_max_mrad: float
+    motions: int  # motions used
+    bias_sigma_radps: np.ndarray | None = None  # (3,) when a bias change was fitted with the matrix
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "matrix_sigma", _frozen(self.matrix_sigma, (3, 3), "gyro_quality.matrix_sigma"))
+        if np.any(self.matrix_sigma < 0):
+            raise CalibrationError("gyro_quality.matrix_sigma must be >= 0")
+        if self.bias_sigma_radps is not None:
+            set_(self, "bias_sigma_radps", _frozen(self.bias_sigma_radps, (3,), "gyro_quality.bias_sigma_radps"))
+            if np.any(self.bias_sigma_radps < 0):
+                raise CalibrationError("gyro_quality.bias_sigma_radps must be >= 0")
+        for name in ("residual_rms_mrad", "residual_max_mrad"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise CalibrationError(f"gyro_quality.{name} must be a number >= 0, got {value!r:.40}")
+            set_(self, name, float(value))
+        if isinstance(self.motions, bool) or not isinstance(self.motions, int) or self.motions < 0:
+            raise CalibrationError(f"gyro_quality.motions must be an integer >= 0, got {self.motions!r:.40}")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, GyroQuality):
+            return NotImplemented
+        return (np.array_equal(self.matrix_sigma, other.matrix_sigma)
+                and _same_optional(self.bias_sigma_radps, other.bias_sigma_radps)
+                and (self.residual_rms_mrad, self.residual_max_mrad, self.motions)
+                == (other.residual_rms_mrad, other.residual_max_mrad, other.motions))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _same_optional(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return np.array_equal(a, b)
+
+
 @dataclass(frozen=True)
 class Calibration:
     """a_true = M (a_raw - b) (+ the inverse of the quadratic term for ``reference15``).
@@ -98,6 +142,9 @@ class Calibration:
     temperature: TemperatureModel | None = None  # bias/scale drift with temperature
     # Model dividing-head: the fitted terms in the paper's words (scale, mounting, tilt errors, ...).
     dividing_head: DividingHeadTerms | None = None
+    # w_true = gyro_matrix (w_raw - gyro_bias_radps), in the accelerometer's calibrated frame (fit_gyro)
+    gyro_matrix: np.ndarray | None = None
+    gyro_quality: GyroQuality | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -120,6 +167,18 @@ class Calibration:
                 raise CalibrationError(f"a dividing_head block belongs to model {DIVIDING_HEAD}, not {self.model}")
         if self.gyro_bias_radps is not None:
             set_(self, "gyro_bias_radps", _frozen(self.gyro_bias_radps, (3,), "gyro_bias_radps"))
+        if self.gyro_matrix is not None:
+            set_(self, "gyro_matrix", _frozen(self.gyro_matrix, (3, 3), "gyro_matrix"))
+            if self.gyro_bias_radps is None:
+                raise CalibrationError("gyro_matrix needs gyro_bias_radps "
+                                       "(w_true = gyro_matrix (w_raw - gyro_bias_radps))")
+            if abs(_scaled_determinant(self.gyro_matrix)) < 1e-12:
+                raise CalibrationError("gyro_matrix is singular: it would collapse the angular rate")
+        if self.gyro_quality is not None:
+            if not isinstance(self.gyro_quality, GyroQuality):
+                raise CalibrationError("gyro_quality must be a GyroQuality or None")
+            if self.gyro_matrix is None:
+                raise CalibrationError("gyro_quality belongs to a gyro_matrix, and there is none")
         if self.bias_sigma is not None:
             set_(self, "bias_sigma", _frozen(self.bias_sigma, (3,), "bias_sigma"))
         if self.matrix_sigma is not None:
@@ -191,6 +250,36 @@ class Calibration:
         corrected: np.ndarray = ((rows - self.bias - drift) / scale) @ self.matrix.T
         return corrected.reshape(array.shape)
 
+    def apply_gyro(self, raw_radps: ArrayLike) -> np.ndarray:
+        """Correct raw angular rates, (3,) or (N, 3): w = gyro_matrix (w_raw - gyro_bias_radps), each term
+        left out when the calibration has none (the bias alone before a gyro fit)."""
+        array = np.asarray(raw_radps, dtype=float)
+        if array.shape[-1:] != (3,) or array.ndim > 2:
+            raise CalibrationError(f"raw angular rates must have shape (3,) or (N, 3), got {array.shape}")
+        if self.gyro_bias_radps is not None:
+            array = array - self.gyro_bias_radps
+        if self.gyro_matrix is None:
+            return array.copy() if self.gyro_bias_radps is None else array
+        corrected: np.ndarray = array @ self.gyro_matrix.T
+        return corrected
+
+    def gyro_rate_covariance(self, raw_radps: ArrayLike, noise_radps: ArrayLike) -> np.ndarray:
+        """(3, 3) covariance of one corrected angular rate (REP-145 angular_velocity_covariance): the raw
+        white noise (per axis, rad/s, 1 sigma) through the gyro matrix, plus the gyro calibration's own
+        uncertainty at this rate (its matrix sigma times the bias-free raw rate, and its bias sigma, entries
+        taken as independent)."""
+        raw = np.asarray(raw_radps, dtype=float).reshape(3)
+        noise = np.broadcast_to(np.asarray(noise_radps, dtype=float), (3,))
+        matrix = np.eye(3) if self.gyro_matrix is None else self.gyro_matrix
+        unbiased = raw if self.gyro_bias_radps is None else raw - self.gyro_bias_radps
+        covariance: np.ndarray = (matrix * noise**2) @ matrix.T
+        quality = self.gyro_quality
+        if quality is not None:
+            covariance = covariance + np.diag((quality.matrix_sigma**2) @ unbiased**2)
+            if quality.bias_sigma_radps is not None:
+                covariance = covariance + (matrix * quality.bias_sigma_radps**2) @ matrix.T
+        return covariance
+
     def temperature_clamped(self, temperature: ArrayLike | None) -> np.ndarray:
         """Which temperatures lie outside the calibrated range (and are clamped by `apply`)."""
         if self.temperature is None or temperature is None:
@@ -241,6 +330,8 @@ class Calibration:
             and same(self.bias_sigma, other.bias_sigma)
             and same(self.matrix_sigma, other.matrix_sigma)
             and same(self.gyro_bias_radps, other.gyro_bias_radps)
+            and same(self.gyro_matrix, other.gyro_matrix)
+            and self.gyro_quality == other.gyro_quality
             and (self.model, self.gravity, self.quality, self.created, self.frame_id, self.sensor_id)
             == (other.model, other.gravity, other.quality, other.created, other.frame_id, other.sensor_id)
             and self.reference_temperature_degc == other.reference_temperature_degc

@@ -11,6 +11,9 @@ from .errors import CalibrationError
 
 # MEMS gyro zero-rate offsets are below ~0.35 rad/s (MPU-6050: +-20 deg/s); 1 rad/s leaves margin.
 MAX_GYRO_BIAS_RADPS = 1.0
+# A gyro matrix (rad/s in, rad/s out) whose axis gain is outside this is a gyro in other units or a bad fit:
+# MEMS gyro scale errors are a few percent.
+GYRO_SCALE_BAND = (0.8, 1.25)
 # Beyond any MEMS part's operating range (-40..125 degC); also keeps the polynomial in floating range.
 PLAUSIBLE_TEMPERATURE_DEGC = (-100.0, 200.0)
 # An entry this far from the structure's zero is a hand edit or another model, not rounding.
@@ -115,7 +118,8 @@ def _temperature_problem(calibration: Calibration, max_bias_mps2: float,
 
 def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0,
                          scale_band: tuple[float, float] = (0.9, 1.1),
-                         max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS) -> str | None:
+                         max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS,
+                         gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
     """None when the calibration may be put in force, else the first problem, one line. The bias and
     scale gates take the node's settings (`max_bias_mps2`, `scale_min`, `scale_max`); with a
     temperature model they must hold over the whole calibrated range, not only at T_ref."""
@@ -133,6 +137,16 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
         if not worst <= max_gyro_bias_radps:
             return (f"gyro bias {worst:.4g} rad/s is beyond any MEMS gyro's zero-rate offset "
                     f"(plausible up to {max_gyro_bias_radps:g} rad/s)")
+    if calibration.gyro_matrix is not None:
+        problem = _orientation_problem(calibration.gyro_matrix, "the gyro matrix")
+        if problem is not None:
+            return problem
+        lo, hi = gyro_scale_band
+        gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
+        outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+        if outside:
+            return (f"gyro matrix: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (a MEMS gyro's scale "
+                    "error is a few percent: a gyro in other units than rad/s, or a bad fit)")
     if calibration.quadratic is not None:
         # q a^2 at 1 g beyond 10 % of g is not a quadratic error but another model (e.g. a file in g).
         worst = float(np.max(np.abs(calibration.quadratic))) * calibration.gravity

@@ -14,6 +14,9 @@ Layout (keys other tools read are the first six; the rest is ours):
       gyro_bias_radps: [..]     # mean gyro output at rest (rad/s), when the poses had a gyro
       dividing_head: {scale, bias_mg, mounting_mrad, nonorthogonality_mrad, tilt_error_mrad, tilt_deg,
                       sigma: {..1 sigma of each..}, residual_sigma_mg}   # model dividing-head only
+      gyro_matrix: [[..]..]     # w_true = gyro_matrix (w_raw - gyro_bias_radps), in the accelerometer's
+                                # calibrated frame, when the motions between the poses were fitted
+      gyro_quality: {matrix_sigma: [[..]..], residual_rms_mrad: .., residual_max_mrad: .., motions: ..}
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
 """
 from __future__ import annotations
@@ -27,7 +30,7 @@ from typing import cast
 import numpy as np
 import yaml
 
-from ..core.calibration import Calibration, Quality
+from ..core.calibration import Calibration, GyroQuality, Quality
 from ..core.dividing_head import DividingHeadTerms
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TemperatureModel
@@ -101,6 +104,14 @@ def calibration_to_dict(calibration: Calibration) -> dict:
         body["quadratic"] = c.quadratic.tolist()
     if c.gyro_bias_radps is not None:
         body["gyro_bias_radps"] = c.gyro_bias_radps.tolist()
+    if c.gyro_matrix is not None:
+        body["gyro_matrix"] = c.gyro_matrix.tolist()
+    if c.gyro_quality is not None:
+        g = c.gyro_quality
+        body["gyro_quality"] = {"matrix_sigma": g.matrix_sigma.tolist(), "residual_rms_mrad": g.residual_rms_mrad,
+                                "residual_max_mrad": g.residual_max_mrad, "motions": g.motions}
+        if g.bias_sigma_radps is not None:
+            body["gyro_quality"]["bias_sigma_radps"] = g.bias_sigma_radps.tolist()
     if c.temperature is not None:
         t = c.temperature
         block = {"model": t.kind, "reference_degc": t.reference_degc, "range_degc": list(t.range_degc)}
@@ -235,10 +246,14 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     absurd = _first_absurd_number(body)
     if absurd is not None:
         raise CalibrationFileError(f"{source}: {absurd}")
-    blocks = {key: body.get(key) for key in ("uncertainty", "temperature")}
+    blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality")}
     uncertainty_block: dict = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
     temperature_block: dict = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
-    for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps")] + [
+    gyro_quality_block: dict = blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict) else {}
+    for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps",
+                                                          "gyro_matrix")] + [
+            (f"gyro_quality.{key}", gyro_quality_block.get(key)) for key in (
+                "matrix_sigma", "bias_sigma_radps", "residual_rms_mrad", "residual_max_mrad")] + [
             (f"uncertainty.{key}", uncertainty_block.get(key)) for key in ("bias", "matrix")] + [
             (f"temperature.{key}", temperature_block.get(key)) for key in (
                 "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
@@ -297,6 +312,8 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
         dividing_head = None if body.get("dividing_head") is None else _dividing_head_terms(body["dividing_head"])
         return Calibration(
             dividing_head=dividing_head,
+            gyro_matrix=body.get("gyro_matrix"),
+            gyro_quality=_gyro_quality(body.get("gyro_quality")),
             temperature=temperature,
             bias=body["bias"],
             matrix=body["matrix"],
@@ -314,6 +331,24 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
         )
     except CalibrationError as error:
         raise CalibrationFileError(f"{source}: {error}") from None
+
+
+def _gyro_quality(block) -> GyroQuality | None:
+    """The gyro_quality block (its numbers already checked to be numbers), or None when absent."""
+    if block is None:
+        return None
+    if not isinstance(block, dict):
+        raise CalibrationFileError(f"gyro_quality must be a mapping, got {block!r:.40}")
+    missing = [key for key in ("matrix_sigma", "residual_rms_mrad", "residual_max_mrad", "motions") if key not in block]
+    if missing:
+        raise CalibrationFileError(f"gyro_quality is missing {', '.join(missing)}")
+    motions = block["motions"]
+    if isinstance(motions, bool) or not isinstance(motions, int) or not 0 <= motions <= MAX_POSES:
+        raise CalibrationFileError(f"gyro_quality.motions must be an integer 0..{MAX_POSES}, got {motions!r:.40}")
+    return GyroQuality(matrix_sigma=block["matrix_sigma"],
+                       residual_rms_mrad=_number(block["residual_rms_mrad"], "gyro_quality.residual_rms_mrad"),
+                       residual_max_mrad=_number(block["residual_max_mrad"], "gyro_quality.residual_max_mrad"),
+                       motions=motions, bias_sigma_radps=block.get("bias_sigma_radps"))
 
 
 class _SafeLoader(yaml.SafeLoader):
