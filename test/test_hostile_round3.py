@@ -46,3 +46,88 @@ def test_a_calibration_whose_file_would_be_refused_is_not_written(tmp_path, monk
         save_calibration(Calibration.identity(frame_id="new"), path)
     assert path.read_bytes() == before
     assert load_calibration(path).frame_id == "old"
+
+
+# --- 2, 5, 7. replay's outputs: all work first, then the writes; only our own scratch is removed --------
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    """A short calibration session as a rosbag2 directory (mcap storage)."""
+    from accel_calibration.bag.bag_io import write_session_bag
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+    rng = np.random.default_rng(25)
+    imu = SyntheticImu(SensorErrors.mpu6050_like(rng, noise_mps2=0.02), spread_orientations(15, rng), dwell_s=2.0,
+                       move_s=0.8, rate_hz=100.0, seed=25)
+    path = tmp_path_factory.mktemp("round3") / "session"
+    write_session_bag(path, imu.samples(), start_ns=1_700_000_000 * 10**9, storage="mcap")
+    return path
+
+
+def _one_error_line(capsys):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("accel-calib: error: "), err
+    return err[0]
+
+
+def _leftovers(directory):
+    return sorted(p.name for p in directory.iterdir() if p.name.startswith("."))
+
+
+def test_replay_refuses_an_unwritable_output_before_replacing_another(bag, tmp_path, capsys):
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("old\n")
+    assert main(["replay", str(bag), "-o", str(cal), "--report", str(tmp_path / "missing" / "r.png")]) == 1
+    assert "does not exist" in _one_error_line(capsys)
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    assert main(["replay", str(bag), "-o", str(cal), "--corrected", str(existing)]) == 1
+    assert "already exists" in _one_error_line(capsys)
+    assert cal.read_text() == "old\n" and list(existing.iterdir()) == []
+
+
+def test_a_corrected_copy_that_fails_leaves_every_output_as_it_was(bag, tmp_path, capsys, monkeypatch):
+    from accel_calibration.bag import bag_io
+
+    def fails(*_args, **_kwargs):
+        raise bag_io.BagError(f"{bag}: topic /other: its recorded definition cannot be written")
+
+    monkeypatch.setattr(bag_io, "write_corrected", fails)
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("old\n")
+    assert main(["replay", str(bag), "-o", str(cal), "--corrected", str(tmp_path / "out"),
+                 "--report", str(tmp_path / "r.png")]) == 1
+    assert "recorded definition" in _one_error_line(capsys)
+    assert cal.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml"]
+
+
+def test_the_loser_of_two_replays_on_one_corrected_directory_keeps_the_winners_bag(bag, tmp_path, capsys,
+                                                                                   monkeypatch):
+    from accel_calibration.bag import replay as replay_module
+
+    out = tmp_path / "out"
+    real = replay_module.write_corrected_bag
+
+    def winner_finishes_meanwhile(replay, calibration, destination, **groups):
+        written = real(replay, calibration, destination, **groups)
+        out.mkdir()  # the other run's rename lands between our check and ours
+        (out / "out_0.mcap").write_bytes(b"the winner's bag")
+        return written
+
+    monkeypatch.setattr(replay_module, "write_corrected_bag", winner_finishes_meanwhile)
+    assert main(["replay", str(bag), "--corrected", str(out)]) == 1
+    assert "out" in _one_error_line(capsys)
+    assert (out / "out_0.mcap").read_bytes() == b"the winner's bag" and len(list(out.iterdir())) == 1
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_corrected_copy_through_a_symlink_is_written_at_its_target(bag, tmp_path, capsys):
+    recording = next(bag.glob("*.mcap"))
+    target = tmp_path / "target.mcap"
+    target.write_bytes(b"old")
+    link = tmp_path / "link.mcap"
+    link.symlink_to(target)
+    assert main(["replay", str(recording), "--corrected", str(link)]) == 0, capsys.readouterr().err
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_bytes()[:5] == b"\x89MCAP"
+    assert _leftovers(tmp_path) == []

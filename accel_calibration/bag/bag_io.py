@@ -556,9 +556,11 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectAccel, 
     plugin = StoragePlugin.MCAP if storage_of(source) == "mcap" else StoragePlugin.SQLITE3
     reader = open_reader(source)
     written = 0
+    created = False  # the destination is ours to remove only once our Writer has made it
     try:
         standard = _reader_is_standard(reader)
         with Writer(destination, version=9, storage_plugin=plugin) as writer:
+            created = True
             out = {}
             for c in reader.connections:
                 out[c.id] = writer.add_connection(
@@ -593,7 +595,8 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectAccel, 
     except Exception as error:  # noqa: BLE001 - rosbags' reader and writer raise their own types
         import shutil
 
-        shutil.rmtree(destination, ignore_errors=True)  # ours, half written: the bag did not exist before
+        if created:  # ours, half written; never another writer's bag that appeared after our check
+            shutil.rmtree(destination, ignore_errors=True)
         if isinstance(error, BagError):
             raise
         first_line = str(error).splitlines()[0][:120] if str(error) else ""

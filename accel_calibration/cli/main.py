@@ -28,7 +28,7 @@ from ..io.calibration_file import (
     save_calibration,
     write_text_atomically,
 )
-from ..io.output_paths import check_outputs, write_bytes_atomically
+from ..io.output_paths import check_output_places, check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
 from . import fleet as fleet_command
 from . import history as history_command
@@ -157,9 +157,8 @@ def _in_force(path) -> object:
     return calibration
 
 
-def _write_report(calibration, accel, temperatures, output, title: str) -> None:
-    """The report figure, rendered aside and then written like every output (whole, through symlinks,
-    keeping the old file's mode)."""
+def _render_report(calibration, accel, temperatures, title: str) -> bytes:
+    """The report figure's PNG bytes, rendered aside (written later like every output)."""
     import tempfile
 
     from ..io.report import write_report
@@ -167,7 +166,13 @@ def _write_report(calibration, accel, temperatures, output, title: str) -> None:
     with tempfile.TemporaryDirectory(prefix="accel-calib-report-") as scratch:
         rendered = Path(scratch) / "report.png"
         write_report(calibration, accel, temperatures, rendered, title=title)
-        write_bytes_atomically(output, rendered.read_bytes())
+        return rendered.read_bytes()
+
+
+def _write_report(calibration, accel, temperatures, output, title: str) -> None:
+    """The report figure, rendered aside and then written like every output (whole, through symlinks,
+    keeping the old file's mode)."""
+    write_bytes_atomically(output, _render_report(calibration, accel, temperatures, title))
 
 
 def _fit(args) -> int:
@@ -265,17 +270,21 @@ def _replay_settings(args):
 
 def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
     """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
-    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found."""
+    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
+    All the work (the replay, the calibration's file text, the corrected copy written aside, the report
+    rendered) comes before the first output is written, so a failure leaves every output as it was."""
     from pathlib import Path
 
-    from ..bag.recording import write_corrected_copy
+    from ..bag.recording import stage_corrected_copy
     from ..bag.replay import replay_bag
+    from ..io.calibration_file import checked_calibration_text
     from ..io.poses_out import poses_table_text
 
     try:
         replay = replay_bag(bag, settings, progress=progress)
-        if poses_out:
-            write_text_atomically(poses_out, poses_table_text(replay.poses, replay.pose_status))
+        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else None
+        if replay.calibration is None and poses_out:
+            write_text_atomically(poses_out, poses_text)
     except AccelCalibrationError as error:
         return None, None, str(error)
     if replay.calibration is None:
@@ -288,21 +297,47 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
     bad = {k: v for k, v in replay.counts.items() if v}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+    copy = None
     try:
+        calibration_text = checked_calibration_text(calibration, output) if output else None
+        if corrected_bag:
+            copy = stage_corrected_copy(replay, calibration, corrected_bag)
+        figure = (_render_report(calibration, [p.accel_mps2 for p in replay.poses],
+                                 [p.temperature_degc for p in replay.poses], title=Path(bag).name)
+                  if report else None)
+        # All the work succeeded: now the outputs, the one that can still be taken by another run first.
+        if copy is not None:
+            copy.commit()
         if output:
-            save_calibration(calibration, output)
+            write_text_atomically(output, calibration_text)
             lines.append(f"written {output}")
         if poses_out:
+            write_text_atomically(poses_out, poses_text)
             lines.append(f"poses {poses_out}")
-        if corrected_bag:
-            lines.append(write_corrected_copy(replay, calibration, corrected_bag))
+        if copy is not None:
+            lines.append(copy.line)
         if report:
-            _write_report(calibration, [p.accel_mps2 for p in replay.poses],
-                          [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
+            write_bytes_atomically(report, figure)
             lines.append(f"report {report}")
     except AccelCalibrationError as error:
         return None, None, str(error)
+    finally:
+        if copy is not None:
+            copy.discard()
     return "\n".join(lines), calibration, None
+
+
+def _check_corrected_targets(jobs) -> None:
+    """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
+    is written over a directory."""
+    for job in jobs:
+        bag, destination = job[0], job[3]
+        if destination is None or not os.path.lexists(destination):
+            continue
+        if os.path.isdir(bag) or os.path.isdir(destination):
+            raise CalibrationError(f"--corrected {destination}: already exists "
+                                   + ("(a corrected bag is a new directory)" if os.path.isdir(bag)
+                                      else "and is a directory; give a file name"))
 
 
 def _bag_labels(bags) -> list[str]:
@@ -356,6 +391,9 @@ def _replay(args) -> int:
                     Path(option).mkdir(parents=True, exist_ok=True)
                 except OSError as error:
                     raise CalibrationError(f"cannot make output directory {option}: {error.strerror}") from None
+    check_output_places([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected", 3),
+                                                                         ("--report", 4), ("--poses-out", 6))])
+    _check_corrected_targets(jobs)
     if args.jobs > 1 and several:  # one way to run many: the fleet's local Dask cluster of --jobs processes
         outcomes = fleet_command.map_on_local_cluster(
             _replay_one, jobs, workers=args.jobs,  # a lost worker (out of memory, a signal): that bag only
