@@ -15,6 +15,7 @@ from accel_calibration.core.calibration import MAX_IDENTIFIER_CHARS, Calibration
 from accel_calibration.core.errors import CalibrationError
 from accel_calibration.io import calibration_file
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
+from test_history_postgres import pg_url, postgres  # noqa: F401 - fixtures: a private PostgreSQL server
 
 
 # --- 1. a file the loader refuses is never put in place --------------------------------------------------
@@ -131,3 +132,112 @@ def test_a_corrected_copy_through_a_symlink_is_written_at_its_target(bag, tmp_pa
     assert link.is_symlink() and os.readlink(link) == str(target)
     assert target.read_bytes()[:5] == b"\x89MCAP"
     assert _leftovers(tmp_path) == []
+
+
+def finishes_within(seconds, function, *args, **kwargs):
+    """function(*args) run in a thread; fails the test (instead of hanging it) when it takes longer."""
+    import threading
+
+    result = {}
+
+    def target():
+        try:
+            result["value"] = function(*args, **kwargs)
+        except BaseException as error:  # noqa: BLE001 - handed back to the test
+            result["error"] = error
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    thread.join(seconds)
+    assert not thread.is_alive(), f"{getattr(function, '__name__', function)} still running after {seconds} s"
+    if "error" in result:
+        raise result["error"]
+    return result["value"]
+
+
+# --- 3, 4, 10. the history's rows: whole-content identity, true counts, each row alone ------------------
+
+def test_recordings_that_differ_only_in_the_middle_are_two_rows(tmp_path):
+    from accel_calibration.io.history import open_history, recording_identity
+    from test_history import record
+
+    head, tail = os.urandom(1 << 17), os.urandom(1 << 17)
+    for name, middle in (("a.mcap", b"A"), ("b.mcap", b"B")):
+        (tmp_path / name).write_bytes(head + middle * 1000 + tail)
+    (tmp_path / "copy").mkdir()
+    (tmp_path / "copy" / "a.mcap").write_bytes((tmp_path / "a.mcap").read_bytes())
+    ids = [recording_identity(tmp_path / name)[0] for name in ("a.mcap", "b.mcap", "copy/a.mcap")]
+    assert ids[0] != ids[1] and ids[0] == ids[2]
+    with open_history(tmp_path / "h.sqlite") as history:
+        for i, identity in enumerate(ids[:2]):
+            history.write([record(i, recording_id=identity)])
+        assert len(history.records()) == 2
+
+
+def test_a_fifo_is_not_opened_for_its_identity(tmp_path):
+    from accel_calibration.cli.fleet import calibrate_recording
+
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+    outcome = finishes_within(10, calibrate_recording, str(fifo))
+    assert outcome.status == "failed" and "not a regular file" in outcome.reason
+
+
+def test_history_text_is_the_same_on_every_backend(tmp_path):
+    from accel_calibration.io.history import open_history
+    from test_history import record
+
+    with open_history(tmp_path / "h.sqlite") as history:
+        history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
+                              path="/fleet/bad\udcff.csv", reason="x\x00y")])
+        row, = history.records()
+    assert row.vehicle == "v" * 200 and row.sensor == "imu\\0link" and row.path == "/fleet/bad\ufffd.csv"
+    assert row.reason == "x\\0y" and row.frame_id.startswith("f\\0f\\0")
+
+
+def test_history_rows_are_sanitised_alike_on_postgresql(pg_url):
+    from accel_calibration.io.history import open_history
+    from test_history import record
+
+    with open_history(pg_url) as history:
+        history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
+                              path="/fleet/bad\udcff.csv")])
+        history.write([record(2)])
+        rows = history.records()
+    assert [r.vehicle for r in rows] == ["uav07", "v" * 200] and rows[1].sensor == "imu\\0link"
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    from accel_calibration.cli.fleet import local_cluster
+
+    with local_cluster(1) as cluster:
+        yield cluster.scheduler_address
+
+
+def test_fleet_prints_the_true_row_count_and_a_bad_file_costs_only_itself(scheduler, bag, tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "fleet"
+    shutil.copytree(bag, root / "uav1" / "flight")
+    (root / "uav2").mkdir()
+    for i in range(3):
+        (root / "uav2" / f"empty{i}.csv").write_bytes(b"")
+    head, tail = b"t_ns,ax,ay,az\n" + b"0,0,0,9.8\n" * 8000, b"1,0,0,9.8\n" * 8000
+    (root / "uav2" / "a.csv").write_bytes(head + b"5,0,0,1\n" + tail)
+    (root / "uav2" / "b.csv").write_bytes(head + b"6,0,0,1\n" + tail)
+    (root / "uav3").mkdir()
+    with open(os.path.join(os.fsencode(root / "uav3"), b"bad\xff.csv"), "wb") as stream:
+        stream.write(b"t_ns,ax,ay,az\n0,0,0,9.8\n")
+    os.mkfifo(root / "uav3" / "pipe.mcap")
+    db = tmp_path / "h.sqlite"
+    code = finishes_within(120, main, ["fleet", str(root), "--scheduler", scheduler, "--history", str(db)])
+    out, err = capsys.readouterr()
+    assert code == 1 and "Traceback" not in err
+    assert all(line.startswith("accel-calib: error: ") for line in err.strip().splitlines()), err
+    with sqlite3.connect(db) as connection:
+        rows = connection.execute("SELECT count(*) FROM calibrations").fetchone()[0]
+        calibrated = connection.execute("SELECT count(*) FROM calibrations WHERE status = 'calibrated'").fetchone()[0]
+    # 8 recordings: the bag, 3 empty files (one content), a.csv, b.csv, bad\xff.csv; the FIFO has no row
+    assert (rows, calibrated) == (5, 1)
+    assert "5 rows written (2 recordings with the content of another: one row each)" in out

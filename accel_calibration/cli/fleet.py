@@ -25,7 +25,14 @@ from typing import Any
 
 from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
+from ..io.history import (
+    HistoryError,
+    HistoryRecord,
+    open_history,
+    printable_text,
+    recording_identity,
+    vehicle_from_rule,
+)
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
@@ -400,6 +407,13 @@ def _settings(args: argparse.Namespace) -> Any:
     return main._replay_settings(args)
 
 
+def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutcome:
+    """A recording whose row the database refused: failed, with the database's reason, the others go on."""
+    reason = f"{outcome.path}: its row was not written ({error})"
+    return RecordingOutcome(outcome.path, "failed", reason, outcome.record, f"failed     {reason}",
+                            outcome.peak_rss_mb, outcome.elapsed_s)
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -413,11 +427,11 @@ def run(args: argparse.Namespace) -> int:
     settings = _settings(args)
     recordings, problems = find_recordings(args.recordings)
     for problem in problems:
-        print(f"accel-calib: error: {problem}", file=sys.stderr)
+        print(f"accel-calib: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:
         raise FleetError("no recordings to calibrate")
     counts = {"calibrated": 0, "refused": 0, "failed": 0}
-    written = 0
+    rows: dict[str, list[str]] = {}  # recording_id -> recordings written to its row (same content: one row)
     started = time.perf_counter()
     with open_history(args.history) as history:
         workers = None if args.scheduler else min(args.workers or default_workers(), len(recordings))
@@ -429,19 +443,23 @@ def run(args: argparse.Namespace) -> int:
                     outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
                                                None, f"failed     {recordings[i]}: worker lost ({error})", None, 0.0)
                 if outcome.record is not None:
-                    try:
-                        written += history.write([outcome.record])
+                    try:  # each row stands or fails alone
+                        history.write([outcome.record])
+                        rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
                     except HistoryError as history_error:
-                        tqdm.write(f"accel-calib: error: {history_error}", file=sys.stderr)
-                        return 1
+                        outcome = _unwritten(outcome, history_error)
                 counts[outcome.status] += 1
-                if outcome.status == "calibrated":
-                    tqdm.write(outcome.summary)
+                if outcome.status == "calibrated":  # printable whatever bytes a file name holds
+                    tqdm.write(printable_text(outcome.summary))
                 else:
-                    tqdm.write(f"accel-calib: error: {outcome.reason}", file=sys.stderr)
+                    tqdm.write(f"accel-calib: error: {printable_text(str(outcome.reason))}", file=sys.stderr)
     elapsed = time.perf_counter() - started
     per_minute = 60.0 * len(recordings) / elapsed if elapsed > 0 else float("inf")
+    shared = sum(len(paths) - 1 for paths in rows.values())
+    same = f" ({shared} recording{'s' if shared != 1 else ''} with the content of another: one row each)" \
+        if shared else ""
     print(f"{len(recordings)} recordings: {counts['calibrated']} calibrated, {counts['refused']} refused, "
-          f"{counts['failed']} failed; {written} rows written to {history.name}; {elapsed:.1f} s "
+          f"{counts['failed']} failed; {len(rows)} row{'s' if len(rows) != 1 else ''} written{same} "
+          f"to {history.name}; {elapsed:.1f} s "
           f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
     return 0 if counts["calibrated"] == len(recordings) and not problems else 1
