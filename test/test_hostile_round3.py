@@ -4,19 +4,16 @@ from __future__ import annotations
 
 import os
 import sqlite3
-import stat
-import time
 
 import numpy as np
 import pytest
+from test_history_postgres import pg_url, postgres  # noqa: F401 - fixtures: a private PostgreSQL server
 
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import MAX_IDENTIFIER_CHARS, Calibration
 from accel_calibration.core.errors import CalibrationError
 from accel_calibration.io import calibration_file
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
-from test_history_postgres import pg_url, postgres  # noqa: F401 - fixtures: a private PostgreSQL server
-
 
 # --- 1. a file the loader refuses is never put in place --------------------------------------------------
 
@@ -158,8 +155,9 @@ def finishes_within(seconds, function, *args, **kwargs):
 # --- 3, 4, 10. the history's rows: whole-content identity, true counts, each row alone ------------------
 
 def test_recordings_that_differ_only_in_the_middle_are_two_rows(tmp_path):
-    from accel_calibration.io.history import open_history, recording_identity
     from test_history import record
+
+    from accel_calibration.io.history import open_history, recording_identity
 
     head, tail = os.urandom(1 << 17), os.urandom(1 << 17)
     for name, middle in (("a.mcap", b"A"), ("b.mcap", b"B")):
@@ -184,8 +182,9 @@ def test_a_fifo_is_not_opened_for_its_identity(tmp_path):
 
 
 def test_history_text_is_the_same_on_every_backend(tmp_path):
-    from accel_calibration.io.history import open_history
     from test_history import record
+
+    from accel_calibration.io.history import open_history
 
     with open_history(tmp_path / "h.sqlite") as history:
         history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
@@ -195,9 +194,10 @@ def test_history_text_is_the_same_on_every_backend(tmp_path):
     assert row.reason == "x\\0y" and row.frame_id.startswith("f\\0f\\0")
 
 
-def test_history_rows_are_sanitised_alike_on_postgresql(pg_url):
-    from accel_calibration.io.history import open_history
+def test_history_rows_are_sanitised_alike_on_postgresql(pg_url):  # noqa: F811 - the imported fixture
     from test_history import record
+
+    from accel_calibration.io.history import open_history
 
     with open_history(pg_url) as history:
         history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
@@ -241,3 +241,96 @@ def test_fleet_prints_the_true_row_count_and_a_bad_file_costs_only_itself(schedu
     # 8 recordings: the bag, 3 empty files (one content), a.csv, b.csv, bad\xff.csv; the FIFO has no row
     assert (rows, calibrated) == (5, 1)
     assert "5 rows written (2 recordings with the content of another: one row each)" in out
+
+
+# --- 6. read-only commands open read-only; another application's database is refused untouched ----------
+
+def _state(db):
+    with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as connection:
+        tables = sorted(r[0] for r in connection.execute("SELECT name FROM sqlite_master"))
+        mode = connection.execute("PRAGMA journal_mode").fetchone()[0]
+    return db.read_bytes(), tables, mode, sorted(p.name for p in db.parent.iterdir())
+
+
+def test_another_applications_sqlite_file_is_refused_untouched(tmp_path, capsys):
+    other = tmp_path / "app.sqlite"
+    with sqlite3.connect(other) as connection:
+        connection.execute("CREATE TABLE users (name TEXT)")
+        connection.execute("INSERT INTO users VALUES ('ada')")
+    connection.close()
+    before = _state(other)
+    for argv in (["history", "--history", str(other)],
+                 ["report", "--history", str(other), "-o", str(tmp_path / "r.png")],
+                 ["fleet", str(tmp_path / "none.csv"), "--history", str(other), "--workers", "1"]):
+        (tmp_path / "none.csv").write_text("t,ax,ay,az\n")
+        assert main(argv) == 1
+        assert "not a calibration history" in _one_error_line(capsys)
+        (tmp_path / "none.csv").unlink()
+        assert _state(other) == before
+
+
+def test_reading_a_history_changes_nothing_in_it(tmp_path, capsys):
+    from accel_calibration.io.history import open_history
+    from test_history import record
+
+    db = tmp_path / "h.sqlite"
+    with open_history(db) as history:
+        history.write([record(1), record(2)])
+    with sqlite3.connect(db) as connection:
+        connection.execute("PRAGMA journal_mode=DELETE")  # as a copy on read-only media would be
+    connection.close()
+    before = _state(db)
+    assert main(["history", "--history", str(db)]) == 0
+    assert main(["report", "--history", str(db), "-o", str(tmp_path / "r.png")]) == 0
+    assert "flight1" in capsys.readouterr().out
+    after = _state(db)
+    assert after[:3] == before[:3] and set(after[3]) - set(before[3]) == {"r.png"}
+
+
+# --- 8. no credential printed ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("url", ["postgresql://u@127.0.0.1:1/db?password=SECRET",
+                                 "postgresql://127.0.0.1:1/db?user=u&password=SECRET",
+                                 "postgresql:///db?host=/nonexistent&password=SECRET",
+                                 "postgresql://u:SECRET@127.0.0.1:1/db?sslpassword=SECRET"])
+def test_a_password_in_a_url_is_never_printed(url, tmp_path, capsys):
+    for argv in (["history", "--history", url], ["report", "--history", url, "-o", str(tmp_path / "r.png")]):
+        assert main(argv) == 1
+        line = _one_error_line(capsys)
+        assert "SECRET" not in line and "***" in line
+
+
+def test_the_fleet_prints_its_history_url_masked(scheduler, tmp_path, capsys, pg_url):  # noqa: F811
+    (tmp_path / "x.csv").write_text("t,ax,ay,az\n0,0,0,9.8\n")
+    assert main(["fleet", str(tmp_path / "x.csv"), "--scheduler", scheduler,
+                 "--history", pg_url + "&password=SECRET"]) == 1
+    out, err = capsys.readouterr()
+    assert "rows written" not in out or "1 row written to" in out
+    assert "SECRET" not in out + err and "password=***" in out
+
+
+# --- 17. off-schema rows and broken URLs are one line ------------------------------------------------------
+
+def test_history_rows_written_off_the_schema_are_left_out_in_one_line(tmp_path, capsys):
+    from accel_calibration.io.history import open_history
+    from test_history import record
+
+    db = tmp_path / "h.sqlite"
+    with open_history(db) as history:
+        history.write([record(i, recording_id=f"r{i}") for i in range(5)])
+    with sqlite3.connect(db) as connection:
+        connection.execute("UPDATE calibrations SET start_ns = 'yesterday' WHERE recording_id = 'r1'")
+        connection.execute("UPDATE calibrations SET matrix = '[1, 0, 0]' WHERE recording_id = 'r2'")
+        connection.execute("UPDATE calibrations SET bias = '{not json' WHERE recording_id = 'r3'")
+        connection.execute("UPDATE calibrations SET residual_rms_mg = 'low' WHERE recording_id = 'r4'")
+    connection.close()
+    assert main(["history", "--history", str(db)]) in (0, 3)
+    out, err = capsys.readouterr()
+    assert err.startswith("accel-calib: warning:") and len(err.strip().splitlines()) == 1
+    assert "4 rows" in err and "flight0" in out and "flight1" not in out
+
+
+@pytest.mark.parametrize("url", ["postgresql://u@host:abc/db", "postgresql://u@host:99999999/db"])
+def test_a_url_with_a_broken_port_is_one_line(url, capsys):
+    assert main(["history", "--history", url]) == 1
+    assert "accel-calib: error:" in _one_error_line(capsys)
