@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sqlite3
+import time
 
 import numpy as np
 import pytest
@@ -334,3 +335,106 @@ def test_history_rows_written_off_the_schema_are_left_out_in_one_line(tmp_path, 
 def test_a_url_with_a_broken_port_is_one_line(url, capsys):
     assert main(["history", "--history", url]) == 1
     assert "accel-calib: error:" in _one_error_line(capsys)
+
+
+# --- 9. the dashboard of a local cluster listens on the loopback only --------------------------------------
+
+def test_a_local_clusters_sockets_listen_on_the_loopback_only():
+    import psutil
+
+    from accel_calibration.cli.fleet import local_cluster
+
+    with local_cluster(1) as cluster:
+        processes = [psutil.Process(), *psutil.Process().children(recursive=True)]
+        listening = {(c.laddr.ip, c.laddr.port) for p in processes for c in p.net_connections(kind="inet")
+                     if c.status == psutil.CONN_LISTEN}
+        dashboard = cluster.dashboard_link
+    assert listening and all(ip in ("127.0.0.1", "::1") for ip, _ in listening), listening
+    assert dashboard.startswith("http://127.0.0.1:")
+
+
+# --- 15. --scheduler at something that is not a Dask scheduler ---------------------------------------------
+
+@pytest.fixture
+def listener():
+    """A TCP listener on the loopback that either says nothing or sends garbage to whoever connects."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    behaviour = {"send": b""}
+    stop = threading.Event()
+    held = []
+
+    def serve():
+        server.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                connection, _ = server.accept()
+            except OSError:
+                continue
+            held.append(connection)
+            if behaviour["send"]:
+                try:
+                    connection.sendall(behaviour["send"])
+                except OSError:
+                    pass
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    yield f"tcp://127.0.0.1:{server.getsockname()[1]}", behaviour
+    stop.set()
+    thread.join()
+    for connection in held:
+        connection.close()
+    server.close()
+
+
+@pytest.mark.parametrize("sends", [b"", np.random.default_rng(15).bytes(4096),
+                                   b"\xff" * 8 + b"\x00" * 4088])
+def test_a_scheduler_address_where_no_dask_answers_is_one_line_in_time(listener, sends, tmp_path, capsys,
+                                                                        monkeypatch):
+    from accel_calibration.cli import fleet
+
+    monkeypatch.setattr(fleet, "SCHEDULER_TIMEOUT_S", 1.0)
+    address, behaviour = listener
+    behaviour["send"] = sends
+    (tmp_path / "x.csv").write_text("t,ax,ay,az\n0,0,0,9.8\n")
+    started = time.monotonic()
+    code = finishes_within(30, main, ["fleet", str(tmp_path / "x.csv"), "--scheduler", address,
+                                      "--history", str(tmp_path / "h.sqlite")])
+    assert code == 1 and time.monotonic() - started < 15
+    assert "scheduler" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize("address", ["tls://127.0.0.1:1", "ucx://127.0.0.1:1", "inproc://x"])
+def test_a_scheduler_of_another_scheme_is_one_line(address, tmp_path, capsys):
+    (tmp_path / "x.csv").write_text("t,ax,ay,az\n0,0,0,9.8\n")
+    assert main(["fleet", str(tmp_path / "x.csv"), "--scheduler", address, "--history",
+                 str(tmp_path / "h.sqlite")]) == 1
+    assert "tcp://HOST:PORT" in _one_error_line(capsys)
+
+
+# --- 16. a --vehicle rule that backtracks without end -------------------------------------------------------
+
+def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp_path, capsys, monkeypatch):
+    from accel_calibration.cli.fleet import calibrate_recording
+    from accel_calibration.io import history
+
+    monkeypatch.setattr(history, "VEHICLE_RULE_TIMEOUT_S", 0.2)
+
+    recording = tmp_path / ("a" * 40 + "!") / "x.csv"
+    recording.parent.mkdir()
+    recording.write_text("t,ax,ay,az\n0,0,0,9.8\n")
+    # The issue's rule: Python's re backtracks for minutes on this path; the regex engine sees through it.
+    outcome = finishes_within(10, calibrate_recording, str(recording), None, "(a+)+$")
+    assert outcome.record.vehicle == recording.parent.name and outcome.record.vehicle_source == "folder"
+    # One that backtracks in any engine: refused before any work, in one line, within its time limit.
+    started = time.monotonic()
+    code = finishes_within(20, main, ["fleet", str(recording), "--vehicle", "(a|aa)+$", "--workers", "1",
+                                      "--history", str(tmp_path / "h.sqlite")])
+    assert code == 1 and "took longer than" in _one_error_line(capsys)
+    outcome = finishes_within(20, calibrate_recording, str(recording), None, "(a|aa)+$")
+    assert outcome.status == "failed" and "took longer than" in outcome.reason
+    assert time.monotonic() - started < 15
+    assert not (tmp_path / "h.sqlite").exists()

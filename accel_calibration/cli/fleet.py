@@ -15,7 +15,6 @@ import argparse
 import contextlib
 import logging
 import os
-import re
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -151,7 +150,7 @@ def _recorded_vehicle(path: Path, replay: Any) -> str | None:
 
 def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
     if rule:
-        found = vehicle_from_rule(re.compile(rule), path.as_posix())
+        found = vehicle_from_rule(rule, path.as_posix())
         if found:
             return found, "rule"
     recorded = _recorded_vehicle(path, replay) if replay is not None else None
@@ -223,7 +222,10 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
         reason = f"{path}: internal error ({type(error).__name__}: {first})"
     else:
         reason = None
-    vehicle, vehicle_source = _vehicle(where, replay, vehicle_rule)
+    try:
+        vehicle, vehicle_source = _vehicle(where, replay, vehicle_rule)
+    except AccelCalibrationError as error:  # the rule over its time limit on this path
+        return outcome("failed", str(error), None, f"failed     {path}: {error}")
     if replay is None:
         record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor="",
                                status="failed", reason=reason)
@@ -296,12 +298,55 @@ def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
             # Dask sets the fork server's imports once per process; ours join them, so each worker starts
             # with the replay (numpy, scipy, the readers) already imported. No effect once the server runs.
             get_mp_context().set_forkserver_preload(["distributed", *FORK_SERVER_PRELOAD])
+        # The dashboard (no authentication) on the loopback only, on a free port: ":0" would listen on all
+        # interfaces, and None still starts it, on 127.0.0.1:8787.
         cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR, **options)
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, **options)
     try:
         yield cluster
     finally:
         cluster.close()
+
+
+SCHEDULER_TIMEOUT_S = 15.0  # to reach a scheduler and hear back from it, whatever listens there
+
+
+def _connect(scheduler: str) -> Any:
+    """A client of the Dask scheduler at `scheduler` (tcp://HOST:PORT), or one line: another scheme, nothing
+    there, or something there that is not a Dask scheduler (silent, or sending other bytes) within
+    SCHEDULER_TIMEOUT_S, whatever it does."""
+    import threading
+
+    from distributed import Client
+
+    scheme = scheduler.split("://", 1)[0] if "://" in scheduler else "tcp"
+    if scheme != "tcp":
+        raise FleetError(f"--scheduler {scheduler}: give the scheduler's tcp://HOST:PORT address ({scheme}:// needs "
+                         "Dask settings this command does not take)")
+    hint = "start one with 'dask scheduler' and 'dask worker tcp://HOST:8786'"
+    outcome: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            outcome["client"] = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+        except BaseException as error:  # noqa: BLE001 - handed to the caller as one line
+            outcome["error"] = error
+
+    # Dask's own timeout covers connecting, not a peer that accepts and never answers: a thread waits for it.
+    thread = threading.Thread(target=connect, name="accel-calib-scheduler", daemon=True)
+    thread.start()
+    thread.join(SCHEDULER_TIMEOUT_S + 2.0)
+    if thread.is_alive():
+        raise FleetError(f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s "
+                         f"(something else listens there?); {hint}")
+    if "error" in outcome:
+        error = outcome["error"]
+        if isinstance(error, KeyboardInterrupt):
+            raise error
+        first = str(error).splitlines()[0][:160] if str(error) else ""
+        raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({type(error).__name__}: {first}); "
+                         f"{hint}") from None
+    return outcome["client"]
 
 
 @contextlib.contextmanager
@@ -311,11 +356,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     from distributed import Client
 
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError, ValueError) as error:
-            raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({error}); start one with "
-                             "'dask scheduler' and 'dask worker tcp://HOST:8786'") from None
+        client = _connect(scheduler)
         try:
             yield client
         finally:
@@ -419,13 +460,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
-    if args.vehicle is not None:
-        try:
-            re.compile(args.vehicle)
-        except re.error as error:
-            raise CalibrationError(f"--vehicle {args.vehicle!r}: not a regular expression ({error})") from None
     settings = _settings(args)
     recordings, problems = find_recordings(args.recordings)
+    if args.vehicle is not None:  # the rule tried on every path here, before any work (each within a time limit)
+        for path in recordings:
+            vehicle_from_rule(args.vehicle, Path(path).as_posix())
     for problem in problems:
         print(f"accel-calib: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:

@@ -615,10 +615,25 @@ def drift_flags(records: Iterable[HistoryRecord], rule: DriftRule | None = None)
     return flags
 
 
-def vehicle_from_rule(pattern: re.Pattern[str], path: str) -> str | None:
-    """The vehicle a --vehicle rule finds in a path: its `vehicle` group, else its first group, else
-    the whole match; None when it does not match."""
-    match = pattern.search(path)
+VEHICLE_RULE_TIMEOUT_S = 1.0  # a --vehicle rule on one path; a sane one takes microseconds
+
+
+def vehicle_from_rule(rule: str, path: str) -> str | None:
+    """The vehicle a --vehicle rule (a regular expression, Python syntax) finds in a path: its `vehicle`
+    group, else its first group, else the whole match; None when it does not match. Matched by the
+    `regex` engine under a time limit: a rule that backtracks without end ('(a+)+$') is one HistoryError."""
+    import regex
+
+    try:
+        pattern = regex.compile(rule, flags=regex.VERSION0)
+    except (regex.error, TypeError, ValueError, OverflowError, RecursionError) as error:
+        raise HistoryError(f"--vehicle {rule!r:.80}: not a regular expression ({error})") from None
+    try:
+        match = pattern.search(path, timeout=VEHICLE_RULE_TIMEOUT_S)
+    except TimeoutError:
+        raise HistoryError(f"--vehicle {rule!r:.80}: took longer than {VEHICLE_RULE_TIMEOUT_S:g} s on "
+                           f"{printable_text(path)[-120:]} (a rule that backtracks without end?); "
+                           "simplify it") from None
     if match is None:
         return None
     if "vehicle" in pattern.groupindex:
