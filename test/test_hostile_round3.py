@@ -271,8 +271,9 @@ def test_another_applications_sqlite_file_is_refused_untouched(tmp_path, capsys)
 
 
 def test_reading_a_history_changes_nothing_in_it(tmp_path, capsys):
-    from accel_calibration.io.history import open_history
     from test_history import record
+
+    from accel_calibration.io.history import open_history
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
@@ -313,8 +314,9 @@ def test_the_fleet_prints_its_history_url_masked(scheduler, tmp_path, capsys, pg
 # --- 17. off-schema rows and broken URLs are one line ------------------------------------------------------
 
 def test_history_rows_written_off_the_schema_are_left_out_in_one_line(tmp_path, capsys):
-    from accel_calibration.io.history import open_history
     from test_history import record
+
+    from accel_calibration.io.history import open_history
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
