@@ -440,3 +440,61 @@ def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp
     assert outcome.status == "failed" and "took longer than" in outcome.reason
     assert time.monotonic() - started < 15
     assert not (tmp_path / "h.sqlite").exists()
+
+
+# --- 11, 12. a .db3 whose messages is a view; message definitions too large to parse -------------------------
+
+def _sqlite_bag(directory, name="s"):
+    from accel_calibration.bag.bag_io import write_session_bag
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+    rng = np.random.default_rng(11)
+    imu = SyntheticImu(SensorErrors.mpu6050_like(rng, noise_mps2=0.02), spread_orientations(15, rng), dwell_s=1.5,
+                       move_s=0.6, rate_hz=100.0, seed=11)
+    path = directory / name
+    write_session_bag(path, imu.samples(), start_ns=1_700_000_000 * 10**9, storage="sqlite3")
+    return path, next(path.glob("*.db3"))
+
+
+@pytest.mark.parametrize("view", [
+    "WITH RECURSIVE r(x) AS (SELECT 1 UNION ALL SELECT x + 1 FROM r) "
+    "SELECT x AS id, 1 AS topic_id, x AS timestamp, zeroblob(100) AS data FROM r",
+    "SELECT 1 AS id, 1 AS topic_id, 1 AS timestamp, randomblob(50000000) AS data"])
+def test_a_db3_whose_messages_is_a_view_is_refused_at_once(tmp_path, capsys, view):
+    from accel_calibration.bag.replay import ReplayError, replay_bag
+
+    directory, db3 = _sqlite_bag(tmp_path)
+    with sqlite3.connect(db3) as connection:
+        connection.execute("DROP TABLE messages")
+        connection.execute(f"CREATE VIEW messages AS {view}")
+    connection.close()
+    for path in (directory, db3):
+        with pytest.raises(ReplayError, match="view messages.*not a rosbag2"):
+            finishes_within(20, replay_bag, path)
+    assert finishes_within(20, main, ["replay", str(db3)]) == 1
+    assert "not a rosbag2 sqlite3 storage file" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize("topic", ["/imu/data_raw", "/other"])
+def test_a_huge_recorded_definition_is_refused_before_parsing(tmp_path, capsys, topic):
+    from rosbags.typesys import Stores, get_typestore
+
+    from accel_calibration.bag.bag_io import IMU, MAX_DEFINITION_BYTES
+
+    directory, db3 = _sqlite_bag(tmp_path)
+    standard = get_typestore(Stores.ROS2_JAZZY).generate_msgdef(IMU, ros_version=2)[0]
+    huge = "".join(f"float64 pad{i}\n" for i in range(MAX_DEFINITION_BYTES // 14)) + standard
+    with sqlite3.connect(db3) as connection:
+        if topic == "/imu/data_raw":
+            connection.execute("UPDATE message_definitions SET encoded_message_definition = ? WHERE topic_type = ?",
+                               (huge, IMU))
+        else:
+            connection.execute("INSERT INTO topics (id, name, type, serialization_format, offered_qos_profiles, "
+                               "type_description_hash) VALUES (99, '/other', 'custom_msgs/msg/Big', 'cdr', '', '')")
+            connection.execute("INSERT INTO message_definitions (topic_type, encoding, encoded_message_definition, "
+                               "type_description_hash) VALUES ('custom_msgs/msg/Big', 'ros2msg', ?, '')",
+                               (huge.replace("sensor_msgs", "custom_msgs"),))
+    connection.close()
+    started = time.monotonic()
+    assert finishes_within(60, main, ["replay", str(directory), "--corrected", str(tmp_path / "out")]) == 1
+    assert "KiB" in _one_error_line(capsys) and time.monotonic() - started < 10

@@ -22,6 +22,9 @@ from ..core.errors import AccelCalibrationError
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 MAX_METADATA_BYTES = 16 << 20  # a rosbag2 metadata.yaml is a few KB, ~1 KB more per topic or file
+# A recorded message definition, with all it depends on: Imu's is ~3 KB, the largest common ones tens of KB.
+# rosbags' parser is superlinear (a 740 KB one took 62 s and 650 MB), so a larger one is refused unparsed.
+MAX_DEFINITION_BYTES = 128 << 10
 
 
 class BagError(AccelCalibrationError):
@@ -45,6 +48,7 @@ def open_reader(path):
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     refuse_special_files(path)
+    refuse_large_definitions(path, recorded_definitions(path))  # rosbags parses every one on open
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
@@ -85,6 +89,45 @@ def read_head(path: Path, read: Callable[[BinaryIO], bytes], error: type[BagErro
         raise error(f"{path}: cannot read ({failure.strerror})") from None
 
 
+def refuse_large_definitions(path, recorded: dict[str, tuple[str, str, str]] | None) -> None:
+    """Refuse, before any parser sees it, a recorded message definition beyond MAX_DEFINITION_BYTES."""
+    for topic, (msgtype, _encoding, text) in (recorded or {}).items():
+        if len(text) > MAX_DEFINITION_BYTES:
+            raise BagError(f"{path}: topic {topic}: its recorded definition of {msgtype} takes {len(text) >> 10} KiB, "
+                           f"beyond the {MAX_DEFINITION_BYTES >> 10} KiB any ROS message needs: not read")
+
+
+_ROSBAG2_SQLITE_OBJECTS = ("table", "index")  # what rosbag2's sqlite3 storage creates
+
+
+def _refuse_foreign_sqlite_objects(path: Path, file: Path) -> None:
+    """A .db3 is read only when `messages` and `topics` are tables and nothing in it is a view or a
+    trigger (rosbag2 makes neither): a view named messages may be recursive (a query that never ends) or
+    expand a 1 MB file to gigabytes."""
+    import sqlite3
+    from urllib.parse import quote
+
+    try:
+        with open(file, "rb") as stream:
+            if stream.read(16) != b"SQLite format 3\x00":
+                return  # not SQLite: its reader says what it is
+        connection = sqlite3.connect(f"file:{quote(str(file))}?mode=ro", uri=True)
+        try:
+            objects = connection.execute("SELECT type, name FROM sqlite_master").fetchall()
+        finally:
+            connection.close()
+    except (OSError, sqlite3.Error):
+        return  # damaged or unreadable: the readers say how
+    kinds = {str(name): str(kind) for kind, name in objects}
+    foreign = sorted(f"{kind} {name}" for kind, name in objects if kind not in _ROSBAG2_SQLITE_OBJECTS)
+    if foreign:
+        raise BagError(f"{path}: {file.name} holds {', '.join(foreign)[:80]}, which rosbag2 never writes: "
+                       "not a rosbag2 sqlite3 storage file")
+    for table in ("messages", "topics"):
+        if kinds.get(table) not in (None, "table"):
+            raise BagError(f"{path}: {file.name}: {table} is not a table: not a rosbag2 sqlite3 storage file")
+
+
 def refuse_special_files(path) -> None:
     """A bag's files must be regular files: a FIFO named *.db3 or metadata.yaml would block the reader
     for ever, a device would never end."""
@@ -103,6 +146,8 @@ def refuse_special_files(path) -> None:
             if not stat.S_ISREG(mode):
                 raise BagError(f"{path}: {candidate.name} is not a regular file (a FIFO, device or directory): "
                                "not a recording")
+            if candidate.name != "metadata.yaml":
+                _refuse_foreign_sqlite_objects(path, candidate)
     except OSError as error:
         raise BagError(f"{path}: cannot read ({error.strerror or error})") from None
 
@@ -244,6 +289,8 @@ def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | No
     if topic.digest and topic.digest != standard:
         return False
     stored = (recorded or {}).get(topic.topic)
+    if stored is not None and len(stored[2]) > MAX_DEFINITION_BYTES:
+        refuse_large_definitions("the recording", {topic.topic: stored})
     if stored is not None and stored[1]:
         return definition_hash(topic.msgtype, stored[1], stored[2]) == standard
     return True
