@@ -498,3 +498,28 @@ def test_a_huge_recorded_definition_is_refused_before_parsing(tmp_path, capsys, 
     started = time.monotonic()
     assert finishes_within(60, main, ["replay", str(directory), "--corrected", str(tmp_path / "out")]) == 1
     assert "KiB" in _one_error_line(capsys) and time.monotonic() - started < 10
+
+
+# --- 14 and an unclear message: tables of a million columns ---------------------------------------------
+
+def test_a_pose_table_of_a_million_columns_is_refused_at_once(tmp_path, capsys):
+    header = ["ax", "ay", "az", *(f"c{i}" for i in range(1_000_000))]
+    path = tmp_path / "poses.csv"
+    path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
+    started = time.monotonic()
+    assert finishes_within(60, main, ["fit", str(path), "-o", str(tmp_path / "cal.yaml")]) == 1
+    assert "1000003 columns" in _one_error_line(capsys) and time.monotonic() - started < 10
+    # Below the limit the duplicate check is linear: 1000 columns, one repeated, found at once.
+    header = ["ax", "ay", "az", *(f"c{i}" for i in range(996)), "c5"]
+    path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
+    assert main(["fit", str(path), "-o", str(tmp_path / "cal.yaml")]) == 1
+    assert "column c5 appears more than once" in _one_error_line(capsys)
+
+
+def test_a_sample_stream_of_a_million_columns_says_so(tmp_path, capsys):
+    header = ["t", "ax", "ay", "az", *(f"c{i}" for i in range(1_000_000))]
+    path = tmp_path / "samples.csv"
+    path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
+    assert finishes_within(60, main, ["replay", str(path)]) == 1
+    line = _one_error_line(capsys)
+    assert "header row is longer than 64 KiB" in line and "10952" not in line
