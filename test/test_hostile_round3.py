@@ -523,3 +523,44 @@ def test_a_sample_stream_of_a_million_columns_says_so(tmp_path, capsys):
     assert finishes_within(60, main, ["replay", str(path)]) == 1
     line = _one_error_line(capsys)
     assert "header row is longer than 64 KiB" in line and "10952" not in line
+
+
+# --- 21 and an unclear message: ULog stamps that would wrap, a broken format ---------------------------------
+
+def _ulog(path, t_us):
+    from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
+
+    rng = np.random.default_rng(21)
+    accel = np.array([0.0, 0.0, 9.80665]) + rng.normal(0, 0.02, (len(t_us), 3))
+    write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, accel, np.zeros((len(t_us), 3))))])
+
+
+@pytest.mark.parametrize("start_us", [2**63 - 10**6, 2**64 - 10**6, (2**63 - 1) // 1000 + 1])
+def test_ulog_stamps_that_would_wrap_as_nanoseconds_are_refused(tmp_path, capsys, start_us):
+    path = tmp_path / "log.ulg"
+    _ulog(path, np.uint64(start_us) + np.arange(200, dtype=np.uint64) * np.uint64(1000))
+    assert main(["replay", str(path), "--corrected", str(tmp_path / "out.csv")]) == 1
+    assert "a nanosecond stamp holds" in _one_error_line(capsys)
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_ulog_stamps_just_within_the_limit_are_read(tmp_path):
+    from accel_calibration.bag.ulog_reader import MAX_STAMP_US, read_ulog
+
+    path = tmp_path / "log.ulg"
+    t_us = np.uint64(MAX_STAMP_US - 10**6) + np.arange(200, dtype=np.uint64) * np.uint64(1000)
+    _ulog(path, t_us)
+    assert np.array_equal(read_ulog(path).t_ns, t_us.astype(np.int64) * 1000)
+
+
+@pytest.mark.parametrize("good, bad, says", [(b"sensor_combined:uint64_t", b"sensor_combined;uint64_t",
+                                              "is not 'name:type field;...'"),
+                                             (b"sensor_combined:uint64_t", b"sensor_combined:uint64_q",
+                                              "unknown type 'uint64_q'")])
+def test_a_ulog_with_a_broken_format_says_so(tmp_path, capsys, good, bad, says):
+    path = tmp_path / "log.ulg"
+    _ulog(path, np.arange(200, dtype=np.uint64) * np.uint64(1000) + np.uint64(10**6))
+    path.write_bytes(path.read_bytes().replace(good, bad))
+    assert main(["replay", str(path)]) == 1
+    line = _one_error_line(capsys)
+    assert says in line and "corrupt ULog" in line and "no sensor topics" not in line
