@@ -564,3 +564,138 @@ def test_a_ulog_with_a_broken_format_says_so(tmp_path, capsys, good, bad, says):
     assert main(["replay", str(path)]) == 1
     line = _one_error_line(capsys)
     assert says in line and "corrupt ULog" in line and "no sensor topics" not in line
+
+
+# --- 20. params files matched as rcl matches them; 13 (file side): read safely before any parser ---------
+
+# (key, namespace of the node, applies?) as rclpy 7.1.6 (Jazzy) applies a file, measured.
+RCL_MATCHES = [
+    ("/**", "", True), ("/*", "", True), ("*", "", True), ("**", "", True), ("accel_calibration", "", True),
+    ("/accel_calibration", "", True), ("/uav1/accel_calibration", "", False), ("/uav1/*", "", False),
+    ("/*/accel_calibration", "", False), ("/**/accel_calibration", "", True), ("/uav1/**", "", False),
+    ("/*/*", "", False), ("/**/*", "", True),
+    ("/**", "/uav1", True), ("/*", "/uav1", False), ("*", "/uav1", False), ("accel_calibration", "/uav1", False),
+    ("/uav1/accel_calibration", "/uav1", True), ("uav1/accel_calibration", "/uav1", True),
+    ("/uav1/*", "/uav1", True), ("/*/accel_calibration", "/uav1", True), ("/uav1/**", "/uav1", True),
+    ("/*/*", "/uav1", True), ("/**/accel_calibration", "/uav1", True),
+    ("/**/accel_calibration", "/a/b", True), ("/*/*", "/a/b", False), ("/uav1/**", "/a/b", False),
+    ("/**/*", "/a/b", True)]
+
+
+@pytest.mark.parametrize("key, namespace, applies", RCL_MATCHES)
+def test_a_params_file_block_applies_where_rcl_applies_it(key, namespace, applies):
+    from accel_calibration.io.params_file import fully_qualified, node_parameters
+
+    document = {key: {"ros__parameters": {"static": {"window_s": 0.3}}}}
+    if applies:
+        assert node_parameters(document, fully_qualified(namespace)) == {"static.window_s": 0.3}
+    else:
+        with pytest.raises(CalibrationError, match="no block for node"):
+            node_parameters(document, fully_qualified(namespace))
+
+
+def test_later_blocks_win_and_a_repeated_name_keeps_its_first_place():
+    from accel_calibration.io.params_file import node_parameters
+
+    def p(*blocks):
+        return node_parameters({k: {"ros__parameters": {"p": i}} for i, k in enumerate(blocks)})["p"]
+
+    assert p("/accel_calibration", "/**") == 1 and p("/**", "/accel_calibration") == 1
+    assert p("/*", "/**") == 1 and p("/**", "*") == 1
+    # 'accel_calibration' is '/accel_calibration': merged at its first place, before '/**'
+    document = {"/accel_calibration": {"ros__parameters": {"p": 0}}, "/**": {"ros__parameters": {"p": 1}},
+                "accel_calibration": {"ros__parameters": {"p": 2, "q": 2}}}
+    assert node_parameters(document) == {"p": 1, "q": 2}
+    for bad in ("accel_*", "/uav*/accel_calibration", "/accel_calibration/", "//x"):
+        with pytest.raises(CalibrationError, match="not a node name rcl accepts"):
+            node_parameters({bad: {"ros__parameters": {"p": 1}}})
+    assert node_parameters({"/**" * 2000 + "/*": {"ros__parameters": {"p": 1}}}) == {"p": 1}  # linear
+
+
+@pytest.mark.ros
+def test_the_matching_table_is_what_rclpy_applies(tmp_path):
+    import json
+
+    import rclpy
+    from rclpy.node import Node
+
+    from accel_calibration.io.params_file import fully_qualified, node_parameters
+
+    for i, (key, namespace, _) in enumerate(RCL_MATCHES[::3]):
+        path = tmp_path / f"p{i}.yaml"
+        document = {key: {"ros__parameters": {"p": 1}}, "/other_node": {"ros__parameters": {"q": 2}}}
+        path.write_text(json.dumps(document))
+        rclpy.init(args=["--ros-args", "--params-file", str(path)])
+        try:
+            node = Node("accel_calibration", namespace=namespace or None,
+                        automatically_declare_parameters_from_overrides=True)
+            applied = {n: node.get_parameter(n).value for n in ("p", "q") if node.has_parameter(n)}
+            node.destroy_node()
+        finally:
+            rclpy.shutdown()
+        try:
+            ours = node_parameters(document, fully_qualified(namespace))
+        except CalibrationError:
+            ours = {}
+        assert ours == applied, (key, namespace)
+
+
+def test_replay_applies_a_star_block_as_the_node_does(bag, tmp_path, capsys):
+    for key in ("/*", "*"):
+        params = tmp_path / "params.yaml"
+        params.write_text(f'"{key}":\n  ros__parameters:\n    min_poses: 40\n')
+        assert main(["replay", str(bag), "--params-file", str(params)]) == 1
+        assert "min_poses=40" in _one_error_line(capsys)
+    params.write_text('"/uav1/accel_calibration":\n  ros__parameters:\n    min_poses: 40\n')
+    assert main(["replay", str(bag), "--params-file", str(params)]) == 1
+    assert "no block for node /accel_calibration" in _one_error_line(capsys)
+    assert main(["replay", str(bag), "--params-file", str(params), "--node", "/uav1/accel_calibration"]) == 1
+    assert "min_poses=40" in _one_error_line(capsys)
+
+
+def test_a_params_file_is_checked_before_any_parser_sees_it(tmp_path):
+    from accel_calibration.io.params_file import MAX_PARAMS_FILE_BYTES, read_params_file
+
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"/**:\n  ros__parameters: {a: \xff\xfe}\n")
+    big = tmp_path / "big.yaml"
+    big.write_text("#" * (MAX_PARAMS_FILE_BYTES + 1))
+    for path, says in ((fifo, "FIFO"), (deep, "nested deeper"), (binary, "not UTF-8"), (big, "larger than")):
+        with pytest.raises(CalibrationError, match=says) as caught:
+            finishes_within(10, read_params_file, path)
+        assert "\n" not in str(caught.value) and str(path) in str(caught.value)
+
+
+# --- unclear messages: message_count: abc, a time of 1e30 ----------------------------------------------
+
+@pytest.mark.parametrize("through", ["stream", "rosbags"])
+def test_a_metadata_message_count_that_is_no_count_is_named(tmp_path, capsys, through):
+    copy, _ = _sqlite_bag(tmp_path)
+    metadata = copy / "metadata.yaml"
+    text = metadata.read_text()
+    assert "message_count: " in text
+    import re
+
+    metadata.write_text(re.sub(r"(- message_count: )\d+", r"\1abc", text, count=1))  # a topic's count
+    if through == "rosbags":
+        from accel_calibration.bag.replay import ReplayError, replay_bag
+
+        with pytest.raises(ReplayError) as caught:
+            replay_bag(copy, through_rosbags=True)
+        line = str(caught.value)
+    else:
+        assert main(["replay", str(copy)]) == 1
+        line = _one_error_line(capsys)
+    assert "message_count 'abc' is not a count" in line and "TypeError" not in line
+
+
+def test_a_time_beyond_any_stamp_is_printed_as_a_number(tmp_path, capsys):
+    path = tmp_path / "s.csv"
+    path.write_text("t,ax,ay,az\n0,0,0,9.8\n1e30,0,0,9.8\n")
+    assert main(["replay", str(path)]) == 1
+    line = _one_error_line(capsys)
+    assert "time 1e+30 s is out of range" in line and "np.float64" not in line

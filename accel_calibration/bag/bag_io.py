@@ -48,6 +48,8 @@ def open_reader(path):
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     refuse_special_files(path)
+    if path.is_dir():
+        metadata_topics(path)  # a damaged metadata.yaml in one line (rosbags: "TypeError: can only concatenate")
     refuse_large_definitions(path, recorded_definitions(path))  # rosbags parses every one on open
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
@@ -173,6 +175,12 @@ def metadata_topics(path) -> list[TopicInfo] | None:
         info = document["rosbag2_bagfile_information"]
         if info.get("compression_format"):  # whole-file compression: leave it to rosbags
             return None
+        for entry in info.get("topics_with_message_count") or ():  # rosbags would fail on it with a TypeError
+            count = entry.get("message_count") if isinstance(entry, dict) else None
+            if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 0):
+                name = (entry.get("topic_metadata") or {}).get("name", "?")
+                raise BagError(f"{metadata}: topic {str(name)[:80]}: message_count {str(count)[:40]!r} is not a "
+                               "count of messages: a damaged metadata.yaml")
         return [TopicInfo(str(t["topic_metadata"]["name"]), str(t["topic_metadata"]["type"]),
                           int(t["message_count"]), str(t["topic_metadata"].get("type_description_hash") or ""))
                 for t in info["topics_with_message_count"]]

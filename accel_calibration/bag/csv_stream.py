@@ -207,8 +207,8 @@ def _stamps_ns(values: np.ndarray, nulls: int, unit: str, path: Path, column: st
     limit = np.iinfo(np.int64).max / factor
     if np.any(np.abs(whole) >= limit):
         row = int(np.flatnonzero(np.abs(whole) >= limit)[0]) + 1
-        raise CsvStreamError(f"{path}: data row {row}, column {column}: time {values[row - 1]!r} {unit} "
-                             "is out of range")
+        raise CsvStreamError(f"{path}: data row {row}, column {column}: time {float(values[row - 1]):g} {unit} "
+                             f"is out of range (a stamp in ns holds up to {limit:.3g} {unit})")
     return whole.astype(np.int64) * factor + np.round((values - whole) * factor).astype(np.int64)
 
 

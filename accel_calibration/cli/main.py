@@ -23,7 +23,6 @@ from ..core.settings import Settings
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from ..io.calibration_file import (
     load_calibration,
-    read_regular_file,
     safe_yaml_load,
     save_calibration,
     write_text_atomically,
@@ -102,6 +101,9 @@ def _parser() -> argparse.ArgumentParser:
                             help="also write a report figure (PNG; several bags: a directory)")
     replay_cmd.add_argument("--params-file", default=None,
                             help="ROS 2 parameters YAML (config/accel_calibration.yaml): the node's settings")
+    replay_cmd.add_argument("--node", default=None, metavar="/NAMESPACE/NAME",
+                            help="the node whose --params-file blocks apply, as rcl matches them "
+                                 "(default /accel_calibration)")
     replay_cmd.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
                             help="one setting as the node takes it, e.g. -p static.window_s:=0.3 (repeatable)")
     replay_cmd.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
@@ -240,19 +242,15 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
 def _replay_settings(args):
     """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
     from ..bag.replay import ReplaySettings
-    from ..core.settings import Settings, params_file_values
+    from ..core.settings import Settings
+    from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     values = {}
-    if args.params_file:
-        raw = read_regular_file(args.params_file, 1 << 20, "--params-file", error=CalibrationError)
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise CalibrationError(f"--params-file {args.params_file}: not a text file") from None
-        document = safe_yaml_load(text, f"--params-file {args.params_file}", error=CalibrationError)
-        values.update(params_file_values(document, source=args.params_file))
+    if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
+        values.update(params_file_parameters(args.params_file, getattr(args, "node", None) or DEFAULT_NODE,
+                                             error=CalibrationError))
         values.pop("calibration_file", None)  # the node's file; replay writes --output
         values.pop("output_reliability", None)
     for item in args.param:
