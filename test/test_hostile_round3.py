@@ -699,3 +699,37 @@ def test_a_time_beyond_any_stamp_is_printed_as_a_number(tmp_path, capsys):
     assert main(["replay", str(path)]) == 1
     line = _one_error_line(capsys)
     assert "time 1e+30 s is out of range" in line and "np.float64" not in line
+
+
+def test_a_wal_history_on_read_only_media_is_listed(tmp_path, capsys, monkeypatch):
+    """Read-only media, as SQLite meets them (its -shm cannot be made: 'unable to open database file'
+    for a WAL file unless opened immutable), stood in for by the driver (the tests run as root)."""
+    from accel_calibration.io.history import open_history
+    from test_history import record
+
+    db = tmp_path / "h.sqlite"
+    with open_history(db) as history:
+        history.write([record(1), record(2)])
+    real = sqlite3.connect
+
+    def read_only_media(target, *args, **kwargs):
+        if "immutable=1" not in str(target):
+            raise sqlite3.OperationalError("unable to open database file")
+        return real(target, *args, **kwargs)
+
+    monkeypatch.setattr(sqlite3, "connect", read_only_media)
+    assert main(["history", "--history", str(db)]) == 0
+    assert "flight1" in capsys.readouterr().out
+
+
+def test_a_read_only_postgresql_history_reads_and_cannot_write(pg_url, capsys):  # noqa: F811
+    from accel_calibration.io.history import HistoryError, open_history
+    from test_history import record
+
+    assert main(["history", "--history", pg_url]) == 1  # an empty database: nothing made in it
+    assert "not a calibration history" in _one_error_line(capsys)
+    with open_history(pg_url) as history:
+        history.write([record(1), record(2)])
+    assert main(["history", "--history", pg_url]) == 0 and "flight2" in capsys.readouterr().out
+    with open_history(pg_url, read_only=True) as history, pytest.raises(HistoryError, match="read-only"):
+        history.write([record(3)])
