@@ -704,8 +704,9 @@ def test_a_time_beyond_any_stamp_is_printed_as_a_number(tmp_path, capsys):
 def test_a_wal_history_on_read_only_media_is_listed(tmp_path, capsys, monkeypatch):
     """Read-only media, as SQLite meets them (its -shm cannot be made: 'unable to open database file'
     for a WAL file unless opened immutable), stood in for by the driver (the tests run as root)."""
-    from accel_calibration.io.history import open_history
     from test_history import record
+
+    from accel_calibration.io.history import open_history
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
@@ -723,8 +724,9 @@ def test_a_wal_history_on_read_only_media_is_listed(tmp_path, capsys, monkeypatc
 
 
 def test_a_read_only_postgresql_history_reads_and_cannot_write(pg_url, capsys):  # noqa: F811
-    from accel_calibration.io.history import HistoryError, open_history
     from test_history import record
+
+    from accel_calibration.io.history import HistoryError, open_history
 
     assert main(["history", "--history", pg_url]) == 1  # an empty database: nothing made in it
     assert "not a calibration history" in _one_error_line(capsys)
