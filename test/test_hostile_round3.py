@@ -8,6 +8,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_history_postgres import pg_url, postgres  # noqa: F401 - fixtures: a private PostgreSQL server
 
 from accel_calibration.cli.main import main
@@ -495,9 +497,13 @@ def test_a_huge_recorded_definition_is_refused_before_parsing(tmp_path, capsys, 
                                "type_description_hash) VALUES ('custom_msgs/msg/Big', 'ros2msg', ?, '')",
                                (huge.replace("sensor_msgs", "custom_msgs"),))
     connection.close()
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("old\n")
     started = time.monotonic()
-    assert finishes_within(60, main, ["replay", str(directory), "--corrected", str(tmp_path / "out")]) == 1
+    assert finishes_within(60, main, ["replay", str(directory), "-o", str(cal),
+                                      "--corrected", str(tmp_path / "out")]) == 1
     assert "KiB" in _one_error_line(capsys) and time.monotonic() - started < 10
+    assert cal.read_text() == "old\n" and not (tmp_path / "out").exists()  # item 2: nothing replaced
 
 
 # --- 14 and an unclear message: tables of a million columns ---------------------------------------------
@@ -735,3 +741,17 @@ def test_a_read_only_postgresql_history_reads_and_cannot_write(pg_url, capsys): 
     assert main(["history", "--history", pg_url]) == 0 and "flight2" in capsys.readouterr().out
     with open_history(pg_url, read_only=True) as history, pytest.raises(HistoryError, match="read-only"):
         history.write([record(3)])
+
+
+@settings(max_examples=200, deadline=None)
+@given(secret=st.text("abcdefghijklmnopqrstuvwxyz0123456789%-._~!$'()*+,", min_size=8, max_size=30),
+       key=st.sampled_from(["password", "PASSWORD", "sslpassword", "passwd"]),
+       form=st.sampled_from(["postgresql://u:{s}@h:5432/db", "postgresql://u@h/db?{k}={s}",
+                             "postgresql://h/db?user=u&{k}={s}&sslmode=require", "postgresql:///db?{k}={s}",
+                             "postgresql+psycopg://u:{s}@/db?host=/tmp/x&{k}={s}"]))
+def test_no_credential_survives_masking(secret, key, form):
+    from accel_calibration.io.history import masked_url
+
+    secret = "S3CR" + secret  # text no URL part holds: only the credential itself can carry it
+    masked = masked_url(form.format(s=secret, k=key))
+    assert secret not in masked and "***" in masked
