@@ -36,6 +36,7 @@ setup(
         "dask[distributed]",
         "distributed",
         "SQLAlchemy>=2",
+        "regex",  # --vehicle rules matched under a time limit
     ],
     # A history on a shared PostgreSQL (--history postgresql://...): SQLAlchemy loads this driver for such
     # URLs; nothing imports it otherwise. pip install accel_calibration[postgresql].

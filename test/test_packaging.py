@@ -367,7 +367,8 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "pyth
 TEST_ROSDEP_KEYS = {"pytest": "python3-pytest", "hypothesis": "python3-hypothesis"}
 # No key (or, for SQLAlchemy, only one too old: Debian's and Ubuntu's 1.4; psycopg's is psycopg 2): a
 # colcon user installs these with `pip install -r requirements-ros.txt` (README, "In a ROS 2 workspace").
-NO_ROSDEP_KEY = {"lz4", "backports", "pyulog", "pymavlink", "pyarrow", "dask", "distributed", "sqlalchemy", "psycopg"}
+NO_ROSDEP_KEY = {"lz4", "backports", "pyulog", "pymavlink", "regex", "pyarrow", "dask", "distributed", "sqlalchemy",
+                 "psycopg"}
 # Of those, the ones rosbags requires (pip install rosbags, which python3-rosbags-pip runs, brings them).
 WITH_ROSBAGS = {"lz4", "backports"}
 

@@ -22,6 +22,9 @@ from ..core.errors import AccelCalibrationError
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 MAX_METADATA_BYTES = 16 << 20  # a rosbag2 metadata.yaml is a few KB, ~1 KB more per topic or file
+# A recorded message definition, with all it depends on: Imu's is ~3 KB, the largest common ones tens of KB.
+# rosbags' parser is superlinear (a 740 KB one took 62 s and 650 MB), so a larger one is refused unparsed.
+MAX_DEFINITION_BYTES = 128 << 10
 
 
 class BagError(AccelCalibrationError):
@@ -63,6 +66,9 @@ def open_reader(path):
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     refuse_special_files(path)
+    if path.is_dir():
+        metadata_topics(path)  # a damaged metadata.yaml in one line (rosbags: "TypeError: can only concatenate")
+    refuse_large_definitions(path, recorded_definitions(path))  # rosbags parses every one on open
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
@@ -103,6 +109,45 @@ def read_head(path: Path, read: Callable[[BinaryIO], bytes], error: type[BagErro
         raise error(f"{path}: cannot read ({failure.strerror})") from None
 
 
+def refuse_large_definitions(path, recorded: dict[str, tuple[str, str, str]] | None) -> None:
+    """Refuse, before any parser sees it, a recorded message definition beyond MAX_DEFINITION_BYTES."""
+    for topic, (msgtype, _encoding, text) in (recorded or {}).items():
+        if len(text) > MAX_DEFINITION_BYTES:
+            raise BagError(f"{path}: topic {topic}: its recorded definition of {msgtype} takes {len(text) >> 10} KiB, "
+                           f"beyond the {MAX_DEFINITION_BYTES >> 10} KiB any ROS message needs: not read")
+
+
+_ROSBAG2_SQLITE_OBJECTS = ("table", "index")  # what rosbag2's sqlite3 storage creates
+
+
+def _refuse_foreign_sqlite_objects(path: Path, file: Path) -> None:
+    """A .db3 is read only when `messages` and `topics` are tables and nothing in it is a view or a
+    trigger (rosbag2 makes neither): a view named messages may be recursive (a query that never ends) or
+    expand a 1 MB file to gigabytes."""
+    import sqlite3
+    from urllib.parse import quote
+
+    try:
+        with open(file, "rb") as stream:
+            if stream.read(16) != b"SQLite format 3\x00":
+                return  # not SQLite: its reader says what it is
+        connection = sqlite3.connect(f"file:{quote(str(file))}?mode=ro", uri=True)
+        try:
+            objects = connection.execute("SELECT type, name FROM sqlite_master").fetchall()
+        finally:
+            connection.close()
+    except (OSError, sqlite3.Error):
+        return  # damaged or unreadable: the readers say how
+    kinds = {str(name): str(kind) for kind, name in objects}
+    foreign = sorted(f"{kind} {name}" for kind, name in objects if kind not in _ROSBAG2_SQLITE_OBJECTS)
+    if foreign:
+        raise BagError(f"{path}: {file.name} holds {', '.join(foreign)[:80]}, which rosbag2 never writes: "
+                       "not a rosbag2 sqlite3 storage file")
+    for table in ("messages", "topics"):
+        if kinds.get(table) not in (None, "table"):
+            raise BagError(f"{path}: {file.name}: {table} is not a table: not a rosbag2 sqlite3 storage file")
+
+
 def refuse_special_files(path) -> None:
     """A bag's files must be regular files: a FIFO named *.db3 or metadata.yaml would block the reader
     for ever, a device would never end."""
@@ -121,6 +166,8 @@ def refuse_special_files(path) -> None:
             if not stat.S_ISREG(mode):
                 raise BagError(f"{path}: {candidate.name} is not a regular file (a FIFO, device or directory): "
                                "not a recording")
+            if candidate.name != "metadata.yaml":
+                _refuse_foreign_sqlite_objects(path, candidate)
     except OSError as error:
         raise BagError(f"{path}: cannot read ({error.strerror or error})") from None
 
@@ -146,6 +193,12 @@ def metadata_topics(path) -> list[TopicInfo] | None:
         info = document["rosbag2_bagfile_information"]
         if info.get("compression_format"):  # whole-file compression: leave it to rosbags
             return None
+        for entry in info.get("topics_with_message_count") or ():  # rosbags would fail on it with a TypeError
+            count = entry.get("message_count") if isinstance(entry, dict) else None
+            if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 0):
+                name = (entry.get("topic_metadata") or {}).get("name", "?")
+                raise BagError(f"{metadata}: topic {str(name)[:80]}: message_count {str(count)[:40]!r} is not a "
+                               "count of messages: a damaged metadata.yaml")
         return [TopicInfo(str(t["topic_metadata"]["name"]), str(t["topic_metadata"]["type"]),
                           int(t["message_count"]), str(t["topic_metadata"].get("type_description_hash") or ""))
                 for t in info["topics_with_message_count"]]
@@ -262,6 +315,8 @@ def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | No
     if topic.digest and topic.digest != standard:
         return False
     stored = (recorded or {}).get(topic.topic)
+    if stored is not None and len(stored[2]) > MAX_DEFINITION_BYTES:
+        refuse_large_definitions("the recording", {topic.topic: stored})
     if stored is not None and stored[1]:
         return definition_hash(topic.msgtype, stored[1], stored[2]) == standard
     return True
@@ -575,9 +630,11 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
     plugin = StoragePlugin.MCAP if storage_of(source) == "mcap" else StoragePlugin.SQLITE3
     reader = open_reader(source)
     written = 0
+    created = False  # the destination is ours to remove only once our Writer has made it
     try:
         standard = _reader_is_standard(reader)
         with Writer(destination, version=9, storage_plugin=plugin) as writer:
+            created = True
             out = {}
             for c in reader.connections:
                 out[c.id] = writer.add_connection(
@@ -612,7 +669,8 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
     except Exception as error:  # noqa: BLE001 - rosbags' reader and writer raise their own types
         import shutil
 
-        shutil.rmtree(destination, ignore_errors=True)  # ours, half written: the bag did not exist before
+        if created:  # ours, half written; never another writer's bag that appeared after our check
+            shutil.rmtree(destination, ignore_errors=True)
         if isinstance(error, BagError):
             raise
         first_line = str(error).splitlines()[0][:120] if str(error) else ""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,9 +73,15 @@ def units_scale(units: str, counts_per_g: float | None, path) -> float:
     return STANDARD_GRAVITY if units == "g" else 1.0
 
 
+MAX_HEADER_BYTES = 1 << 16
+
+
 def _header(path: Path) -> tuple[list[str], str]:
     """(header cells as written, delimiter)."""
-    first = read_head(path, lambda stream: stream.readline(1 << 16), CsvStreamError, "a CSV file")
+    first = read_head(path, lambda stream: stream.readline(MAX_HEADER_BYTES + 1), CsvStreamError, "a CSV file")
+    if len(first) > MAX_HEADER_BYTES:
+        raise CsvStreamError(f"{path}: the header row is longer than {MAX_HEADER_BYTES >> 10} KiB (thousands of "
+                             "columns?); a sample stream has a handful, such as t,ax,ay,az,gx,gy,gz,temperature")
     if b"\x00" in first:
         raise CsvStreamError(f"{path}: binary content, expected a CSV text file with a header row")
     try:
@@ -100,7 +107,7 @@ def read_csv_stream(path, *, time_unit: str | None = None, units: str = "mps2", 
         raise CsvStreamError(f"{path}: --time-unit must be one of {', '.join(TIME_UNITS)}, got {time_unit!r}")
     cells, delimiter = _header(path)
     names = [cell.strip().lower() for cell in cells]
-    duplicated = sorted({n for n in names if names.count(n) > 1 and n})
+    duplicated = sorted(n for n, count in Counter(names).items() if count > 1 and n)
     if duplicated:
         raise CsvStreamError(f"{path}: column {duplicated[0]} appears twice in the header")
     time_column = next((c for c in ("t_ns", "t") if c in names), None)
@@ -203,8 +210,8 @@ def _stamps_ns(values: np.ndarray, nulls: int, unit: str, path: Path, column: st
     limit = np.iinfo(np.int64).max / factor
     if np.any(np.abs(whole) >= limit):
         row = int(np.flatnonzero(np.abs(whole) >= limit)[0]) + 1
-        raise CsvStreamError(f"{path}: data row {row}, column {column}: time {values[row - 1]!r} {unit} "
-                             "is out of range")
+        raise CsvStreamError(f"{path}: data row {row}, column {column}: time {float(values[row - 1]):g} {unit} "
+                             f"is out of range (a stamp in ns holds up to {limit:.3g} {unit})")
     return whole.astype(np.int64) * factor + np.round((values - whole) * factor).astype(np.int64)
 
 

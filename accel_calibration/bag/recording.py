@@ -348,10 +348,67 @@ def _size(path) -> int | None:
 
 
 # ------------------------------------------------------------------------------------------- writing
+# A corrected copy is written aside first (stage_corrected_copy) and put in place by one rename
+# (StagedCopy.commit), so that the CLI can do all its work before it writes any output; the clean-up
+# only ever removes the scratch directory this process made, never the destination.
+@dataclass
+class StagedCopy:
+    """A corrected copy written aside: commit() puts it in place, discard() drops what is left aside."""
+
+    line: str  # what was written, for the summary
+    commit_action: object  # () -> None
+    scratch: Path | None = None
+
+    def commit(self) -> None:
+        self.commit_action()
+        self.discard()
+
+    def discard(self) -> None:
+        if self.scratch is not None:
+            shutil.rmtree(self.scratch, ignore_errors=True)
+            self.scratch = None
+
+
 def write_corrected_copy(replay, calibration, destination) -> str:
     """A corrected copy of the replayed recording in its own format (a ULog: a CSV of corrected samples,
     t_ns,ax,ay,az,gx,gy,gz,temperature in SI units, temperature the filtered value the correction used).
     Returns a line saying what was written."""
+    staged = stage_corrected_copy(replay, calibration, destination)
+    try:
+        staged.commit()
+    finally:
+        staged.discard()
+    return staged.line
+
+
+def _scratch_beside(target: Path) -> Path:
+    try:
+        return Path(tempfile.mkdtemp(prefix=".corrected-", dir=target.parent))
+    except OSError as error:
+        raise RecordingError(f"cannot write {target}: {error.strerror or error}") from None
+
+
+def rename_no_replace(source: Path, target: Path) -> None:
+    """Rename `source` to `target` only if nothing is there: atomic where the kernel has renameat2's
+    RENAME_NOREPLACE (Linux), else checked just before. A loser of two concurrent writers fails here."""
+    import ctypes
+    import errno
+
+    function = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    if function is not None:
+        at_cwd, no_replace = -100, 1
+        if function(at_cwd, os.fsencode(source), at_cwd, os.fsencode(target), no_replace) == 0:
+            return
+        code = ctypes.get_errno()
+        if code not in (errno.ENOSYS, errno.EINVAL):
+            raise OSError(code, os.strerror(code), str(target))
+    if os.path.lexists(target):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(target))
+    os.rename(source, target)
+
+
+def stage_corrected_copy(replay, calibration, destination) -> StagedCopy:
+    """The corrected copy (see write_corrected_copy) written aside, not yet in place."""
     from .replay import corrected_samples, write_corrected_bag
 
     recording = replay.recording
@@ -359,12 +416,41 @@ def write_corrected_copy(replay, calibration, destination) -> str:
     source = Path(replay.bag)
     if Path(destination).resolve() == source.resolve():
         raise RecordingError(f"{destination}: is the recording itself; write the corrected copy elsewhere")
-    if kind == "rosbag2":
-        written = write_corrected_bag(replay, calibration, destination)
-        return f"corrected bag {destination} ({written} messages; {replay.imu_topic} corrected)"
-    if kind in ("mcap", "sqlite3"):
-        written = _write_corrected_bag_file(replay, calibration, destination)
-        return f"corrected {kind} file {destination} ({written} messages; {replay.imu_topic} corrected)"
+    if kind in BAGS:
+        from ..io.output_paths import write_target
+
+        # A bag directory is new (never replaced); a single storage file replaces a file, through a symlink.
+        target = Path(destination) if kind == "rosbag2" else write_target(destination)
+        if kind == "rosbag2" and os.path.lexists(target):
+            raise RecordingError(f"{destination}: already exists (rosbag2 writes a new directory)")
+        if kind != "rosbag2" and target.is_dir():
+            raise RecordingError(f"{destination}: is a directory; the corrected copy of a single {kind} file "
+                                 "is a file")
+        scratch = _scratch_beside(target)
+        try:
+            bag = scratch / (target.name if kind == "rosbag2" else target.stem)
+            written = write_corrected_bag(replay, calibration, bag)
+            if kind == "rosbag2":
+                staged, move = bag, rename_no_replace
+            else:
+                files = [f for f in bag.iterdir() if f.suffix in (".mcap", ".db3")]
+                if len(files) != 1:
+                    raise RecordingError(f"{destination}: the corrected bag came out as {len(files)} files, "
+                                         "expected one")
+                staged, move = files[0], os.replace
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
+
+        def put_in_place() -> None:
+            try:
+                move(staged, target)
+            except OSError as error:
+                raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
+
+        what = "bag" if kind == "rosbag2" else f"{kind} file"
+        return StagedCopy(f"corrected {what} {destination} ({written} messages; {replay.imu_topic} corrected)",
+                          put_in_place, scratch)
     from ..io.calibration_file import write_text_atomically
     from .csv_stream import corrected_csv_text, samples_csv_text
 
@@ -375,35 +461,9 @@ def write_corrected_copy(replay, calibration, destination) -> str:
         rates = None
     if kind == "csv":
         text = corrected_csv_text(recording.path, recording.source, corrected, valid, rates)
-        write_text_atomically(destination, text)
-        return f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
-    text = samples_csv_text(recording.t_ns, corrected, rates, temperatures)
-    write_text_atomically(destination, text)
-    return f"corrected samples {destination} (CSV t_ns,ax,ay,az,...: a ULog is not rewritten; {len(corrected)} samples)"
-
-
-def _write_corrected_bag_file(replay, calibration, destination) -> int:
-    """A single storage file: the bag written beside the destination, then its one file moved into place."""
-    from .replay import write_corrected_bag
-
-    destination = Path(destination)
-    if destination.is_dir():
-        raise RecordingError(f"{destination}: is a directory; the corrected copy of a single {replay.recording.format} "
-                             "file is a file")
-    try:
-        scratch = Path(tempfile.mkdtemp(prefix=".corrected-", dir=destination.parent))
-    except OSError as error:
-        raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
-    try:
-        bag = scratch / destination.stem
-        written = write_corrected_bag(replay, calibration, bag)
-        files = [f for f in bag.iterdir() if f.suffix in (".mcap", ".db3")]
-        if len(files) != 1:
-            raise RecordingError(f"{destination}: the corrected bag came out as {len(files)} files, expected one")
-        try:
-            os.replace(files[0], destination)
-        except OSError as error:
-            raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    return written
+        line = f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
+    else:
+        text = samples_csv_text(recording.t_ns, corrected, rates, temperatures)
+        line = (f"corrected samples {destination} (CSV t_ns,ax,ay,az,...: a ULog is not rewritten; "
+                f"{len(corrected)} samples)")
+    return StagedCopy(line, lambda: write_text_atomically(destination, text))

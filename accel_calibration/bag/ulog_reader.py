@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -162,19 +163,60 @@ def _definitions_problem(path: Path) -> str | None:
             return "truncated ULog: a file header and nothing after it"
         with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:
             pos = 16
+            formats: dict[int, bytes] = {}
             while pos < size:
                 if pos + 3 > size:
                     return f"truncated ULog: the record at byte {pos} is cut short in its header"
                 length, kind = unpack(data, pos)
                 if kind in _DATA_STARTS:
-                    return None
+                    return _formats_problem(formats)
                 if kind not in _DEFINITIONS and (kind == 0 or length == 0 or length > 10_000):
                     return f"corrupt ULog: no valid record at byte {pos} of its definitions"
                 if pos + 3 + length > size:
                     return (f"truncated ULog: the record at byte {pos} needs {3 + length} bytes, the file ends "
                             f"{size - pos} bytes after its start (cut short before any data)")
+                if kind == ord("F"):
+                    formats[pos] = bytes(data[pos + 3:pos + 3 + length])
                 pos += 3 + length
-    return None  # definitions only: no data, said by the reader
+    return _formats_problem(formats)  # else definitions only: no data, said by the reader
+
+
+_ULOG_TYPES = frozenset({"int8_t", "uint8_t", "int16_t", "uint16_t", "int32_t", "uint32_t", "int64_t", "uint64_t",
+                         "float", "double", "bool", "char"})
+_FIELD = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(\[[0-9]+\])? ([A-Za-z_][A-Za-z0-9_]*(\[[0-9]+\])?)")
+
+
+def _format_fields(body: bytes) -> tuple[str, list[str]] | str:
+    """(name, field types) of a format record ("name:type field;type field;..."), or what is wrong with it.
+    pyulog drops a format without ':' and keeps one of an unknown type, its data then silently missing."""
+    try:
+        text = body.decode("ascii")
+    except UnicodeDecodeError:
+        return "is not ASCII text"
+    name, colon, fields = text.partition(":")
+    if not colon or not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        return f"is not 'name:type field;...' ({text[:40]!r})"
+    types = []
+    for field in filter(None, fields.split(";")):
+        match = _FIELD.fullmatch(field)
+        if match is None:
+            return f"of {name} has a field {field[:40]!r} that is not 'type name'"
+        types.append(match.group(1))
+    return name, types
+
+
+def _formats_problem(formats: dict[int, bytes]) -> str | None:
+    """The first broken format record (by its byte offset): not parseable, or a field of a type that is
+    neither ULog's nor another format of the log."""
+    parsed = {pos: _format_fields(body) for pos, body in formats.items()}
+    names = {entry[0] for entry in parsed.values() if isinstance(entry, tuple)}
+    for pos, entry in sorted(parsed.items()):
+        if isinstance(entry, str):
+            return f"corrupt ULog: the format record at byte {pos} {entry}"
+        unknown = [kind for kind in entry[1] if kind not in _ULOG_TYPES and kind not in names]
+        if unknown:
+            return f"corrupt ULog: the format of {entry[0]} (byte {pos}) has a field of unknown type {unknown[0]!r}"
+    return None
 
 
 def _truncation(path: Path) -> str:
@@ -204,6 +246,20 @@ def _cut_at(data: bytes) -> tuple[int, int, int] | None:
     return last, pos - last, end - last
 
 
+# A stamp in ns is an int64: microseconds beyond this (292 years, less room for a relative offset) would wrap.
+MAX_STAMP_US = (2**63 - 1) // 1000 - 2**31
+
+
+def _stamps_us(path: Path, values, what: str) -> np.ndarray:
+    """Logged uint64 microsecond stamps as int64, or one UlogError for stamps that would wrap as ns."""
+    raw = np.asarray(values)
+    if len(raw) and (raw.astype(np.uint64) > MAX_STAMP_US).any():
+        top = int(raw.astype(np.uint64).max())
+        raise UlogError(f"{path}: {what} stamps reach {top} us, beyond the {MAX_STAMP_US} us (292 years) a "
+                        "nanosecond stamp holds: a corrupt log")
+    return raw.astype(np.int64)
+
+
 def _datasets(log, name: str) -> list:
     return [d for d in log.data_list if d.name == name and len(d.data["timestamp"])]
 
@@ -223,7 +279,7 @@ def _from_combined(path: Path, log) -> UlogSamples:
     if not found:
         raise _no_accel(path, log, "sensor_combined; or sensor_accel with --instance N")
     data = found[0].data
-    stamp_us = data["timestamp"].astype(np.int64)
+    stamp_us = _stamps_us(path, data["timestamp"], COMBINED)
     if "accelerometer_timestamp_relative" in data:
         relative = data["accelerometer_timestamp_relative"].astype(np.int64)
         has_accel = relative != RELATIVE_TIMESTAMP_INVALID
@@ -237,11 +293,11 @@ def _from_combined(path: Path, log) -> UlogSamples:
     if not has_accel.all():
         accel, stamp_us = accel[has_accel], stamp_us[has_accel]
         gyro = None if gyro is None else gyro[has_accel]
-    temperature, temperature_stream, sensor_id = _selected_accel_temperature(log)
+    temperature, temperature_stream, sensor_id = _selected_accel_temperature(path, log)
     return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id)
 
 
-def _selected_accel_temperature(log):
+def _selected_accel_temperature(path: Path, log):
     """The temperature of the sensor_accel instance sensor_combined is fed from (sensor_selection names
     its device), or of the only instance; None when the log does not say."""
     instances = _datasets(log, ACCEL)
@@ -256,13 +312,13 @@ def _selected_accel_temperature(log):
     if chosen is None or "temperature" not in chosen.data:
         sensor_id = f"px4 device {int(selection[0].data['accel_device_id'][-1])}" if selection else ""
         return None, None, sensor_id
-    stamps, degc = _temperature_of(chosen.data)
+    stamps, degc = _temperature_of(path, chosen.data)
     return (stamps, degc), f"sensor_accel instance {chosen.multi_id} temperature", _device(chosen.data)
 
 
-def _temperature_of(data: dict) -> tuple[np.ndarray, np.ndarray]:
+def _temperature_of(path: Path, data: dict) -> tuple[np.ndarray, np.ndarray]:
     stamp_us = data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"]
-    return stamp_us.astype(np.int64) * 1000, np.asarray(data["temperature"], dtype=float)
+    return _stamps_us(path, stamp_us, "temperature") * 1000, np.asarray(data["temperature"], dtype=float)
 
 
 def _device(data: dict) -> str:
@@ -277,7 +333,7 @@ def _from_instance(path: Path, log, instance: int) -> UlogSamples:
         raise UlogError(f"{path}: no sensor_accel instance {instance}; the log has instance(s) "
                         f"{', '.join(map(str, sorted(accels)))}")
     data = accels[instance].data
-    stamp_us = (data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"]).astype(np.int64)
+    stamp_us = _stamps_us(path, data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"], ACCEL)
     accel = _xyz(data, ("x", "y", "z"))
     gyros = {d.multi_id: d for d in _datasets(log, GYRO)}
     gyro_set = gyros.get(instance)
@@ -288,13 +344,13 @@ def _from_instance(path: Path, log, instance: int) -> UlogSamples:
     gyro = None
     if gyro_set is not None:
         g = gyro_set.data
-        g_us = (g["timestamp_sample"] if "timestamp_sample" in g else g["timestamp"]).astype(np.int64)
+        g_us = _stamps_us(path, g["timestamp_sample"] if "timestamp_sample" in g else g["timestamp"], GYRO)
         order = np.argsort(g_us, kind="stable")
         gyro = np.column_stack([np.interp(stamp_us, g_us[order], np.asarray(g[axis], dtype=float)[order])
                                 for axis in ("x", "y", "z")])
     temperature = temperature_stream = None
     if "temperature" in data:
-        temperature = _temperature_of(data)
+        temperature = _temperature_of(path, data)
         temperature_stream = f"sensor_accel instance {instance} temperature"
     return UlogSamples(f"sensor_accel instance {instance}", stamp_us * 1000, accel, gyro, temperature,
                        temperature_stream, _device(data))

@@ -15,7 +15,6 @@ import argparse
 import contextlib
 import logging
 import os
-import re
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -25,7 +24,14 @@ from typing import Any
 
 from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
+from ..io.history import (
+    HistoryError,
+    HistoryRecord,
+    open_history,
+    printable_text,
+    recording_identity,
+    vehicle_from_rule,
+)
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
@@ -144,7 +150,7 @@ def _recorded_vehicle(path: Path, replay: Any) -> str | None:
 
 def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
     if rule:
-        found = vehicle_from_rule(re.compile(rule), path.as_posix())
+        found = vehicle_from_rule(rule, path.as_posix())
         if found:
             return found, "rule"
     recorded = _recorded_vehicle(path, replay) if replay is not None else None
@@ -216,7 +222,10 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
         reason = f"{path}: internal error ({type(error).__name__}: {first})"
     else:
         reason = None
-    vehicle, vehicle_source = _vehicle(where, replay, vehicle_rule)
+    try:
+        vehicle, vehicle_source = _vehicle(where, replay, vehicle_rule)
+    except AccelCalibrationError as error:  # the rule over its time limit on this path
+        return outcome("failed", str(error), None, f"failed     {path}: {error}")
     if replay is None:
         record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor="",
                                status="failed", reason=reason)
@@ -289,12 +298,55 @@ def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
             # Dask sets the fork server's imports once per process; ours join them, so each worker starts
             # with the replay (numpy, scipy, the readers) already imported. No effect once the server runs.
             get_mp_context().set_forkserver_preload(["distributed", *FORK_SERVER_PRELOAD])
+        # The dashboard (no authentication) on the loopback only, on a free port: ":0" would listen on all
+        # interfaces, and None still starts it, on 127.0.0.1:8787.
         cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR, **options)
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, **options)
     try:
         yield cluster
     finally:
         cluster.close()
+
+
+SCHEDULER_TIMEOUT_S = 15.0  # to reach a scheduler and hear back from it, whatever listens there
+
+
+def _connect(scheduler: str) -> Any:
+    """A client of the Dask scheduler at `scheduler` (tcp://HOST:PORT), or one line: another scheme, nothing
+    there, or something there that is not a Dask scheduler (silent, or sending other bytes) within
+    SCHEDULER_TIMEOUT_S, whatever it does."""
+    import threading
+
+    from distributed import Client
+
+    scheme = scheduler.split("://", 1)[0] if "://" in scheduler else "tcp"
+    if scheme != "tcp":
+        raise FleetError(f"--scheduler {scheduler}: give the scheduler's tcp://HOST:PORT address ({scheme}:// needs "
+                         "Dask settings this command does not take)")
+    hint = "start one with 'dask scheduler' and 'dask worker tcp://HOST:8786'"
+    outcome: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            outcome["client"] = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
+        except BaseException as error:  # noqa: BLE001 - handed to the caller as one line
+            outcome["error"] = error
+
+    # Dask's own timeout covers connecting, not a peer that accepts and never answers: a thread waits for it.
+    thread = threading.Thread(target=connect, name="accel-calib-scheduler", daemon=True)
+    thread.start()
+    thread.join(SCHEDULER_TIMEOUT_S + 2.0)
+    if thread.is_alive():
+        raise FleetError(f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s "
+                         f"(something else listens there?); {hint}")
+    if "error" in outcome:
+        error = outcome["error"]
+        if isinstance(error, KeyboardInterrupt):
+            raise error
+        first = str(error).splitlines()[0][:160] if str(error) else ""
+        raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({type(error).__name__}: {first}); "
+                         f"{hint}") from None
+    return outcome["client"]
 
 
 @contextlib.contextmanager
@@ -304,11 +356,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     from distributed import Client
 
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError, ValueError) as error:
-            raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({error}); start one with "
-                             "'dask scheduler' and 'dask worker tcp://HOST:8786'") from None
+        client = _connect(scheduler)
         try:
             yield client
         finally:
@@ -400,24 +448,29 @@ def _settings(args: argparse.Namespace) -> Any:
     return main._replay_settings(args)
 
 
+def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutcome:
+    """A recording whose row the database refused: failed, with the database's reason, the others go on."""
+    reason = f"{outcome.path}: its row was not written ({error})"
+    return RecordingOutcome(outcome.path, "failed", reason, outcome.record, f"failed     {reason}",
+                            outcome.peak_rss_mb, outcome.elapsed_s)
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
-    if args.vehicle is not None:
-        try:
-            re.compile(args.vehicle)
-        except re.error as error:
-            raise CalibrationError(f"--vehicle {args.vehicle!r}: not a regular expression ({error})") from None
     settings = _settings(args)
     recordings, problems = find_recordings(args.recordings)
+    if args.vehicle is not None:  # the rule tried on every path here, before any work (each within a time limit)
+        for path in recordings:
+            vehicle_from_rule(args.vehicle, Path(path).as_posix())
     for problem in problems:
-        print(f"accel-calib: error: {problem}", file=sys.stderr)
+        print(f"accel-calib: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:
         raise FleetError("no recordings to calibrate")
     counts = {"calibrated": 0, "refused": 0, "failed": 0}
-    written = 0
+    rows: dict[str, list[str]] = {}  # recording_id -> recordings written to its row (same content: one row)
     started = time.perf_counter()
     with open_history(args.history) as history:
         workers = None if args.scheduler else min(args.workers or default_workers(), len(recordings))
@@ -429,19 +482,23 @@ def run(args: argparse.Namespace) -> int:
                     outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
                                                None, f"failed     {recordings[i]}: worker lost ({error})", None, 0.0)
                 if outcome.record is not None:
-                    try:
-                        written += history.write([outcome.record])
+                    try:  # each row stands or fails alone
+                        history.write([outcome.record])
+                        rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
                     except HistoryError as history_error:
-                        tqdm.write(f"accel-calib: error: {history_error}", file=sys.stderr)
-                        return 1
+                        outcome = _unwritten(outcome, history_error)
                 counts[outcome.status] += 1
-                if outcome.status == "calibrated":
-                    tqdm.write(outcome.summary)
+                if outcome.status == "calibrated":  # printable whatever bytes a file name holds
+                    tqdm.write(printable_text(outcome.summary))
                 else:
-                    tqdm.write(f"accel-calib: error: {outcome.reason}", file=sys.stderr)
+                    tqdm.write(f"accel-calib: error: {printable_text(str(outcome.reason))}", file=sys.stderr)
     elapsed = time.perf_counter() - started
     per_minute = 60.0 * len(recordings) / elapsed if elapsed > 0 else float("inf")
+    shared = sum(len(paths) - 1 for paths in rows.values())
+    same = f" ({shared} recording{'s' if shared != 1 else ''} with the content of another: one row each)" \
+        if shared else ""
     print(f"{len(recordings)} recordings: {counts['calibrated']} calibrated, {counts['refused']} refused, "
-          f"{counts['failed']} failed; {written} rows written to {history.name}; {elapsed:.1f} s "
+          f"{counts['failed']} failed; {len(rows)} row{'s' if len(rows) != 1 else ''} written{same} "
+          f"to {history.name}; {elapsed:.1f} s "
           f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
     return 0 if counts["calibrated"] == len(recordings) and not problems else 1

@@ -4,11 +4,20 @@ same as a figure (`report_history`)."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 from ..core.calibration import MG
-from ..io.history import DriftFlag, DriftRule, HistoryRecord, drift_flags, open_history, sensor_series
+from ..io.history import (
+    DriftFlag,
+    DriftRule,
+    HistoryRecord,
+    drift_flags,
+    masked_url,
+    open_history,
+    sensor_series,
+)
 from .fleet import DEFAULT_HISTORY
 
 DRIFT_EXIT_CODE = 3  # drift flagged (1 stays "could not run")
@@ -51,13 +60,18 @@ def _rule(args: argparse.Namespace) -> DriftRule:
 def _records(args: argparse.Namespace) -> list[HistoryRecord]:
     from ..core.errors import CalibrationError
 
+    name = masked_url(args.history)
     if "://" not in args.history and not Path(args.history).expanduser().is_file():
-        raise CalibrationError(f"{args.history}: no such history (write one with 'accel-calib fleet')")
-    with open_history(args.history) as history:
+        raise CalibrationError(f"{name}: no such history (write one with 'accel-calib fleet')")
+    with open_history(args.history, read_only=True) as history:  # only read: nothing created or switched
         records = history.records(vehicle=args.vehicle, sensor=args.sensor)
+        unreadable = history.unreadable
+    if unreadable:
+        print(f"accel-calib: warning: {name}: {len(unreadable)} row{'s' if len(unreadable) != 1 else ''} "
+              f"not as accel_calibration writes them, left out (first: {unreadable[0]})", file=sys.stderr)
     if not records:
         which = " ".join(f"{k} {v}" for k, v in (("vehicle", args.vehicle), ("sensor", args.sensor)) if v)
-        raise CalibrationError(f"{args.history}: no recordings{' of ' + which if which else ''}")
+        raise CalibrationError(f"{name}: no recordings{' of ' + which if which else ''}")
     return records
 
 

@@ -24,12 +24,11 @@ from ..core.settings import Settings
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from ..io.calibration_file import (
     load_calibration,
-    read_regular_file,
     safe_yaml_load,
     save_calibration,
     write_text_atomically,
 )
-from ..io.output_paths import check_outputs, write_bytes_atomically
+from ..io.output_paths import check_output_places, check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
 from . import compare as compare_command
 from . import dividing_head as dividing_head_command
@@ -109,6 +108,9 @@ def _parser() -> argparse.ArgumentParser:
                             help="also write a report figure (PNG; several bags: a directory)")
     replay_cmd.add_argument("--params-file", default=None,
                             help="ROS 2 parameters YAML (config/accel_calibration.yaml): the node's settings")
+    replay_cmd.add_argument("--node", default=None, metavar="/NAMESPACE/NAME",
+                            help="the node whose --params-file blocks apply, as rcl matches them "
+                                 "(default /accel_calibration)")
     replay_cmd.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
                             help="one setting as the node takes it, e.g. -p static.window_s:=0.3 (repeatable)")
     replay_cmd.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
@@ -167,9 +169,8 @@ def _in_force(path) -> object:
     return calibration
 
 
-def _write_report(calibration, accel, temperatures, output, title: str) -> None:
-    """The report figure, rendered aside and then written like every output (whole, through symlinks,
-    keeping the old file's mode)."""
+def _render_report(calibration, accel, temperatures, title: str) -> bytes:
+    """The report figure's PNG bytes, rendered aside (written later like every output)."""
     import tempfile
 
     from ..io.report import write_report
@@ -177,7 +178,13 @@ def _write_report(calibration, accel, temperatures, output, title: str) -> None:
     with tempfile.TemporaryDirectory(prefix="accel-calib-report-") as scratch:
         rendered = Path(scratch) / "report.png"
         write_report(calibration, accel, temperatures, rendered, title=title)
-        write_bytes_atomically(output, rendered.read_bytes())
+        return rendered.read_bytes()
+
+
+def _write_report(calibration, accel, temperatures, output, title: str) -> None:
+    """The report figure, rendered aside and then written like every output (whole, through symlinks,
+    keeping the old file's mode)."""
+    write_bytes_atomically(output, _render_report(calibration, accel, temperatures, title))
 
 
 def _fit(args) -> int:
@@ -248,19 +255,15 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
 def _replay_settings(args):
     """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
     from ..bag.replay import ReplaySettings
-    from ..core.settings import Settings, params_file_values
+    from ..core.settings import Settings
+    from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     values = {}
-    if args.params_file:
-        raw = read_regular_file(args.params_file, 1 << 20, "--params-file", error=CalibrationError)
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise CalibrationError(f"--params-file {args.params_file}: not a text file") from None
-        document = safe_yaml_load(text, f"--params-file {args.params_file}", error=CalibrationError)
-        values.update(params_file_values(document, source=args.params_file))
+    if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
+        values.update(params_file_parameters(args.params_file, getattr(args, "node", None) or DEFAULT_NODE,
+                                             error=CalibrationError))
         values.pop("calibration_file", None)  # the node's file; replay writes --output
         values.pop("output_reliability", None)
     for item in args.param:
@@ -278,17 +281,21 @@ def _replay_settings(args):
 
 def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
     """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
-    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found."""
+    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
+    All the work (the replay, the calibration's file text, the corrected copy written aside, the report
+    rendered) comes before the first output is written, so a failure leaves every output as it was."""
     from pathlib import Path
 
-    from ..bag.recording import write_corrected_copy
+    from ..bag.recording import stage_corrected_copy
     from ..bag.replay import replay_bag
+    from ..io.calibration_file import checked_calibration_text
     from ..io.poses_out import poses_table_text
 
     try:
         replay = replay_bag(bag, settings, progress=progress)
-        if poses_out:
-            write_text_atomically(poses_out, poses_table_text(replay.poses, replay.pose_status))
+        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else None
+        if replay.calibration is None and poses_out:
+            write_text_atomically(poses_out, poses_text)
     except AccelCalibrationError as error:
         return None, None, str(error)
     if replay.calibration is None:
@@ -301,21 +308,47 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
     bad = {k: v for k, v in replay.counts.items() if v}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+    copy = None
     try:
+        calibration_text = checked_calibration_text(calibration, output) if output else None
+        if corrected_bag:
+            copy = stage_corrected_copy(replay, calibration, corrected_bag)
+        figure = (_render_report(calibration, [p.accel_mps2 for p in replay.poses],
+                                 [p.temperature_degc for p in replay.poses], title=Path(bag).name)
+                  if report else None)
+        # All the work succeeded: now the outputs, the one that can still be taken by another run first.
+        if copy is not None:
+            copy.commit()
         if output:
-            save_calibration(calibration, output)
+            write_text_atomically(output, calibration_text)
             lines.append(f"written {output}")
         if poses_out:
+            write_text_atomically(poses_out, poses_text)
             lines.append(f"poses {poses_out}")
-        if corrected_bag:
-            lines.append(write_corrected_copy(replay, calibration, corrected_bag))
+        if copy is not None:
+            lines.append(copy.line)
         if report:
-            _write_report(calibration, [p.accel_mps2 for p in replay.poses],
-                          [p.temperature_degc for p in replay.poses], report, title=Path(bag).name)
+            write_bytes_atomically(report, figure)
             lines.append(f"report {report}")
     except AccelCalibrationError as error:
         return None, None, str(error)
+    finally:
+        if copy is not None:
+            copy.discard()
     return "\n".join(lines), calibration, None
+
+
+def _check_corrected_targets(jobs) -> None:
+    """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
+    is written over a directory."""
+    for job in jobs:
+        bag, destination = job[0], job[3]
+        if destination is None or not os.path.lexists(destination):
+            continue
+        if os.path.isdir(bag) or os.path.isdir(destination):
+            raise CalibrationError(f"--corrected {destination}: already exists "
+                                   + ("(a corrected bag is a new directory)" if os.path.isdir(bag)
+                                      else "and is a directory; give a file name"))
 
 
 def _bag_labels(bags) -> list[str]:
@@ -369,6 +402,9 @@ def _replay(args) -> int:
                     Path(option).mkdir(parents=True, exist_ok=True)
                 except OSError as error:
                     raise CalibrationError(f"cannot make output directory {option}: {error.strerror}") from None
+    check_output_places([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected", 3),
+                                                                         ("--report", 4), ("--poses-out", 6))])
+    _check_corrected_targets(jobs)
     if args.jobs > 1 and several:  # one way to run many: the fleet's local Dask cluster of --jobs processes
         outcomes = fleet_command.map_on_local_cluster(
             _replay_one, jobs, workers=args.jobs,  # a lost worker (out of memory, a signal): that bag only

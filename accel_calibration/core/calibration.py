@@ -51,6 +51,19 @@ def _scaled_determinant(matrix: np.ndarray) -> float:
     return float(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g))
 
 
+MAX_IDENTIFIER_CHARS = 256  # a frame_id or sensor_id; ROS names are far shorter
+
+
+def bounded_identifier(value: object) -> str:
+    """A frame_id or sensor_id as a Calibration keeps it: text of at most MAX_IDENTIFIER_CHARS printable
+    characters (each other one, a control character, a NUL, an undecodable byte of a file name, becomes
+    '?'), so a file saved with it stays small and loadable whatever a message or a path carried."""
+    text = value if isinstance(value, str) else "" if value is None else str(value)
+    if len(text) <= MAX_IDENTIFIER_CHARS and text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else "?" for c in text[:MAX_IDENTIFIER_CHARS])
+
+
 _CREATED: tuple[int, str] = (-1, "")
 
 
@@ -209,7 +222,9 @@ class Calibration:
 
     def _check_model_gravity_matrix(self) -> None:
         """The checks both constructors make (gravity becomes a float): a known model, a positive finite
-        gravity, and M not singular."""
+        gravity, M not singular, and the identifiers bounded (bounded_identifier)."""
+        for name in ("frame_id", "sensor_id"):
+            object.__setattr__(self, name, bounded_identifier(getattr(self, name)))
         if self.model not in CALIBRATION_MODELS:
             raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(CALIBRATION_MODELS)}")
         if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):

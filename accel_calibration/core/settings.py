@@ -260,36 +260,3 @@ class Settings:
             # A session learns segments as poses at new temperatures come in; the rest are reported.
             every_segment=False,
         )
-
-
-def params_file_values(document: Any, node_name: str = "accel_calibration",
-                       source: str = "params file") -> dict[str, Any]:
-    """The parameters a ROS 2 params file gives this node: the `/**` block, then a block for the node's
-    name (plain or with a namespace, e.g. `/uav1/accel_calibration`), later blocks winning, as rcl does.
-    Nested mappings are flattened to dotted names (`static: {window_s: ..}` -> `static.window_s`)."""
-    if not isinstance(document, dict):
-        raise SettingsError(f"{source}: not a ROS 2 parameters file (expected a mapping of node names)")
-    values: dict[str, Any] = {}
-    matched = False
-    for key, block in document.items():
-        key_text = str(key)
-        if key_text in ("/**", "**") or key_text.rsplit("/", 1)[-1] == node_name:
-            if not isinstance(block, dict) or not isinstance(block.get("ros__parameters"), dict):
-                raise SettingsError(f"{source}: block {key_text!r} has no 'ros__parameters:' mapping")
-            values.update(_flatten(block["ros__parameters"]))
-            matched = True
-    if not matched:
-        raise SettingsError(f"{source}: no '/**:' or '{node_name}:' block")
-    return values
-
-
-def _flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in mapping.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(_flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-

@@ -477,5 +477,21 @@ def remove_stale_temp_files(path) -> int:
     return removed
 
 
+def checked_calibration_text(calibration: Calibration, path) -> str:
+    """The file text of `calibration`, checked the way load_calibration will check it (size, then the
+    whole parse), so that no file is put in place that its reader (the node at its next start) refuses."""
+    text = calibration_to_yaml(calibration)
+    size = len(text.encode("utf-8"))
+    if size > MAX_CALIBRATION_BYTES:
+        raise CalibrationFileError(f"{path}: not written: the calibration would take {size // 1024} KiB, "
+                                   f"beyond the {MAX_CALIBRATION_BYTES // 1024} KiB a calibration file may have")
+    try:
+        calibration_from_yaml(text, str(path))
+    except CalibrationError as error:
+        raise CalibrationFileError(f"not written: it would not load back ({error})") from None
+    return text
+
+
 def save_calibration(calibration: Calibration, path) -> None:
-    write_text_atomically(path, calibration_to_yaml(calibration))
+    """Write `calibration` whole (temp file + rename), only once its text loads back (checked_calibration_text)."""
+    write_text_atomically(path, checked_calibration_text(calibration, path))

@@ -15,8 +15,11 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import json
 import math
+import os
 import re
+import stat
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -31,7 +34,7 @@ from ..core.errors import AccelCalibrationError
 SCHEMA_VERSION = 1
 SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up
 _SCHEMA_LOCK = 0x616363656C5F6869  # PostgreSQL advisory lock key held while creating the schema ("accel_hi")
-_IDENTITY_BYTES = 1 << 16  # head and tail of each storage file that go into the identity hash
+_IDENTITY_CHUNK = 1 << 20  # bytes read at a time for the identity digest
 AXES = "xyz"
 STATUSES = ("calibrated", "refused", "failed")
 
@@ -97,31 +100,84 @@ class HistoryRecord:
         return _dt.datetime.fromtimestamp(self.start_ns / 1e9, tz=_dt.UTC)
 
 
+def _regular_file_bytes(file: Path, digest: Any) -> int:
+    """Feed the whole content of a regular file to `digest` (streamed, 1 MiB at a time); returns its size.
+    A FIFO, device or socket is refused from its stat, before it is opened (opening a FIFO blocks)."""
+    info = os.stat(file)
+    if not stat.S_ISREG(info.st_mode):
+        raise HistoryError(f"{printable_text(str(file))}: not a regular file (a FIFO, device or socket?), "
+                           "not a recording")
+    fd = os.open(file, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    with os.fdopen(fd, "rb") as stream:
+        if not stat.S_ISREG(os.fstat(stream.fileno()).st_mode):  # replaced between the stat and the open
+            raise HistoryError(f"{printable_text(str(file))}: not a regular file: not a recording")
+        size = 0
+        while chunk := stream.read(_IDENTITY_CHUNK):
+            digest.update(chunk)
+            size += len(chunk)
+    return size
+
+
 def recording_identity(path: str | Path) -> tuple[str, int]:
     """(content identity, total size in bytes) of a recording: a file, or a directory (rosbag2) whose
-    files all count. The identity hashes each file's name, size, first and last 64 KiB (cheap on a
-    1 GB bag, and distinct for any two recordings: headers, stamps and index records differ), so it
-    does not depend on where the recording lies. Raises HistoryError naming the path when unreadable."""
+    regular files all count. The identity is a BLAKE2b digest of each file's name (relative to the
+    recording), size and whole content, streamed, so two recordings share a row exactly when they hold
+    the same bytes, wherever they lie. Raises HistoryError naming the path when unreadable."""
     path = Path(path)
     try:
         files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-        digest = hashlib.sha256()
+        digest = hashlib.blake2b(digest_size=20)
         total = 0
         for file in files:
-            size = file.stat().st_size
+            name = str(file.relative_to(path)) if file != path else file.suffix
+            part = hashlib.blake2b(digest_size=32)
+            size = _regular_file_bytes(file, part)
             total += size
-            digest.update(f"{file.relative_to(path) if file != path else file.suffix}\0{size}\0".encode())
-            with open(file, "rb") as stream:
-                digest.update(stream.read(_IDENTITY_BYTES))
-                if size > _IDENTITY_BYTES:
-                    stream.seek(max(_IDENTITY_BYTES, size - _IDENTITY_BYTES))
-                    digest.update(stream.read(_IDENTITY_BYTES))
+            digest.update(name.encode("utf-8", "surrogateescape") + f"\0{size}\0".encode() + part.digest())
     except OSError as error:
-        raise HistoryError(f"{path}: cannot read the recording ({error.strerror or error})") from None
-    return digest.hexdigest()[:40], total
+        raise HistoryError(f"{printable_text(str(path))}: cannot read the recording "
+                           f"({error.strerror or error})") from None
+    return digest.hexdigest(), total
+
+
+def printable_text(value: str) -> str:
+    """Text any database and any terminal takes: an undecodable byte of a file name (a lone surrogate)
+    becomes U+FFFD and a NUL '\\0'; everything else is kept."""
+    if value.isprintable() or not any(c == "\0" or "\ud800" <= c <= "\udfff" for c in value):
+        return value
+    return "".join("\\0" if c == "\0" else "\ufffd" if "\ud800" <= c <= "\udfff" else c for c in value)
+
+
+def masked_url(target: str) -> str:
+    """A database URL or path as it may be printed: every credential in it (user:PASSWORD@, and
+    password=, sslpassword=, ... in the query string) replaced by ***."""
+    if "://" not in target:
+        return target
+    scheme, rest = target.split("://", 1)
+    location, mark, query = rest.partition("?")
+    if "@" in location.split("/", 1)[0]:
+        user_info, at, after = location.partition("@") if location.count("@") == 1 else location.rpartition("@")
+        if ":" in user_info:
+            location = user_info.split(":", 1)[0] + ":***" + at + after
+    if mark:
+        parts = re.split(r"([&;])", query)
+        for i, part in enumerate(parts):
+            key, equals, _value = part.partition("=")
+            if equals and unquote(key).strip().lower() in SECRET_KEYS:
+                parts[i] = f"{key}=***"
+        query = "".join(parts)
+    return f"{scheme}://{location}{mark}{query}"
+
+
+SECRET_KEYS = frozenset({"password", "passwd", "pass", "pwd", "sslpassword", "secret", "token", "access_token",
+                         "api_key", "apikey", "auth_token"})
 
 
 # --- the database -----------------------------------------------------------------------------------
+
+_TEXT_LIMITS = {"vehicle": 200, "sensor": 200, "vehicle_source": 16, "status": 16, "model": 32,
+                "temperature_model": 32, "package_version": 64, "written_at": 40}  # String(n) columns
+
 
 def _tables() -> tuple[Any, Any, Any]:
     from sqlalchemy import JSON, BigInteger, Column, Float, Integer, MetaData, String, Table, Text
@@ -155,9 +211,11 @@ def _url(target: str) -> Any:
 
     if "://" in target:
         try:
-            return make_url(target)
-        except ArgumentError:
-            raise HistoryError(f"{target}: not a database URL (e.g. postgresql://user@host/db) "
+            url = make_url(target)
+            _ = url.port  # a port that is not a number is refused here, not at connect time
+            return url
+        except (ArgumentError, ValueError, TypeError):
+            raise HistoryError(f"{masked_url(target)}: not a database URL (e.g. postgresql://user@host:5432/db) "
                                "or a file path") from None
     path = Path(target).expanduser().resolve()
     if path.is_dir():
@@ -166,6 +224,58 @@ def _url(target: str) -> Any:
     if not path.parent.is_dir():
         raise HistoryError(f"{target}: directory {path.parent} does not exist")
     return make_url(f"sqlite:///{path}")
+
+
+def _sqlite_uri(path: str, *options: str) -> str:
+    from urllib.parse import quote
+
+    return f"file:{quote(path)}?" + "&".join(("mode=ro", *options))
+
+
+def _refuse_foreign_sqlite(name: str, path: str | None, read_only: bool) -> None:
+    """Look at an existing SQLite file read-only, before any statement that would change it (WAL, tables):
+    one that is not a SQLite database, or holds tables but not ours (another application's), is refused
+    untouched. A read-only command also refuses a file that is missing."""
+    import sqlite3
+
+    if not path or path == ":memory:":
+        return
+    if not os.path.exists(path) or os.path.getsize(path) == 0:
+        if read_only:
+            raise HistoryError(f"{name}: no such history (write one with 'accel-calib fleet')")
+        return
+    try:
+        connection = sqlite3.connect(_sqlite_uri(path), uri=True, timeout=SQLITE_BUSY_TIMEOUT_S)
+        try:
+            tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            connection.close()
+    except sqlite3.Error as error:
+        if "unable to open" in str(error) and read_only:
+            return  # a WAL file on read-only media: _read_only_sqlite opens it as immutable
+        raise HistoryError(f"{name}: cannot open the history ({type(error).__name__}: {error})") from None
+    ours = {"history_info", "calibrations"}
+    if tables and "history_info" not in tables:
+        raise HistoryError(f"{name}: not a calibration history (it holds other tables: "
+                           f"{', '.join(sorted(tables - ours))[:80]}); give another file, left untouched")
+
+
+def _read_only_sqlite(path: str) -> Any:
+    """An engine that can only read the file (mode=ro): no journal switch, no tables made. A WAL history on
+    read-only media (whose -shm cannot be made) is read as immutable: nobody can be writing it there."""
+    import sqlite3
+
+    from sqlalchemy import create_engine
+
+    def connect() -> sqlite3.Connection:
+        try:
+            connection = sqlite3.connect(_sqlite_uri(path), uri=True, timeout=SQLITE_BUSY_TIMEOUT_S)
+            connection.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            return connection
+        except sqlite3.OperationalError:
+            return sqlite3.connect(_sqlite_uri(path, "immutable=1"), uri=True)
+
+    return create_engine("sqlite://", creator=connect)
 
 
 def _one_line(error: BaseException) -> str:
@@ -177,17 +287,23 @@ def _one_line(error: BaseException) -> str:
 class History:
     """An open history database. `with open_history(...) as history:`; every method is one transaction."""
 
-    def __init__(self, target: str | Path):
+    def __init__(self, target: str | Path, read_only: bool = False):
         from sqlalchemy import create_engine, event
         from sqlalchemy.exc import SQLAlchemyError
 
         self.target = str(target)
+        self.read_only = read_only
+        # As the user wrote it, every credential hidden (user:***@, ?password=***), a socket path unquoted.
+        self.name = unquote(masked_url(self.target)) if "://" in self.target else self.target
+        self.unreadable: list[str] = []  # rows records() left out: "recording_id: why", one each
         url = _url(self.target)
-        # As the user wrote it (SQLAlchemy would URL-quote a socket path: host=%2Ftmp%2F..), password hidden.
-        self.name = unquote(url.render_as_string(hide_password=True)) if "://" in self.target else self.target
         self._metadata, self._info, self._table = _tables()
         try:
             if url.get_backend_name() == "sqlite":
+                _refuse_foreign_sqlite(self.name, url.database, read_only)
+            if url.get_backend_name() == "sqlite" and read_only:
+                self.engine = _read_only_sqlite(url.database)
+            elif url.get_backend_name() == "sqlite":
                 # timeout: the driver's busy timeout, which also covers switching the journal to WAL.
                 self.engine = create_engine(url, connect_args={"timeout": SQLITE_BUSY_TIMEOUT_S})
 
@@ -208,14 +324,37 @@ class History:
             elif url.get_backend_name() == "postgresql":
                 # READ COMMITTED whatever the server's default: under it an upsert waits for a concurrent one
                 # on the same row and then applies; under a SERIALIZABLE default it would fail instead.
-                self.engine = create_engine(url, pool_pre_ping=True, isolation_level="READ COMMITTED")
+                options = {"options": "-c default_transaction_read_only=on"} if read_only else {}
+                self.engine = create_engine(url, pool_pre_ping=True, isolation_level="READ COMMITTED",
+                                            connect_args=options)
             else:
                 self.engine = create_engine(url, pool_pre_ping=True)
-            self._create_schema()
+            if read_only:
+                self._check_schema()
+            else:
+                self._create_schema()
         except SQLAlchemyError as error:
             raise HistoryError(f"{self.name}: cannot open the history ({_one_line(error)})") from None
         except ImportError as error:  # a URL whose driver is not installed (psycopg, ...)
             raise HistoryError(f"{self.name}: database driver not installed ({error})") from None
+        except (ValueError, TypeError) as error:  # a URL part the driver cannot take (a port, an option)
+            raise HistoryError(f"{self.name}: cannot open the history ({type(error).__name__}: "
+                               f"{str(error)[:120]})") from None
+
+    def _check_schema(self) -> None:
+        """Read-only: the history's tables are there and of a schema this version reads; nothing is created."""
+        from sqlalchemy import inspect, select
+
+        with self.engine.connect() as connection:
+            tables = set(inspect(connection).get_table_names())
+            if not {"history_info", "calibrations"} <= tables:
+                raise HistoryError(f"{self.name}: not a calibration history (no history_info and calibrations "
+                                   "tables; write one with 'accel-calib fleet')")
+            stored = connection.execute(select(self._info.c.value).where(self._info.c.key == "schema_version")
+                                        ).scalar_one_or_none()
+        if stored is None or not str(stored).isdigit() or int(stored) > SCHEMA_VERSION:
+            raise HistoryError(f"{self.name}: history schema {stored} is not one this accel_calibration reads "
+                               f"({SCHEMA_VERSION}); upgrade the package")
 
     def _create_schema(self) -> None:
         from sqlalchemy import select, text
@@ -285,6 +424,8 @@ class History:
             for name, value in row.items():  # NaN is not JSON and not portable SQL: store NULL
                 if isinstance(value, float) and not math.isfinite(value):
                     row[name] = None
+                elif isinstance(value, str):  # the same text on every backend: no NUL, within the column
+                    row[name] = printable_text(value)[:_TEXT_LIMITS.get(name, len(value) + 1)]
             rows.append(row)
         if not rows:
             return 0
@@ -302,11 +443,12 @@ class History:
         """Rows by vehicle and sensor, each in time order (rows without a start last), then by path;
         optionally of one vehicle and/or sensor. Sorted here, not by the database: a server's collation
         and its place for NULLs differ (PostgreSQL en_US: '/_c' < '/a' < '/B'); this is code point order."""
-        from sqlalchemy import select
+        from sqlalchemy import Text, select, type_coerce
         from sqlalchemy.exc import SQLAlchemyError
 
         table = self._table
-        query = select(table)
+        # JSON columns read as text and parsed here: one bad value leaves its row out, not the whole read.
+        query = select(*[type_coerce(c, Text).label(c.name) if c.name in _VECTORS else c for c in table.columns])
         if vehicle is not None:
             query = query.where(table.c.vehicle == vehicle)
         if sensor is not None:
@@ -317,12 +459,12 @@ class History:
         except SQLAlchemyError as error:
             raise HistoryError(f"{self.name}: cannot read the history ({_one_line(error)})") from None
         out = []
+        self.unreadable = []
         for row in rows:
-            values = dict(row)
-            for name in ("bias", "bias_sigma", "matrix", "matrix_sigma"):
-                if values[name] is not None:
-                    values[name] = tuple(float(v) for v in values[name])
-            out.append(HistoryRecord(**values))
+            try:
+                out.append(_record_from_row(dict(row)))
+            except (HistoryError, ValueError, TypeError) as error:
+                self.unreadable.append(f"{printable_text(str(row.get('recording_id')))[:40]}: {error}")
         out.sort(key=lambda r: (r.vehicle, r.sensor, r.start_ns is None, r.start_ns or 0, r.path, r.recording_id))
         return out
 
@@ -336,9 +478,45 @@ class History:
         self.close()
 
 
-def open_history(target: str | Path) -> History:
-    """A history database: a file path (SQLite, created when missing) or a SQLAlchemy URL."""
-    return History(target)
+_VECTORS = {"bias": 3, "bias_sigma": 3, "matrix": 9, "matrix_sigma": 9}
+_KINDS = {f.name: f.type for f in fields(HistoryRecord)}
+
+
+def _record_from_row(values: dict[str, Any]) -> HistoryRecord:
+    """A row as a HistoryRecord, each value checked against its field's type: a row another program
+    wrote off the schema (text where a number belongs, a short matrix, bad JSON) raises one line."""
+    for name, value in values.items():
+        if value is None:
+            continue
+        if name in _VECTORS:
+            vector = json.loads(value) if isinstance(value, str) else value
+            if vector is None:  # SQLAlchemy's JSON stores None as JSON null
+                values[name] = None
+                continue
+            if (not isinstance(vector, list) or len(vector) != _VECTORS[name]
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vector)):
+                raise HistoryError(f"{name} is not {_VECTORS[name]} numbers")
+            values[name] = tuple(float(v) for v in vector)
+            continue
+        kind = str(_KINDS[name])
+        if "int" in kind and (isinstance(value, bool) or not isinstance(value, int)):
+            raise HistoryError(f"{name} is not an integer: {str(value)[:30]!r}")
+        if "float" in kind and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise HistoryError(f"{name} is not a number: {str(value)[:30]!r}")
+        if "float" in kind:
+            values[name] = float(value)
+        if kind.startswith("str") and not isinstance(value, str):
+            values[name] = str(value)
+    for name in ("path", "vehicle", "vehicle_source", "sensor", "status"):
+        if values.get(name) is None:
+            raise HistoryError(f"{name} is missing")
+    return HistoryRecord(**values)
+
+
+def open_history(target: str | Path, read_only: bool = False) -> History:
+    """A history database: a file path (SQLite, created when missing) or a SQLAlchemy URL. `read_only`:
+    for commands that only read it (opened read-only, nothing created or switched)."""
+    return History(target, read_only=read_only)
 
 
 # --- when a calibration moved -------------------------------------------------------------------------
@@ -437,10 +615,25 @@ def drift_flags(records: Iterable[HistoryRecord], rule: DriftRule | None = None)
     return flags
 
 
-def vehicle_from_rule(pattern: re.Pattern[str], path: str) -> str | None:
-    """The vehicle a --vehicle rule finds in a path: its `vehicle` group, else its first group, else
-    the whole match; None when it does not match."""
-    match = pattern.search(path)
+VEHICLE_RULE_TIMEOUT_S = 1.0  # a --vehicle rule on one path; a sane one takes microseconds
+
+
+def vehicle_from_rule(rule: str, path: str) -> str | None:
+    """The vehicle a --vehicle rule (a regular expression, Python syntax) finds in a path: its `vehicle`
+    group, else its first group, else the whole match; None when it does not match. Matched by the
+    `regex` engine under a time limit: a rule that backtracks without end ('(a+)+$') is one HistoryError."""
+    import regex
+
+    try:
+        pattern = regex.compile(rule, flags=regex.VERSION0)
+    except (regex.error, TypeError, ValueError, OverflowError, RecursionError) as error:
+        raise HistoryError(f"--vehicle {rule!r:.80}: not a regular expression ({error})") from None
+    try:
+        match = pattern.search(path, timeout=VEHICLE_RULE_TIMEOUT_S)
+    except TimeoutError:
+        raise HistoryError(f"--vehicle {rule!r:.80}: took longer than {VEHICLE_RULE_TIMEOUT_S:g} s on "
+                           f"{printable_text(path)[-120:]} (a rule that backtracks without end?); "
+                           "simplify it") from None
     if match is None:
         return None
     if "vehicle" in pattern.groupindex:

@@ -78,6 +78,17 @@ def check_outputs(outputs: Sequence[tuple[str, object | None]], inputs: Iterable
         seen[target] = f"{label} {output}"
 
 
+def check_output_places(outputs: Sequence[tuple[str, object | None]]) -> None:
+    """Refuse, before any work, outputs whose directory does not exist (or is not a directory): each
+    (label as the user typed it, path)."""
+    for label, output in outputs:
+        if output is None:
+            continue
+        parent = write_target(output).parent
+        if not parent.is_dir():
+            raise OutputPathError(f"{label} {output}: directory {parent} does not exist; make it first")
+
+
 def _umask() -> int:
     """The process umask without changing it (os.umask is process-wide and racy with threads)."""
     try:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
 TEMPERATURE_COLUMN = "temperature"
 SIGMA_COLUMN = "sigma_mg"
 MG_MPS2 = 9.80665e-3
+MAX_COLUMNS = 1000  # a pose table has 3 to 7 columns; a CSV for `apply` may carry some more
 MAX_TABLE_BYTES = 256 << 20  # ~3 M rows of samples; parsing holds several times this in memory
 # |value| beyond this is no acceleration in any unit (raw counts of a 24-bit part at 16 g: ~1e8), and
 # keeps every product of the fit and of the correction far from overflow.
@@ -78,7 +80,10 @@ def read_table(path) -> Table:
     if not records:
         raise CalibrationError(f"{path}: empty file, expected a header row with {','.join(ACCEL_COLUMNS)}")
     header = [cell.strip().lower() for cell in records[0]]
-    repeated = sorted({name for name in header if name and header.count(name) > 1})
+    if len(header) > MAX_COLUMNS:
+        raise CalibrationError(f"{path}: {len(header)} columns in the header; a table of poses or samples has a "
+                               f"handful (ax,ay,az [,temperature] [,ref_x,ref_y,ref_z]), at most {MAX_COLUMNS}")
+    repeated = sorted(name for name, count in Counter(header).items() if name and count > 1)
     if repeated:
         raise CalibrationError(f"{path}: column {', '.join(repeated)} appears more than once in the header: "
                                "which one is meant is unclear; rename or drop the copy")
