@@ -1,5 +1,5 @@
 """One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
-ULog, a CSV stream of raw samples. `open_recording` finds the format (from the path and content, or as
+ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from the path and content, or as
 named) and gives the same sample arrays whatever it was, for the same calibration session as the node
 (`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
 (a ULog gets a CSV of corrected samples).
@@ -16,14 +16,15 @@ import numpy as np
 
 from .bag_io import IMU, TEMPERATURE, BagError
 
-FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "csv")
+FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv")
 KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
-         "csv (raw samples with a header t,ax,ay,az)")
+         "dataflash (an ArduPilot .bin log), csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
 STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (the results do not depend on
 # it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
-_MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
-_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
+_MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3",
+          b"\xa3\x95\x80": "dataflash"}
+_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv", ".bin": "dataflash"}
 
 
 class RecordingError(BagError):
@@ -45,6 +46,8 @@ class Recording:
     frame_id: str = ""
     sensor_id: str = ""
     source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
+    flight_state: object = None  # core.flight_state.FlightState a log carries (ULog, DataFlash); None: none read
+    autopilot_calibration: object = None  # dataflash.AutopilotCalibration in force while logging
 
     @property
     def unit(self) -> str:
@@ -104,7 +107,7 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
     kind = format or detect_format(path)
     given = {"--imu-topic": imu_topic, "--temperature-topic": temperature_topic, "--instance": instance,
              "--time-unit": time_unit, "--units": units, "--counts-per-g": counts_per_g}
-    applies = {"ulog": ("--instance",), "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
+    applies = {"ulog": ("--instance",), "dataflash": ("--instance",), "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
         kind, ("--imu-topic", "--temperature-topic"))
     stray = [flag for flag, value in given.items() if value is not None and flag not in applies]
     if stray:
@@ -116,6 +119,8 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
         return _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags)
     if kind == "ulog":
         return _read_ulog(path, instance, progress)
+    if kind == "dataflash":
+        return _read_dataflash(path, instance, progress)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
 
 
@@ -219,7 +224,7 @@ def _closing(groups, bar):
 
 def _where(flag: str) -> str:
     if flag == "--instance":
-        return "PX4 ULog logs"
+        return "PX4 ULog and ArduPilot DataFlash logs"
     if flag in ("--imu-topic", "--temperature-topic"):
         return "bags"
     return "CSV streams"
@@ -323,7 +328,23 @@ def _read_ulog(path, instance, progress) -> Recording:
         if bar is not None:
             bar.close()
     return Recording(str(path), "ulog", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
-                     log.temperature_stream, sensor_id=log.sensor_id)
+                     log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state)
+
+
+def _read_dataflash(path, instance, progress) -> Recording:
+    from .dataflash import read_dataflash
+
+    if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
+        raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
+    bar = _bar(path, _size(path), "B", progress)
+    try:
+        log = read_dataflash(path, instance, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    return Recording(str(path), "dataflash", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
+                     log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
+                     autopilot_calibration=log.autopilot_calibration)
 
 
 def _read_csv(path, time_unit, units, counts_per_g, progress) -> Recording:

@@ -27,7 +27,7 @@ from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
 
-RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
+RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".bin", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
 DEFAULT_HISTORY = "calibrations.sqlite"
 FORK_SERVER_PRELOAD = ("accel_calibration.cli.main", "accel_calibration.bag.replay", "accel_calibration.bag.recording")
@@ -385,6 +385,9 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
                         help="one setting as the node takes it (repeatable)")
     parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
     parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    from .flight_options import add_flight_state_options
+
+    add_flight_state_options(parser)
     return parser
 
 

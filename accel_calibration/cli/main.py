@@ -32,6 +32,7 @@ from ..io.output_paths import check_outputs, write_bytes_atomically
 from ..io.pose_table import read_table, table_with_accel
 from . import fleet as fleet_command
 from . import history as history_command
+from .flight_options import add_flight_state_options, flight_state_settings
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -70,15 +71,16 @@ def _parser() -> argparse.ArgumentParser:
     fit_cmd.add_argument("--output", "-o", required=True, help="calibration YAML to write")
 
     replay_cmd = commands.add_parser(
-        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, CSV stream")
+        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
+                       "DataFlash .bin, CSV stream")
     replay_cmd.add_argument("bags", nargs="+", metavar="RECORDING",
                             help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
                                  "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
-    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "csv"), default=None,
+    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"), default=None,
                             help="the recordings' format (default: found from the path and content)")
     replay_cmd.add_argument("--instance", type=int, default=None, metavar="N",
                             help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
-                                 "(default: sensor_combined)")
+                                 "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
     replay_cmd.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
                             help="CSV: unit of the time column (default: s for t, ns for t_ns)")
     replay_cmd.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
@@ -115,6 +117,7 @@ def _parser() -> argparse.ArgumentParser:
                             help="shortest still interval, s (-p static.min_hold_s:=...)")
     replay_cmd.add_argument("--k-sigma", type=float, default=None,
                             help="detector threshold over the noise floor (-p static.k_sigma:=...)")
+    add_flight_state_options(replay_cmd)
     replay_cmd.add_argument("--jobs", "-j", type=int, default=1,
                             help="bags processed in parallel, on a local Dask cluster of N worker processes")
 
@@ -260,7 +263,7 @@ def _replay_settings(args):
         if value is not None:
             values[name] = value
     return ReplaySettings(session=Settings.from_parameters(values), imu_topic=args.imu_topic,
-                          temperature_topic=args.temperature_topic)
+                          temperature_topic=args.temperature_topic, **flight_state_settings(args))
 
 
 def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
@@ -278,13 +281,15 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
             write_text_atomically(poses_out, poses_table_text(replay.poses, replay.pose_status))
     except AccelCalibrationError as error:
         return None, None, str(error)
+    notes = _flight_and_autopilot_lines(replay)
     if replay.calibration is None:
-        return None, None, f"{bag}: {replay.problem}" + (f" (poses written to {poses_out})" if poses_out else "")
+        return ("\n".join(notes) or None), None, f"{bag}: {replay.problem}" + (
+            f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
-             replay.result.summary()]
+             replay.result.summary(), *notes]
     bad = {k: v for k, v in replay.counts.items() if v}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
@@ -303,6 +308,19 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
     except AccelCalibrationError as error:
         return None, None, str(error)
     return "\n".join(lines), calibration, None
+
+
+def _flight_and_autopilot_lines(replay) -> list[str]:
+    """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
+    lines = []
+    if replay.flight_state_line:
+        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
+    if replay.autopilot_calibration is not None:
+        lines.append(replay.autopilot_calibration.describe())
+        if replay.autopilot_difference_mg is not None:
+            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} mg "
+                         "at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+    return lines
 
 
 def _bag_labels(bags) -> list[str]:
