@@ -1,7 +1,7 @@
 """One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
-ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from the path and content, or as
-named) and gives the same sample arrays whatever it was, for the same calibration session as the node
-(`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
+ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from
+the path and content, or as named) and gives the same sample arrays whatever it was, for the same
+calibration session as the node (`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
 (a ULog gets a CSV of corrected samples).
 """
 from __future__ import annotations
@@ -24,7 +24,8 @@ STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (
 # it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3",
           b"\xa3\x95\x80": "dataflash"}
-_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv", ".bin": "dataflash"}
+_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv",
+           ".bin": "dataflash"}
 
 
 class RecordingError(BagError):
@@ -107,7 +108,8 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
     kind = format or detect_format(path)
     given = {"--imu-topic": imu_topic, "--temperature-topic": temperature_topic, "--instance": instance,
              "--time-unit": time_unit, "--units": units, "--counts-per-g": counts_per_g}
-    applies = {"ulog": ("--instance",), "dataflash": ("--instance",), "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
+    applies = {"ulog": ("--instance",), "dataflash": ("--instance",),
+               "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
         kind, ("--imu-topic", "--temperature-topic"))
     stray = [flag for flag, value in given.items() if value is not None and flag not in applies]
     if stray:

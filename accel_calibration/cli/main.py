@@ -76,7 +76,8 @@ def _parser() -> argparse.ArgumentParser:
     replay_cmd.add_argument("bags", nargs="+", metavar="RECORDING",
                             help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
                                  "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
-    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"), default=None,
+    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"),
+                            default=None,
                             help="the recordings' format (default: found from the path and content)")
     replay_cmd.add_argument("--instance", type=int, default=None, metavar="N",
                             help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
@@ -318,8 +319,8 @@ def _flight_and_autopilot_lines(replay) -> list[str]:
     if replay.autopilot_calibration is not None:
         lines.append(replay.autopilot_calibration.describe())
         if replay.autopilot_difference_mg is not None:
-            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} mg "
-                         "at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} "
+                         "mg at 1 g (worst orientation): how far ours is from the autopilot's calibration")
     return lines
 
 

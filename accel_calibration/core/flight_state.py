@@ -113,7 +113,7 @@ def collecting_mask(t_ns: np.ndarray, spans_ns: np.ndarray, margin_s: float) -> 
     if not len(spans) or not len(t):
         return np.ones(len(t), dtype=bool)
     at = np.searchsorted(spans[:, 0], t, side="right") - 1
-    inside = (at >= 0) & (t <= spans[np.maximum(at, 0), 1])
+    inside: np.ndarray = (at >= 0) & (t <= spans[np.maximum(at, 0), 1])
     return ~inside
 
 
