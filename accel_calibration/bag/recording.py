@@ -1,8 +1,8 @@
 """One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
 ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from
 the path and content, or as named) and gives the same sample arrays whatever it was, for the same
-calibration session as the node (`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
-(a ULog gets a CSV of corrected samples).
+calibration session as the node (`replay.replay_recording`); `write_corrected_copy` writes a corrected
+copy in the input's own format (a ULog or DataFlash log gets a CSV of corrected samples).
 """
 from __future__ import annotations
 
