@@ -30,6 +30,8 @@ setup(
         # accel-calib replay of PX4 logs (bag/ulog_reader.py) and CSV sample streams (bag/csv_stream.py).
         "pyulog",
         "pyarrow",
+        # ArduPilot DataFlash logs (bag/dataflash.py).
+        "pymavlink",
         # accel-calib fleet and history (cli/fleet.py, io/history.py): Dask distributed and SQLAlchemy 2.
         "dask[distributed]",
         "distributed",

@@ -460,3 +460,14 @@ def test_left_out_seconds_and_margins():
     assert fs.left_out_s(0, 10**9, still_armed, 2.0) == pytest.approx(1.0)  # armed from before the start to the end
     with pytest.raises(fs.CalibrationError, match="armed-margin-s"):
         fs.collecting_mask(np.zeros(3, np.int64), spans, float("nan"))
+
+
+def test_fleet_takes_the_same_flight_state_options():
+    from accel_calibration.cli import fleet
+    from accel_calibration.cli.main import _parser
+
+    args = _parser().parse_args(["fleet", "somewhere", "--armed-topic", "/armed", "--armed-field", "not data",
+                                 "--armed-margin-s", "3.5", "--ignore-flight-state"])
+    settings = fleet._settings(args)
+    assert (settings.armed_topic, settings.armed_field, settings.armed_margin_s, settings.ignore_flight_state) == (
+        "/armed", "not data", 3.5, True)

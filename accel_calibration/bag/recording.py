@@ -24,8 +24,8 @@ STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (
 # it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
 _MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3",
           b"\xa3\x95\x80": "dataflash"}
-_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv",
-           ".bin": "dataflash"}
+_SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
+# A DataFlash .bin is known by its first FMT record (the magic above); ".bin" alone says nothing.
 
 
 class RecordingError(BagError):

@@ -27,7 +27,7 @@ from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
 
-RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".bin", ".csv")
+RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
 DEFAULT_HISTORY = "calibrations.sqlite"
 FORK_SERVER_PRELOAD = ("accel_calibration.cli.main", "accel_calibration.bag.replay", "accel_calibration.bag.recording")
