@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import logging
 import os
 import re
 import sys
@@ -21,11 +20,13 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..io.history import HistoryError, HistoryRecord, open_history, recording_identity, vehicle_from_rule
+
+if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..io.history import HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
@@ -143,6 +144,8 @@ def _recorded_vehicle(path: Path, replay: Any) -> str | None:
 
 
 def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
+    from ..io.history import vehicle_from_rule
+
     if rule:
         found = vehicle_from_rule(re.compile(rule), path.as_posix())
         if found:
@@ -193,6 +196,8 @@ def _line(record: HistoryRecord, name: str) -> str:
 def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | None = None) -> RecordingOutcome:
     """Replay one recording and describe it for the history. Runs on a worker; never raises (the reason
     of any failure is the outcome's, one line), so one bad recording cannot stop a fleet."""
+    from ..io.history import HistoryRecord, recording_identity
+
     started = time.perf_counter()
     where = Path(path)
 
@@ -276,6 +281,7 @@ def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
     closed with the block. Workers are forked from a
     fork server that has Dask imported once (Dask's own test suite does this): a cluster starts and stops
     seconds sooner than with fresh interpreters, which matters for `replay --jobs` of a few bags."""
+    import logging
     import multiprocessing
 
     import dask
@@ -405,6 +411,8 @@ def _settings(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
+
+    from ..io.history import HistoryError, open_history
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")

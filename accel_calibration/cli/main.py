@@ -16,20 +16,11 @@ import numpy as np
 
 from ..core.calibration import MG, STANDARD_GRAVITY
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..core.fit import fit
 from ..core.models import MODELS, REFERENCE_MODELS
-from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC, plausibility_problem
-from ..core.settings import Settings
-from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
-from ..io.calibration_file import (
-    load_calibration,
-    read_regular_file,
-    safe_yaml_load,
-    save_calibration,
-    write_text_atomically,
-)
-from ..io.output_paths import check_outputs, write_bytes_atomically
-from ..io.pose_table import read_table, table_with_accel
+from ..core.temperature_models import TEMPERATURE_MODELS
+
+# The fit, settings, YAML files and tables are imported by the commands that use them: `--help` and
+# a start-up cost at most twice numpy's own import (bench/bench_startup.py).
 from . import fleet as fleet_command
 from . import history as history_command
 from .flight_options import add_flight_state_options, flight_state_settings
@@ -152,6 +143,10 @@ def _check_finite(args) -> None:
 def _in_force(path) -> object:
     """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
     plausible under the default gates, else one line naming the problem."""
+    from ..core.plausibility import plausibility_problem
+    from ..core.settings import Settings
+    from ..io.calibration_file import load_calibration
+
     calibration = load_calibration(path)
     defaults = Settings()
     problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
@@ -166,6 +161,7 @@ def _write_report(calibration, accel, temperatures, output, title: str) -> None:
     keeping the old file's mode)."""
     import tempfile
 
+    from ..io.output_paths import write_bytes_atomically
     from ..io.report import write_report
 
     with tempfile.TemporaryDirectory(prefix="accel-calib-report-") as scratch:
@@ -175,6 +171,13 @@ def _write_report(calibration, accel, temperatures, output, title: str) -> None:
 
 
 def _fit(args) -> int:
+    from ..core.fit import fit
+    from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC
+    from ..core.temperature_models import TemperatureOptions
+    from ..io.calibration_file import save_calibration
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table
+
     if not (args.gravity > 0 and args.gravity < 1e3):
         raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {args.gravity}")
     low, high = PLAUSIBLE_TEMPERATURE_DEGC
@@ -214,6 +217,10 @@ def _fit(args) -> int:
 
 
 def _apply(args) -> int:
+    from ..io.calibration_file import write_text_atomically
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table, table_with_accel
+
     check_outputs([("output", args.output)], [args.calibration, args.input])
     calibration = _in_force(args.calibration)
     table = read_table(args.input)
@@ -240,6 +247,7 @@ def _replay_settings(args):
     """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
     from ..bag.replay import ReplaySettings
     from ..core.settings import Settings, params_file_values
+    from ..io.calibration_file import read_regular_file, safe_yaml_load
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
@@ -274,6 +282,7 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
 
     from ..bag.recording import write_corrected_copy
     from ..bag.replay import replay_bag
+    from ..io.calibration_file import save_calibration, write_text_atomically
     from ..io.poses_out import poses_table_text
 
     try:
@@ -339,6 +348,8 @@ def _bag_labels(bags) -> list[str]:
 
 def _replay(args) -> int:
     import dataclasses
+
+    from ..io.output_paths import check_outputs
 
     settings = dataclasses.replace(_replay_settings(args), format=args.format, instance=args.instance,
                                    time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
@@ -418,6 +429,9 @@ def _comparison_table(bags, outcomes) -> str:
 
 
 def _report(args) -> int:
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table
+
     if args.history:
         check_outputs([("--output", args.output)], [args.history if "://" not in args.history else None])
         return history_command.report_history(args)
