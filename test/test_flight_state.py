@@ -471,3 +471,35 @@ def test_fleet_takes_the_same_flight_state_options():
     settings = fleet._settings(args)
     assert (settings.armed_topic, settings.armed_field, settings.armed_margin_s, settings.ignore_flight_state) == (
         "/armed", "not data", 3.5, True)
+
+
+# -------------------------------------------------------------------------------------------- start-up
+def test_written_out_jazzy_definitions_are_rosbags_own():
+    import hashlib
+
+    from accel_calibration.bag.bag_io import JAZZY_DEFINITIONS
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for msgtype, (rihs01, text_sha256) in JAZZY_DEFINITIONS.items():
+        assert store.hash_rihs01(msgtype) == rihs01
+        assert hashlib.sha256(store.generate_msgdef(msgtype, ros_version=2)[0].encode()).hexdigest() == text_sha256
+
+
+def test_help_and_a_replay_that_draws_nothing_import_no_scipy_linalg_nor_matplotlib(flight, tmp_path):
+    """In a fresh interpreter, as a user starts it (issue 21: --help spent 0.36 s importing scipy.linalg).
+    A bag of standard messages only is read without rosbags' Jazzy store (~0.2 s) too."""
+    import subprocess
+    import sys
+
+    write_flight_bag(tmp_path / "flight", flight, "mcap", "mavros")
+    write_flight_bag(tmp_path / "bare", flight, "mcap", None)
+    code = ("import contextlib, io, sys\nfrom accel_calibration.cli.main import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    try:\n        code = main(sys.argv[1:])\n    except SystemExit as done:\n        code = done.code\n"
+            "print(code, sorted(m for m in sys.modules if m in ('scipy.linalg', 'matplotlib', 'scipy.stats')),"
+            " any(m.startswith('rosbags.typesys.stores.') for m in sys.modules))")
+    for argv, expected in ((["--help"], "0 [] False"),
+                           (["replay", str(tmp_path / "flight"), "-o", str(tmp_path / "a.yaml")], "0 [] True"),
+                           (["replay", str(tmp_path / "bare"), "-o", str(tmp_path / "b.yaml")], "0 [] False")):
+        done = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
+        assert done.stdout.strip() == expected, (argv, done.stdout, done.stderr[-500:])

@@ -135,10 +135,15 @@ def _stamp_ns(message: object, recorded_ns: int) -> int:
 def bag_flight_state(path, armed_topic: str | None = None, armed_field: str | None = None) -> FlightState:
     """The bag's flight state: `armed_topic` (its field as given or the type's default), else every known
     topic present. No such topic: an empty FlightState (replay warns). Errors are one line."""
-    from .bag_io import open_reader
+    from .bag_io import open_reader, recorded_definitions
 
     if armed_field is not None and armed_topic is None:
         raise FlightStateError("--armed-field needs --armed-topic (the topic whose field it reads)")
+    # The topics as the storage records them (its summary, no rosbags reader): a bag without any flight-state
+    # topic costs nothing more (rosbags' reader and its definition parser take ~0.3 s to import and open).
+    recorded = recorded_definitions(path)
+    if recorded is not None and armed_topic is None and not any(topic in recorded for topic in KNOWN_TOPICS):
+        return FlightState()
     reader = open_reader(path)
     try:
         by_topic = {c.topic: c for c in reader.connections}

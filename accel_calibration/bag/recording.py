@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,12 +147,17 @@ class BagStream:
     sensor_id: str = ""
 
     def pieces(self):
-        from rosbags.typesys import Stores, get_typestore
-
-        from .bag_io import TopicInfo, check_recorded_types, decode_imus, decode_temperatures, is_standard_definition
+        from .bag_io import (
+            TopicInfo,
+            check_recorded_types,
+            decode_imus,
+            decode_temperatures,
+            is_standard_definition,
+            jazzy_deserialize,
+        )
         from .mcap_scan import NotStreamable
 
-        deserialize = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr
+        deserialize = jazzy_deserialize
         wanted = [TopicInfo(self.stream, IMU, self.expected_messages)]
         if self.temperature_stream:
             wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE, 0))
@@ -233,7 +239,7 @@ def _where(flag: str) -> str:
 
 
 def _bar(path, total, unit: str, progress: bool):
-    if not progress:
+    if not progress or not sys.stderr.isatty():  # tqdm would draw nothing (disable=None); not imported
         return None
     from tqdm import tqdm
 
