@@ -503,3 +503,16 @@ def test_help_and_a_replay_that_draws_nothing_import_no_scipy_linalg_nor_matplot
                            (["replay", str(tmp_path / "bare"), "-o", str(tmp_path / "b.yaml")], "0 [] False")):
         done = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
         assert done.stdout.strip() == expected, (argv, done.stdout, done.stderr[-500:])
+
+
+def test_an_mcap_files_topics_from_its_summary_are_what_rosbags_lists(flight, tmp_path, shared):
+    from accel_calibration.bag.bag_io import open_reader
+    from accel_calibration.bag.mcap_scan import summary_topics
+
+    write_flight_bag(tmp_path / "flight", flight, "mcap", "px4")
+    files = [next((tmp_path / "flight").glob("*.mcap")), shared("real/bags/test2_mcap_zstd/test2_mcap_zstd.mcap")]
+    for file in files:
+        reader = open_reader(file)
+        expected = sorted((c.topic, c.msgtype, c.msgcount) for c in reader.connections)
+        reader.close()
+        assert sorted(summary_topics(file)) == expected

@@ -270,8 +270,13 @@ def _no_imu(path, connections) -> RecordingError:
 
 
 def _file_topics(path):
-    from .bag_io import TopicInfo, open_reader
+    from .bag_io import TopicInfo, open_reader, storage_of
+    from .mcap_scan import summary_topics
 
+    if storage_of(path) == "mcap":  # the file's own summary: no rosbags reader to import and open
+        listed = summary_topics(path)
+        if listed is not None:
+            return [TopicInfo(topic, msgtype, count) for topic, msgtype, count in listed]
     reader = open_reader(path)
     try:
         return [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
