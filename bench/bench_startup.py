@@ -71,6 +71,13 @@ def cli_subprocess(*argv: str) -> str:
 
 
 def main() -> int:
+    # Bytecode as an installed package has it (pip compiles at install; an editable checkout under
+    # PYTHONDONTWRITEBYTECODE would compile every changed module in every process).
+    import compileall
+
+    import accel_calibration
+
+    compileall.compile_dir(Path(accel_calibration.__file__).parent, quiet=1)
     print(f"1. import of accel_calibration.cli.main against numpy's, {RUNS} runs of python -X importtime:")
     ratios = []
     for _ in range(RUNS):
