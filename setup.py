@@ -30,7 +30,7 @@ setup(
         # accel-calib replay of PX4 logs (bag/ulog_reader.py) and CSV sample streams (bag/csv_stream.py).
         "pyulog",
         "pyarrow",
-        # accel-calib compare of ArduPilot DataFlash logs (io/autopilot_params.py: PARM records).
+        # ArduPilot DataFlash logs: replay (bag/dataflash.py) and compare's PARM records (io/autopilot_params.py).
         "pymavlink",
         # accel-calib fleet and history (cli/fleet.py, io/history.py): Dask distributed and SQLAlchemy 2.
         "dask[distributed]",

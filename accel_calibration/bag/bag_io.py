@@ -207,10 +207,29 @@ def metadata_topics(path) -> list[TopicInfo] | None:
 
 
 _STANDARD_HASHES: dict[str, str] = {}
+# ROS 2 Jazzy's Imu and Temperature: their RIHS01 and the sha256 of the ros2msg text rosbags writes for them,
+# written out so that reading a bag does not import rosbags' Jazzy store (~0.2 s: it builds every message
+# type of five distributions); test_flight_state checks them against rosbags.
+JAZZY_DEFINITIONS = {
+    IMU: ("RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b",
+          "f2f4c5b5c6c19cba83d23e3101a750aa1641112ba9839b0d7b2fcaea46f0961c"),
+    TEMPERATURE: ("RIHS01_72514a14126ab9f8a9abec974c78e5610a367b59db5da355ff1fb982d5bad4b8",
+                  "55d59d9879f124bc658dd9d0788320581c38391776907bd32493b2283f4899bd"),
+}
+
+
+def jazzy_deserialize(raw, msgtype: str):
+    """rosbags' ROS 2 Jazzy CDR deserializer, its store imported on first use (the fixed layout decodes
+    standard messages without it)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(raw, msgtype)
 
 
 def standard_hash(msgtype: str) -> str:
     """RIHS01 of the ROS 2 Jazzy definition of `msgtype` (what the fixed offsets assume)."""
+    if msgtype in JAZZY_DEFINITIONS:
+        return JAZZY_DEFINITIONS[msgtype][0]
     if msgtype not in _STANDARD_HASHES:
         from rosbags.typesys import Stores, get_typestore
 
@@ -227,6 +246,11 @@ def definition_hash(msgtype: str, encoding: str, text: str) -> str | None:
     from rosbags.typesys import Stores, get_typestore
 
     key = (msgtype, encoding, text)
+    if key not in _DEFINITION_HASHES and encoding == "ros2msg" and msgtype in JAZZY_DEFINITIONS:
+        import hashlib
+
+        if hashlib.sha256(text.encode()).hexdigest() == JAZZY_DEFINITIONS[msgtype][1]:
+            _DEFINITION_HASHES[key] = JAZZY_DEFINITIONS[msgtype][0]
     if key not in _DEFINITION_HASHES:
         standard = get_typestore(Stores.ROS2_JAZZY)
         try:
@@ -329,8 +353,6 @@ def declares_other_definition(topics) -> bool:
 
 def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
     """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
-    from rosbags.typesys import Stores, get_typestore
-
     refuse_special_files(path)
     wanted = [imu_topic] + ([temperature_topic] if temperature_topic else [])
     if declares_other_definition(wanted):
@@ -349,12 +371,11 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
     check_recorded_types(path, wanted, recorded)
     if not all(is_standard_definition(topic, recorded) for topic in wanted):
         return None
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    t, accel, gyro, frame_id, *_ = decode_imus(found[imu_topic.topic], path, typestore.deserialize_cdr)
+    t, accel, gyro, frame_id, *_ = decode_imus(found[imu_topic.topic], path, jazzy_deserialize)
     imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id)
     temperatures = None
     if temperature_topic is not None:
-        temperatures = decode_temperatures(found[temperature_topic.topic], path, typestore.deserialize_cdr)
+        temperatures = decode_temperatures(found[temperature_topic.topic], path, jazzy_deserialize)
     return imu, temperatures
 
 

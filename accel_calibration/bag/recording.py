@@ -1,13 +1,14 @@
 """One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
-ULog, a CSV stream of raw samples. `open_recording` finds the format (from the path and content, or as
-named) and gives the same sample arrays whatever it was, for the same calibration session as the node
-(`replay.replay_recording`); `write_corrected_copy` writes a corrected copy in the input's own format
-(a ULog gets a CSV of corrected samples).
+ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from
+the path and content, or as named) and gives the same sample arrays whatever it was, for the same
+calibration session as the node (`replay.replay_recording`); `write_corrected_copy` writes a corrected
+copy in the input's own format (a ULog or DataFlash log gets a CSV of corrected samples).
 """
 from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,14 +17,16 @@ import numpy as np
 
 from .bag_io import IMU, TEMPERATURE, BagError
 
-FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "csv")
+FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv")
 KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
-         "csv (raw samples with a header t,ax,ay,az)")
+         "dataflash (an ArduPilot .bin log), csv (raw samples with a header t,ax,ay,az)")
 BAGS = ("rosbag2", "mcap", "sqlite3")
 STREAM_GROUP_MESSAGES = 1 << 14  # messages read from a streamed bag at a time (the results do not depend on
 # it): a group in cache is faster to decode and feed than a large one (0.25 s against 0.30 s for 155k)
-_MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3"}
+_MAGIC = {b"ULog\x01\x12\x35": "ulog", b"\x89MCAP": "mcap", b"SQLite format 3\x00": "sqlite3",
+          b"\xa3\x95\x80": "dataflash"}
 _SUFFIX = {".ulg": "ulog", ".mcap": "mcap", ".db3": "sqlite3", ".csv": "csv", ".txt": "csv", ".tsv": "csv"}
+# A DataFlash .bin is known by its first FMT record (the magic above); ".bin" alone says nothing.
 
 
 class RecordingError(BagError):
@@ -45,6 +48,8 @@ class Recording:
     frame_id: str = ""
     sensor_id: str = ""
     source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
+    flight_state: object = None  # core.flight_state.FlightState a log carries (ULog, DataFlash); None: none read
+    autopilot_calibration: object = None  # dataflash.AutopilotCalibration in force while logging
 
     @property
     def unit(self) -> str:
@@ -104,7 +109,8 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
     kind = format or detect_format(path)
     given = {"--imu-topic": imu_topic, "--temperature-topic": temperature_topic, "--instance": instance,
              "--time-unit": time_unit, "--units": units, "--counts-per-g": counts_per_g}
-    applies = {"ulog": ("--instance",), "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
+    applies = {"ulog": ("--instance",), "dataflash": ("--instance",),
+               "csv": ("--time-unit", "--units", "--counts-per-g")}.get(
         kind, ("--imu-topic", "--temperature-topic"))
     stray = [flag for flag, value in given.items() if value is not None and flag not in applies]
     if stray:
@@ -116,6 +122,8 @@ def open_recording(path, format: str | None = None, *, imu_topic: str | None = N
         return _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags)
     if kind == "ulog":
         return _read_ulog(path, instance, progress)
+    if kind == "dataflash":
+        return _read_dataflash(path, instance, progress)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
 
 
@@ -139,12 +147,17 @@ class BagStream:
     sensor_id: str = ""
 
     def pieces(self):
-        from rosbags.typesys import Stores, get_typestore
-
-        from .bag_io import TopicInfo, check_recorded_types, decode_imus, decode_temperatures, is_standard_definition
+        from .bag_io import (
+            TopicInfo,
+            check_recorded_types,
+            decode_imus,
+            decode_temperatures,
+            is_standard_definition,
+            jazzy_deserialize,
+        )
         from .mcap_scan import NotStreamable
 
-        deserialize = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr
+        deserialize = jazzy_deserialize
         wanted = [TopicInfo(self.stream, IMU, self.expected_messages)]
         if self.temperature_stream:
             wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE, 0))
@@ -219,14 +232,14 @@ def _closing(groups, bar):
 
 def _where(flag: str) -> str:
     if flag == "--instance":
-        return "PX4 ULog logs"
+        return "PX4 ULog and ArduPilot DataFlash logs"
     if flag in ("--imu-topic", "--temperature-topic"):
         return "bags"
     return "CSV streams"
 
 
 def _bar(path, total, unit: str, progress: bool):
-    if not progress:
+    if not progress or not sys.stderr.isatty():  # tqdm would draw nothing (disable=None); not imported
         return None
     from tqdm import tqdm
 
@@ -257,8 +270,13 @@ def _no_imu(path, connections) -> RecordingError:
 
 
 def _file_topics(path):
-    from .bag_io import TopicInfo, open_reader
+    from .bag_io import TopicInfo, open_reader, storage_of
+    from .mcap_scan import summary_topics
 
+    if storage_of(path) == "mcap":  # the file's own summary: no rosbags reader to import and open
+        listed = summary_topics(path)
+        if listed is not None:
+            return [TopicInfo(topic, msgtype, count) for topic, msgtype, count in listed]
     reader = open_reader(path)
     try:
         return [TopicInfo(c.topic, c.msgtype, int(c.msgcount)) for c in reader.connections]
@@ -323,7 +341,23 @@ def _read_ulog(path, instance, progress) -> Recording:
         if bar is not None:
             bar.close()
     return Recording(str(path), "ulog", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
-                     log.temperature_stream, sensor_id=log.sensor_id)
+                     log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state)
+
+
+def _read_dataflash(path, instance, progress) -> Recording:
+    from .dataflash import read_dataflash
+
+    if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
+        raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
+    bar = _bar(path, _size(path), "B", progress)
+    try:
+        log = read_dataflash(path, instance, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    return Recording(str(path), "dataflash", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
+                     log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
+                     autopilot_calibration=log.autopilot_calibration)
 
 
 def _read_csv(path, time_unit, units, counts_per_g, progress) -> Recording:

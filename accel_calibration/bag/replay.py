@@ -34,6 +34,11 @@ class ReplaySettings:
     time_unit: str | None = None  # CSV: s, ms, us, ns (default: t in s, t_ns in ns)
     units: str | None = None  # CSV: mps2, g, counts (default mps2)
     counts_per_g: float | None = None  # CSV with units counts
+    # Flight state (core.flight_state): nothing armed or airborne, nor within the margin, is collected.
+    armed_topic: str | None = None  # a bag's topic saying armed/flying (default: the known topics present)
+    armed_field: str | None = None  # its field or test, e.g. "arming_state == 2" (flight_sources.field_test)
+    armed_margin_s: float = 2.0
+    ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
 
     def reader_options(self) -> dict:
         return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
@@ -68,6 +73,12 @@ class ReplayResult:
     # The readings filtered once (the filter and its held values), for temperatures_at's many calls.
     _held_temperatures: tuple[TemperatureFilter, tuple[np.ndarray, np.ndarray]] | None = field(
         default=None, repr=False, compare=False)
+    # One line on the flight state: "left out 14.2 s armed or airborne (...)", or the warning that the
+    # recording carries none (flight_state_found False); None where it was not looked for.
+    flight_state_line: str | None = None
+    flight_state_found: bool = False
+    autopilot_calibration: object = None  # dataflash.AutopilotCalibration logged with the recording
+    autopilot_difference_mg: float | None = None  # how far ours moves the autopilot's output, worst at 1 g
 
     @property
     def calibration(self) -> Calibration | None:
@@ -142,6 +153,7 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
 
 def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
     """A streamed bag (recording.BagStream) through a fresh session, piece by piece."""
+    flight = flight_state_of(bag.path, bag.format, None, s)
     session = CalibrationSession(s.session)
     feed = session.recording_feed(has_temperature=bag.temperature_stream is not None)
     low = high = None
@@ -154,7 +166,7 @@ def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
             t, accel, gyro = imu
             if not session.frame_id:
                 session.frame_id = bag.frame_id
-            feed.add_samples(t, accel, gyro)
+            feed.add_samples(t, accel, gyro, None if flight is None else flight.collecting(t, s.armed_margin_s))
             if len(t):
                 low = int(t.min()) if low is None else min(low, int(t.min()))
                 high = int(t.max()) if high is None else max(high, int(t.max()))
@@ -164,8 +176,9 @@ def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
     if bag.temperature_stream is not None:
         temperature_readings = (np.concatenate([t for t, _ in readings] or [np.zeros(0, np.int64)]),
                                 np.concatenate([v for _, v in readings] or [np.zeros(0)]))
-    return _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True,
-                    temperature_readings=temperature_readings)
+    result = _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True,
+                      temperature_readings=temperature_readings)
+    return _with_flight_state(result, flight, low, high, s)
 
 
 def replay_recording(recording, settings: ReplaySettings | None = None, started: float | None = None) -> ReplayResult:
@@ -181,11 +194,53 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
                                               else (None, None))
     # No gyro (a CSV without gx,gy,gz): zeros, which never look like motion; taken out again below.
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
-    poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values)
+    flight = flight_state_of(recording.path, recording.format, getattr(recording, "flight_state", None), s)
+    collecting = None if flight is None else flight.collecting(t, s.armed_margin_s)
+    poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values,
+                                  collecting=collecting)
     duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
     start = int(t.min()) if len(t) else None
-    return _verdict(session, poses, recording, len(t), duration, start, s, started,
-                    has_gyro=recording.gyro_radps is not None, temperature_readings=recording.temperature)
+    result = _verdict(session, poses, recording, len(t), duration, start, s, started,
+                      has_gyro=recording.gyro_radps is not None, temperature_readings=recording.temperature)
+    return _with_flight_state(result, flight, start, int(t.max()) if len(t) else None, s)
+
+
+def flight_state_of(path, recording_format: str, carried, s: ReplaySettings):
+    """The flight state to keep out of the poses (core.flight_state.FlightState), or None when it is not
+    looked for: --ignore-flight-state, or a CSV stream (it carries none). A bag's comes from its topics,
+    a log's (ULog, DataFlash) from the log (`carried`)."""
+    from ..core.flight_state import FlightState
+    from .flight_sources import bag_flight_state
+    from .recording import BAGS
+
+    if recording_format not in BAGS and (s.armed_topic is not None or s.armed_field is not None):
+        raise ReplayError(f"{path}: --armed-topic/--armed-field apply to bags; a {recording_format} recording "
+                          "carries its own flight state")
+    if s.ignore_flight_state:
+        return None
+    if recording_format in BAGS:
+        return bag_flight_state(path, s.armed_topic, s.armed_field)
+    if recording_format == "csv":
+        return None
+    return carried if carried is not None else FlightState()
+
+
+def _with_flight_state(result: ReplayResult, flight, first_ns: int | None, last_ns: int | None,
+                       s: ReplaySettings) -> ReplayResult:
+    """The flight-state line, and the autopilot's calibration beside ours, into the result."""
+    from ..core.flight_state import report_line
+
+    recording = result.recording
+    autopilot = getattr(recording, "autopilot_calibration", None)
+    difference = None
+    if autopilot is not None and result.calibration is not None:
+        from .dataflash import correction_on_top_mg
+
+        calibration = result.calibration
+        difference = correction_on_top_mg(calibration.matrix, calibration.bias, calibration.gravity)
+    line = None if flight is None else report_line(flight, first_ns, last_ns, s.armed_margin_s)
+    return dataclasses.replace(result, flight_state_line=line, flight_state_found=flight is not None and flight.found,
+                               autopilot_calibration=autopilot, autopilot_difference_mg=difference)
 
 
 def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples: int, duration: float,

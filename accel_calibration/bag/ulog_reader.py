@@ -46,16 +46,19 @@ class UlogSamples:
     temperature: tuple[np.ndarray, np.ndarray] | None  # (stamps ns, degC)
     temperature_stream: str | None
     sensor_id: str  # "px4 device <id>" when the log says which device
+    flight_state: object = None  # core.flight_state.FlightState: armed or airborne (flight_sources)
 
 
 def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
     """`progress`: a tqdm bar counting bytes read."""
+    from .flight_sources import ULOG_TOPICS, ulog_flight_state
+
     path = Path(path)
     topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO]
-    log = _load(path, topics, progress)
-    if instance is None:
-        return _from_combined(path, log)
-    return _from_instance(path, log, instance)
+    log = _load(path, topics + list(ULOG_TOPICS), progress)
+    samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
+    samples.flight_state = ulog_flight_state(log)
+    return samples
 
 
 # pyulog stops without a word at a record cut short by the end of the file. So the file is read with one

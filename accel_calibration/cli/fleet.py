@@ -13,25 +13,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import logging
 import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..io.history import (
-    HistoryError,
-    HistoryRecord,
-    open_history,
-    printable_text,
-    recording_identity,
-    vehicle_from_rule,
-)
+
+if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..io.history import HistoryError, HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
@@ -149,6 +143,8 @@ def _recorded_vehicle(path: Path, replay: Any) -> str | None:
 
 
 def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
+    from ..io.history import vehicle_from_rule
+
     if rule:
         found = vehicle_from_rule(rule, path.as_posix())
         if found:
@@ -199,6 +195,8 @@ def _line(record: HistoryRecord, name: str) -> str:
 def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | None = None) -> RecordingOutcome:
     """Replay one recording and describe it for the history. Runs on a worker; never raises (the reason
     of any failure is the outcome's, one line), so one bad recording cannot stop a fleet."""
+    from ..io.history import HistoryRecord, recording_identity
+
     started = time.perf_counter()
     where = Path(path)
 
@@ -285,6 +283,7 @@ def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
     closed with the block. Workers are forked from a
     fork server that has Dask imported once (Dask's own test suite does this): a cluster starts and stops
     seconds sooner than with fresh interpreters, which matters for `replay --jobs` of a few bags."""
+    import logging
     import multiprocessing
 
     import dask
@@ -433,6 +432,9 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
                         help="one setting as the node takes it (repeatable)")
     parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
     parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    from .flight_options import add_flight_state_options
+
+    add_flight_state_options(parser)
     return parser
 
 
@@ -457,6 +459,8 @@ def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutco
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
+
+    from ..io.history import HistoryError, open_history, printable_text, vehicle_from_rule
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")

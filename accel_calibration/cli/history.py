@@ -6,25 +6,21 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..core.calibration import MG
-from ..io.history import (
-    DriftFlag,
-    DriftRule,
-    HistoryRecord,
-    drift_flags,
-    masked_url,
-    open_history,
-    sensor_series,
-)
 from .fleet import DEFAULT_HISTORY
+
+if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..io.history import DriftFlag, DriftRule, HistoryRecord
 
 DRIFT_EXIT_CODE = 3  # drift flagged (1 stays "could not run")
 
 
 def add_drift_options(parser: argparse.ArgumentParser) -> None:
     """The history selection and the drift rule, shared by `history` and `report --history`."""
+    from ..io.history import DriftRule
+
     defaults = DriftRule()
     parser.add_argument("--vehicle", default=None, help="only this vehicle")
     parser.add_argument("--sensor", default=None, help="only this sensor (its frame_id, else its IMU topic)")
@@ -53,16 +49,21 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
 
 
 def _rule(args: argparse.Namespace) -> DriftRule:
+    from ..io.history import DriftRule
+
     return DriftRule(k_sigma=args.drift_k_sigma, max_bias_change_mg=args.max_bias_change,
                      max_scale_change=args.max_scale_change)
 
 
 def _records(args: argparse.Namespace) -> list[HistoryRecord]:
     from ..core.errors import CalibrationError
+    from ..io.history import masked_url
 
     name = masked_url(args.history)
     if "://" not in args.history and not Path(args.history).expanduser().is_file():
         raise CalibrationError(f"{name}: no such history (write one with 'accel-calib fleet')")
+    from ..io.history import open_history
+
     with open_history(args.history, read_only=True) as history:  # only read: nothing created or switched
         records = history.records(vehicle=args.vehicle, sensor=args.sensor)
         unreadable = history.unreadable
@@ -88,6 +89,8 @@ def _pm(values, sigmas, scale: float, digits: int, width: int) -> str:
 
 
 def history_text(records: list[HistoryRecord], flags: list[DriftFlag]) -> str:
+    from ..io.history import sensor_series
+
     series = sensor_series(records)
     lines = []
     for (vehicle, sensor), rows in series.items():
@@ -112,6 +115,8 @@ def history_text(records: list[HistoryRecord], flags: list[DriftFlag]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.history import drift_flags
+
     rule = _rule(args)
     records = _records(args)
     flags = drift_flags(records, rule)
@@ -121,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
 def report_history(args: argparse.Namespace) -> int:
     """`accel-calib report --history DB -o fig.png`: one panel per sensor."""
+    from ..io.history import drift_flags, sensor_series
     from ..io.history_figure import write_history_figure
 
     rule = _rule(args)

@@ -17,25 +17,18 @@ import numpy as np
 from ..bag.bag_io import missing_module
 from ..core.calibration import MG, STANDARD_GRAVITY
 from ..core.errors import AccelCalibrationError, CalibrationError
-from ..core.fit import fit
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
-from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC, plausibility_problem
-from ..core.settings import Settings
-from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
-from ..io.calibration_file import (
-    load_calibration,
-    safe_yaml_load,
-    save_calibration,
-    write_text_atomically,
-)
-from ..io.output_paths import check_output_places, check_outputs, write_bytes_atomically
-from ..io.pose_table import read_table, table_with_accel
+from ..core.temperature_models import TEMPERATURE_MODELS
+
+# The fit, settings, YAML files and tables are imported by the commands that use them: `--help` and
+# a start-up cost at most twice numpy's own import (bench/bench_startup.py).
 from . import compare as compare_command
 from . import dividing_head as dividing_head_command
 from . import export as export_command
 from . import fleet as fleet_command
 from . import history as history_command
 from . import noise as noise_command
+from .flight_options import add_flight_state_options, flight_state_settings
 
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
@@ -76,15 +69,17 @@ def _parser() -> argparse.ArgumentParser:
     fit_cmd.add_argument("--output", "-o", required=True, help="calibration YAML to write")
 
     replay_cmd = commands.add_parser(
-        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, CSV stream")
+        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
+                       "DataFlash .bin, CSV stream")
     replay_cmd.add_argument("bags", nargs="+", metavar="RECORDING",
                             help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
                                  "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
-    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "csv"), default=None,
+    replay_cmd.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"),
+                            default=None,
                             help="the recordings' format (default: found from the path and content)")
     replay_cmd.add_argument("--instance", type=int, default=None, metavar="N",
                             help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
-                                 "(default: sensor_combined)")
+                                 "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
     replay_cmd.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
                             help="CSV: unit of the time column (default: s for t, ns for t_ns)")
     replay_cmd.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
@@ -124,6 +119,7 @@ def _parser() -> argparse.ArgumentParser:
                             help="shortest still interval, s (-p static.min_hold_s:=...)")
     replay_cmd.add_argument("--k-sigma", type=float, default=None,
                             help="detector threshold over the noise floor (-p static.k_sigma:=...)")
+    add_flight_state_options(replay_cmd)
     replay_cmd.add_argument("--jobs", "-j", type=int, default=1,
                             help="bags processed in parallel, on a local Dask cluster of N worker processes")
 
@@ -160,6 +156,10 @@ def _check_finite(args) -> None:
 def _in_force(path) -> object:
     """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
     plausible under the default gates, else one line naming the problem."""
+    from ..core.plausibility import plausibility_problem
+    from ..core.settings import Settings
+    from ..io.calibration_file import load_calibration
+
     calibration = load_calibration(path)
     defaults = Settings()
     problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
@@ -184,10 +184,19 @@ def _render_report(calibration, accel, temperatures, title: str) -> bytes:
 def _write_report(calibration, accel, temperatures, output, title: str) -> None:
     """The report figure, rendered aside and then written like every output (whole, through symlinks,
     keeping the old file's mode)."""
+    from ..io.output_paths import write_bytes_atomically
+
     write_bytes_atomically(output, _render_report(calibration, accel, temperatures, title))
 
 
 def _fit(args) -> int:
+    from ..core.fit import fit
+    from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC
+    from ..core.temperature_models import TemperatureOptions
+    from ..io.calibration_file import save_calibration
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table
+
     if not (args.gravity > 0 and args.gravity < 1e3):
         raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {args.gravity}")
     low, high = PLAUSIBLE_TEMPERATURE_DEGC
@@ -230,6 +239,10 @@ def _fit(args) -> int:
 
 
 def _apply(args) -> int:
+    from ..io.calibration_file import write_text_atomically
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table, table_with_accel
+
     check_outputs([("output", args.output)], [args.calibration, args.input])
     calibration = _in_force(args.calibration)
     table = read_table(args.input)
@@ -256,6 +269,7 @@ def _replay_settings(args):
     """Settings as the node builds them: defaults, then --params-file, then -p NAME:=VALUE, then flags."""
     from ..bag.replay import ReplaySettings
     from ..core.settings import Settings
+    from ..io.calibration_file import safe_yaml_load
     from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
     if args.jobs < 1:
@@ -276,7 +290,7 @@ def _replay_settings(args):
         if value is not None:
             values[name] = value
     return ReplaySettings(session=Settings.from_parameters(values), imu_topic=args.imu_topic,
-                          temperature_topic=args.temperature_topic)
+                          temperature_topic=args.temperature_topic, **flight_state_settings(args))
 
 
 def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
@@ -288,7 +302,8 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
 
     from ..bag.recording import stage_corrected_copy
     from ..bag.replay import replay_bag
-    from ..io.calibration_file import checked_calibration_text
+    from ..io.calibration_file import checked_calibration_text, write_text_atomically
+    from ..io.output_paths import write_bytes_atomically
     from ..io.poses_out import poses_table_text
 
     try:
@@ -298,13 +313,15 @@ def _replay_one(bag, settings, output, corrected_bag, report, progress, poses_ou
             write_text_atomically(poses_out, poses_text)
     except AccelCalibrationError as error:
         return None, None, str(error)
+    notes = _flight_and_autopilot_lines(replay)
     if replay.calibration is None:
-        return None, None, f"{bag}: {replay.problem}" + (f" (poses written to {poses_out})" if poses_out else "")
+        return ("\n".join(notes) or None), None, f"{bag}: {replay.problem}" + (
+            f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
-             replay.result.summary()]
+             replay.result.summary(), *notes]
     bad = {k: v for k, v in replay.counts.items() if v}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
@@ -351,6 +368,19 @@ def _check_corrected_targets(jobs) -> None:
                                       else "and is a directory; give a file name"))
 
 
+def _flight_and_autopilot_lines(replay) -> list[str]:
+    """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
+    lines = []
+    if replay.flight_state_line:
+        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
+    if replay.autopilot_calibration is not None:
+        lines.append(replay.autopilot_calibration.describe())
+        if replay.autopilot_difference_mg is not None:
+            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} "
+                         "mg at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+    return lines
+
+
 def _bag_labels(bags) -> list[str]:
     """A distinct name per bag for its outputs and its row: the bag's own name, or, where two bags share
     it (a/flight, b/flight), as many parent directories as tell them apart (a_flight, b_flight)."""
@@ -366,6 +396,8 @@ def _bag_labels(bags) -> list[str]:
 
 def _replay(args) -> int:
     import dataclasses
+
+    from ..io.output_paths import check_output_places, check_outputs
 
     settings = dataclasses.replace(_replay_settings(args), format=args.format, instance=args.instance,
                                    time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
@@ -448,6 +480,9 @@ def _comparison_table(bags, outcomes) -> str:
 
 
 def _report(args) -> int:
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table
+
     if args.history:
         check_outputs([("--output", args.output)], [args.history if "://" not in args.history else None])
         return history_command.report_history(args)

@@ -15,9 +15,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dsyevd as syevd
 
 from .calibration import MG
+from .lapack import dsyevd as syevd
 from .models import SphereModel, matrix_entries
 
 # A pose "has x pointing down" when its measured specific force is within ~45 deg of -x

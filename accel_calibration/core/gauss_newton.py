@@ -10,7 +10,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dposv as posv
+
+from .lapack import dposv as posv
 
 ResidualFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 # x -> [J^T; r], (size + 1, N): the Jacobian transposed with the residuals as its last row.

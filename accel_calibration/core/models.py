@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg.lapack import dpocon as pocon
-from scipy.linalg.lapack import dposv as posv
+
+from .lapack import dpocon as pocon
+from .lapack import dposv as posv
 
 SPHERE_MODELS = ("six", "sphere9")
 REFERENCE_MODELS = ("reference12", "reference15")

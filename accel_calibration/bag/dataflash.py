@@ -1,0 +1,210 @@
+"""ArduPilot DataFlash `.bin` logs as sample arrays for the calibration session, read with pymavlink.
+
+- `IMU` records: TimeUS (us since boot), AccX..Z (m/s^2), GyrX..Z (rad/s), T (degC). A log of today has one
+  IMU message type with an instance field `I`; older logs (ArduPilot before 4.0) have IMU, IMU2, IMU3 for
+  instances 0, 1, 2. One instance is read (`instance`, default 0); its T is its temperature stream.
+- `ARM` (ArmState) and `EV` events (ARMED/DISARMED, NOT_LANDED/LAND_COMPLETE): the flight state.
+- `PARM` records INS_ACCOFFS_* / INS_ACCSCAL_* / INS_ACC1_CALTEMP (INS_ACC2OFFS_*, ... for instance 1): the
+  autopilot's own calibration in force while logging. ArduPilot logs IMU values already corrected by it
+  (offsets subtracted, then scaled), so a calibration fitted to them is what would change on top of it.
+
+Errors are `DataflashError` (one line naming the file); pymavlink's prints are kept off stdout/stderr.
+`write_dataflash` writes a minimal log in the documented format (tests, benchmarks).
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..core.flight_state import FlightState
+from .bag_io import BagError, read_head
+from .flight_sources import dataflash_flight_state
+
+HEAD = b"\xa3\x95"
+FMT_ID = 0x80
+MAGIC = HEAD + bytes([FMT_ID])  # every DataFlash log starts with the FMT record of FMT itself (or another)
+IMU_TYPES = ("IMU", "IMU2", "IMU3")  # the older logs' per-instance types
+
+
+class DataflashError(BagError):
+    """A DataFlash log that cannot give accelerometer samples: one line naming the file."""
+
+
+@dataclass(frozen=True)
+class AutopilotCalibration:
+    """ArduPilot's accelerometer calibration of one instance as its parameters were logged: the IMU records
+    are corrected as a = (raw - offsets) * scale (per axis)."""
+
+    instance: int
+    offsets_mps2: np.ndarray  # INS_ACCOFFS_X/Y/Z (instance 0), INS_ACC2OFFS_* (1), INS_ACC3OFFS_* (2)
+    scale: np.ndarray  # INS_ACCSCAL_X/Y/Z, ...
+    caltemp_degc: float | None  # INS_ACC1_CALTEMP, ...: the temperature it was calibrated at (-300: unknown)
+
+    def describe(self) -> str:
+        offsets = " ".join(f"{v:+.4f}" for v in self.offsets_mps2)
+        scale = " ".join(f"{v:.5f}" for v in self.scale)
+        temperature = f", calibrated at {self.caltemp_degc:.1f} degC" if self.caltemp_degc is not None else ""
+        return (f"the autopilot's calibration at the time (instance {self.instance}): offsets {offsets} m/s^2, "
+                f"scale {scale}{temperature}")
+
+
+@dataclass
+class DataflashSamples:
+    stream: str  # "IMU instance N"
+    t_ns: np.ndarray
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+    temperature: tuple[np.ndarray, np.ndarray] | None
+    temperature_stream: str | None
+    sensor_id: str
+    flight_state: FlightState
+    autopilot_calibration: AutopilotCalibration | None
+
+
+def _parameter_names(instance: int) -> tuple[str, str, str]:
+    prefix = "INS_ACC" if instance == 0 else f"INS_ACC{instance + 1}"
+    return f"{prefix}OFFS_", f"{prefix}SCAL_", f"INS_ACC{instance + 1}_CALTEMP"
+
+
+def autopilot_calibration(params: dict, instance: int) -> AutopilotCalibration | None:
+    offsets_name, scale_name, caltemp_name = _parameter_names(instance)
+    try:
+        offsets = np.array([float(params[offsets_name + axis]) for axis in "XYZ"])
+        scale = np.array([float(params[scale_name + axis]) for axis in "XYZ"])
+    except KeyError:
+        return None
+    if not np.all(np.isfinite(offsets)) or not np.all(np.isfinite(scale)) or np.all(scale == 0):
+        return None  # an instance that was never calibrated (scale 0: not set)
+    caltemp = params.get(caltemp_name)
+    caltemp = float(caltemp) if caltemp is not None and np.isfinite(caltemp) and caltemp > -273.15 else None
+    return AutopilotCalibration(instance, offsets, scale, caltemp)
+
+
+def read_dataflash(path, instance: int | None = None, progress=None) -> DataflashSamples:
+    """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read."""
+    from pymavlink import DFReader
+
+    path = Path(path)
+    head = read_head(path, lambda stream: stream.read(len(MAGIC)), DataflashError, "a .bin file")
+    if head[:2] != HEAD:
+        raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
+    wanted = 0 if instance is None else instance
+    chatter = io.StringIO()
+    rows: list[tuple] = []
+    instances: set[int] = set()
+    arm: list[tuple[int, int]] = []
+    events: list[tuple[int, int]] = []
+    try:
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+            try:
+                while True:
+                    message = log.recv_match(type=[*IMU_TYPES, "ARM", "EV"])
+                    if message is None:
+                        break
+                    kind = message.get_type()
+                    if kind == "EV":
+                        events.append((int(message.TimeUS), int(message.Id)))
+                    elif kind == "ARM":
+                        arm.append((int(message.TimeUS), int(message.ArmState)))
+                    else:
+                        number = int(getattr(message, "I", 0)) if kind == "IMU" else IMU_TYPES.index(kind)
+                        instances.add(number)
+                        if number == wanted:
+                            rows.append((message.TimeUS, message.AccX, message.AccY, message.AccZ,
+                                         message.GyrX, message.GyrY, message.GyrZ, getattr(message, "T", np.nan)))
+                params = dict(log.params)
+                offset_end = log.data_len
+            finally:
+                log.close()
+    except (AttributeError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError) as error:
+        raise DataflashError(f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})") from None
+    except OSError as error:
+        raise DataflashError(f"{path}: cannot read ({error.strerror or error})") from None
+    except Exception as error:  # noqa: BLE001 - pymavlink raises bare Exception on a bad FMT record
+        raise DataflashError(f"{path}: unreadable DataFlash log ({str(error)[:80]})") from None
+    if progress is not None:
+        progress.update(offset_end)
+    if not rows:
+        if not instances:
+            raise DataflashError(f"{path}: no accelerometer data (IMU records) in this DataFlash log")
+        raise DataflashError(f"{path}: no IMU instance {wanted}; the log has instance(s) "
+                             f"{', '.join(map(str, sorted(instances)))}")
+    table = np.array(rows, dtype=float)
+    t_ns = np.array([row[0] for row in rows], dtype=np.int64) * 1000
+    temperature = None
+    temperature_stream = None
+    if np.any(np.isfinite(table[:, 7])):
+        temperature = (t_ns.copy(), table[:, 7].copy())
+        temperature_stream = f"IMU instance {wanted} T"
+    flight = dataflash_flight_state(_series(arm), _series(events))
+    device = params.get("INS_ACC_ID" if wanted == 0 else f"INS_ACC{wanted + 1}_ID")
+    sensor_id = f"ardupilot accel {int(device)}" if device else ""
+    return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
+                            temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted))
+
+
+def _series(pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray] | None:
+    if not pairs:
+        return None
+    stamps = np.array([p[0] for p in pairs], dtype=np.int64) * 1000
+    return stamps, np.array([p[1] for p in pairs], dtype=np.int64)
+
+
+def correction_on_top_mg(matrix: np.ndarray, bias_mps2: np.ndarray, gravity: float, points: int = 4000) -> float:
+    """How far a calibration a = M (x - b) fitted to already corrected samples moves them: the largest
+    |M (x - b) - x| over |x| = 1 g (every orientation), in mg. The autopilot's calibration is the identity
+    on its own output, so this is how far ours is from it, on the raw readings too."""
+    # A Fibonacci sphere: the largest of a smooth function over the sphere, to well under 0.01 mg.
+    k = np.arange(points) + 0.5
+    polar = np.arccos(1.0 - 2.0 * k / points)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * k
+    directions = np.column_stack([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), np.cos(polar)])
+    x = gravity * directions
+    moved = (x - np.asarray(bias_mps2)) @ np.asarray(matrix).T - x
+    return float(np.max(np.linalg.norm(moved, axis=1)) / (gravity / 1000.0))
+
+
+# ---------------------------------------------------------------------------------------------- writing
+_STRUCT = {"Q": "Q", "q": "q", "B": "B", "b": "b", "H": "H", "h": "h", "I": "I", "i": "i", "f": "f", "d": "d",
+           "n": "4s", "N": "16s", "Z": "64s", "M": "b"}
+
+
+def write_dataflash(path, formats: dict[str, tuple[str, str]], records: list[tuple[str, tuple]]) -> int:
+    """A DataFlash log: `formats` {name: (format characters, comma-separated columns)}, `records` (name,
+    values) in the order written (strings as str). Each message is 0xA3 0x95, its type id, its packed fields;
+    FMT records (type 128: Type, Length, Name, Format, Columns) come first. Returns the records written."""
+    ids = {name: 0x81 + i for i, name in enumerate(formats)}
+    structs = {name: struct.Struct("<" + "".join(_STRUCT[c] for c in fmt)) for name, (fmt, _) in formats.items()}
+    fmt_struct = struct.Struct("<BB4s16s64s")
+    out = [HEAD + bytes([FMT_ID]) + fmt_struct.pack(FMT_ID, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns")]
+    for name, (fmt, columns) in formats.items():
+        out.append(HEAD + bytes([FMT_ID]) + fmt_struct.pack(ids[name], structs[name].size + 3, name.encode(),
+                                                            fmt.encode(), columns.encode()))
+    for name, values in records:
+        packed = [v.encode() if isinstance(v, str) else v for v in values]
+        out.append(HEAD + bytes([ids[name]]) + structs[name].pack(*packed))
+    with open(path, "wb") as stream:
+        stream.write(b"".join(out))
+    return len(records)
+
+
+# The formats of ArduPilot 4.x (AP_InertialSensor, AP_Logger LogStructure.h) that a session log needs.
+FORMATS_4X = {
+    "PARM": ("QNf", "TimeUS,Name,Value"),
+    "IMU": ("QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+    "ARM": ("QBIBB", "TimeUS,ArmState,ArmChecks,Forced,Method"),
+    "EV": ("QB", "TimeUS,Id"),
+}
+
+
+def imu_records(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, temperature_degc: np.ndarray,
+                instance: int = 0) -> list[tuple[str, tuple]]:
+    """IMU records of one instance in the FORMATS_4X layout."""
+    return [("IMU", (int(t), instance, *map(float, g), *map(float, a), 0, 0, float(c), 1, 1, 1000, 1000))
+            for t, a, g, c in zip(t_us.tolist(), accel_mps2, gyro_radps, temperature_degc)]
