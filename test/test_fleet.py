@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import shutil
 import sqlite3
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ import pytest
 from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
-from accel_calibration.cli.fleet import _vehicle, find_recordings, local_cluster, run_tasks
+from accel_calibration.cli.dask_cluster import local_cluster, run_tasks
+from accel_calibration.cli.fleet import _vehicle, calibrate_recording, find_recordings
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import MG
 from accel_calibration.io.history import open_history
@@ -21,6 +23,7 @@ from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientati
 
 WEEK_NS = 7 * 86_400 * 10**9
 START_NS = 1_793_577_600 * 10**9  # 2026-11-02 00:00 UTC
+PX4_UUID = "000200000000353338373138511600380018"  # a Pixhawk 5's sys_uuid, as its logs carry it
 STEP_MG = 6.0  # sensor B's bias z between its two flights: far beyond its sigma, far below any bound
 
 
@@ -42,7 +45,8 @@ def _flight(path, errors, seed, start_ns, storage, poses=14):
         path.write_text("t_ns,ax,ay,az,gx,gy,gz,temperature\n" + "\n".join(rows) + "\n")
     elif storage == "ulog":
         t_us = (start_ns + samples.t_ns) // 1000
-        write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, samples.accel_raw, samples.gyro_raw))])
+        write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, samples.accel_raw, samples.gyro_raw))],
+                   info={"sys_name": "PX4", "sys_uuid": PX4_UUID})  # as PX4 logs its board
     else:
         write_session_bag(path, samples, start_ns=start_ns, storage=storage)
 
@@ -102,7 +106,8 @@ def test_history_after_a_fleet_run_equals_the_per_recording_replays(fleet, sched
         replayed = replay_bag(root / name)  # in this process: the same session, the same numbers
         cal = replayed.calibration
         assert row.status == "calibrated" and row.reason is None
-        assert (row.vehicle, row.vehicle_source) == (name.split("/")[0], "folder")
+        assert (row.vehicle, row.vehicle_source) == (("PX4 " + PX4_UUID, "metadata") if name.endswith(".ulg")
+                                                     else (name.split("/")[0], "folder"))
         if "." not in name:
             assert (row.sensor, row.imu_topic) == ("imu_link", "/imu/data_raw")
         else:  # no frame_id: the stream read names the sensor
@@ -195,13 +200,30 @@ def test_vehicle_comes_from_the_rule_then_the_recording_then_its_folder(tmp_path
     bag = tmp_path / "fleet" / "hangar2" / "2026-11-02"
     bag.mkdir(parents=True)
     (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  custom_data: {vehicle: uav42}\n")
-    assert _vehicle(bag, object(), r"fleet/(?P<vehicle>hangar\d)") == ("hangar2", "rule")
-    assert _vehicle(bag, object(), r"nomatch(\d)") == ("uav42", "metadata")
+    unread = SimpleNamespace(recording=None)
+    assert _vehicle(bag, unread, r"fleet/(?P<vehicle>hangar\d)") == ("hangar2", "rule")
+    assert _vehicle(bag, unread, r"nomatch(\d)") == ("uav42", "metadata")
     assert _vehicle(bag, None, None) == ("hangar2", "folder")  # not read: nothing recorded is known
 
-    class UlogLike:
-        sys_name = "PX4 uav11"
-    assert _vehicle(tmp_path / "log.ulg", UlogLike(), None) == ("PX4 uav11", "metadata")
+
+@pytest.mark.parametrize("info, vehicle", [
+    ({"sys_name": "PX4", "sys_uuid": PX4_UUID}, ("PX4 " + PX4_UUID, "metadata")),
+    ({"sys_uuid": PX4_UUID}, (PX4_UUID, "metadata")),
+    ({"sys_name": "PX4"}, ("uav12", "folder")),  # every PX4 log says PX4: the firmware, not a vehicle
+    ({}, ("uav12", "folder")),
+])
+def test_a_ulogs_vehicle_is_its_boards_uuid_read_from_the_log(tmp_path, info, vehicle):
+    samples = SyntheticImu(SensorErrors.mpu6050_like(np.random.default_rng(12)),
+                           spread_orientations(2, np.random.default_rng(12)), dwell_s=1.0, rate_hz=100.0,
+                           seed=12).samples()
+    path = tmp_path / "uav12" / "flight.ulg"
+    path.parent.mkdir()
+    t_us = (START_NS + samples.t_ns) // 1000
+    write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, samples.accel_raw, samples.gyro_raw))],
+               info=info)
+    outcome = calibrate_recording(str(path))  # read for real (refused: two poses), its vehicle from the log
+    assert outcome.status == "refused"
+    assert (outcome.record.vehicle, outcome.record.vehicle_source) == vehicle
 
 
 def test_fleet_refuses_bad_options_in_one_line(fleet, tmp_path, capsys):

@@ -463,12 +463,12 @@ def test_left_out_seconds_and_margins():
 
 
 def test_fleet_takes_the_same_flight_state_options():
-    from accel_calibration.cli import fleet
     from accel_calibration.cli.main import _parser
+    from accel_calibration.cli.options import replay_settings
 
     args = _parser().parse_args(["fleet", "somewhere", "--armed-topic", "/armed", "--armed-field", "not data",
                                  "--armed-margin-s", "3.5", "--ignore-flight-state"])
-    settings = fleet._settings(args)
+    settings = replay_settings(args)
     assert (settings.armed_topic, settings.armed_field, settings.armed_margin_s, settings.ignore_flight_state) == (
         "/armed", "not data", 3.5, True)
 

@@ -212,7 +212,7 @@ def test_history_rows_are_sanitised_alike_on_postgresql(pg_url):  # noqa: F811 -
 
 @pytest.fixture(scope="module")
 def scheduler():
-    from accel_calibration.cli.fleet import local_cluster
+    from accel_calibration.cli.dask_cluster import local_cluster
 
     with local_cluster(1) as cluster:
         yield cluster.scheduler_address
@@ -346,7 +346,7 @@ def test_a_url_with_a_broken_port_is_one_line(url, capsys):
 def test_a_local_clusters_sockets_listen_on_the_loopback_only():
     import psutil
 
-    from accel_calibration.cli.fleet import local_cluster
+    from accel_calibration.cli.dask_cluster import local_cluster
 
     with local_cluster(1) as cluster:
         processes = [psutil.Process(), *psutil.Process().children(recursive=True)]
@@ -398,9 +398,9 @@ def listener():
                                    b"\xff" * 8 + b"\x00" * 4088])
 def test_a_scheduler_address_where_no_dask_answers_is_one_line_in_time(listener, sends, tmp_path, capsys,
                                                                         monkeypatch):
-    from accel_calibration.cli import fleet
+    from accel_calibration.cli import dask_cluster
 
-    monkeypatch.setattr(fleet, "SCHEDULER_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(dask_cluster, "SCHEDULER_TIMEOUT_S", 1.0)
     address, behaviour = listener
     behaviour["send"] = sends
     (tmp_path / "x.csv").write_text("t,ax,ay,az\n0,0,0,9.8\n")

@@ -47,6 +47,7 @@ class Recording:
     temperature_stream: str | None
     frame_id: str = ""
     sensor_id: str = ""
+    vehicle: str = ""  # the vehicle the recording names (a ULog's sys_uuid), "" when it does not
     source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
     flight_state: object = None  # core.flight_state.FlightState a log carries (ULog, DataFlash); None: none read
     autopilot_calibration: object = None  # dataflash.AutopilotCalibration in force while logging
@@ -145,6 +146,7 @@ class BagStream:
     messages: int = 0
     unit: str = "messages"
     sensor_id: str = ""
+    vehicle: str = ""  # a bag names its vehicle in its metadata (cli/fleet.py reads it), not in its messages
 
     def pieces(self):
         from .bag_io import (
@@ -341,7 +343,8 @@ def _read_ulog(path, instance, progress) -> Recording:
         if bar is not None:
             bar.close()
     return Recording(str(path), "ulog", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
-                     log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state)
+                     log.temperature_stream, sensor_id=log.sensor_id, vehicle=log.vehicle,
+                     flight_state=log.flight_state)
 
 
 def _read_dataflash(path, instance, progress) -> Recording:

@@ -47,6 +47,7 @@ class UlogSamples:
     temperature_stream: str | None
     sensor_id: str  # "px4 device <id>" when the log says which device
     flight_state: object = None  # core.flight_state.FlightState: armed or airborne (flight_sources)
+    vehicle: str = ""  # the flight controller the log names (logged_vehicle), "" when it does not
 
 
 def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
@@ -58,6 +59,7 @@ def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
     log = _load(path, topics + list(ULOG_TOPICS), progress)
     samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
     samples.flight_state = ulog_flight_state(log)
+    samples.vehicle = logged_vehicle(log.msg_info_dict)
     return samples
 
 
@@ -249,6 +251,20 @@ def _cut_at(data: bytes) -> tuple[int, int, int] | None:
     return last, pos - last, end - last
 
 
+def logged_vehicle(info: dict) -> str:
+    """The vehicle as the log names it: its board's unique id (info message `sys_uuid`, from the MCU's
+    serial number), after the system's name (`sys_name`) when logged: "PX4 000200000000353338373138511600380018".
+    `sys_name` alone names the firmware (every PX4 log says "PX4"), not a vehicle: "" then."""
+    def text(key: str) -> str:
+        value = info.get(key)
+        return value.strip() if isinstance(value, str) else ""
+
+    uuid = text("sys_uuid")
+    if not uuid:
+        return ""
+    return f"{text('sys_name')} {uuid}".strip()
+
+
 # A stamp in ns is an int64: microseconds beyond this (292 years, less room for a relative offset) would wrap.
 MAX_STAMP_US = (2**63 - 1) // 1000 - 2**31
 
@@ -369,10 +385,12 @@ def _record(kind: bytes, body: bytes) -> bytes:
     return struct.pack("<HB", len(body), kind[0]) + body
 
 
-def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0) -> int:
+def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0,
+               info: dict[str, str] | None = None) -> int:
     """Write a minimal ULog: `topics` are (name, multi_id, structured array with a uint64 `timestamp` field
     first and scalar fields of the C types ULog knows). Messages of all topics are interleaved by timestamp,
-    as the PX4 logger writes them. Returns the data messages written."""
+    as the PX4 logger writes them. `info`: the info messages (key: text; default sys_name only).
+    Returns the data messages written."""
     out = [MAGIC + b"\x01" + struct.pack("<Q", start_us),
            _record(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
     formats = {}
@@ -381,7 +399,10 @@ def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 
             fields = "".join(f"{_TYPES[array.dtype[field].newbyteorder('<')]} {field};" for field in array.dtype.names)
             formats[name] = fields
             out.append(_record(b"F", f"{name}:{fields}".encode()))
-    out.append(_record(b"I", bytes([len(b"char[8] sys_name")]) + b"char[8] sys_name" + b"accelcal"))
+    for key, text in ({"sys_name": "accelcal"} if info is None else info).items():
+        value = text.encode()
+        field = f"char[{len(value)}] {key}".encode()
+        out.append(_record(b"I", bytes([len(field)]) + field + value))
     keys, blocks = [], []
     for msg_id, (name, multi_id, array) in enumerate(topics):
         out.append(_record(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))

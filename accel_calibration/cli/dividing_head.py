@@ -13,7 +13,7 @@ from ..io.head_table import read_head_table
 
 
 def fit_table(args: argparse.Namespace, unit_mps2: float) -> int:
-    """The body of `fit` for model dividing-head (main._fit has checked --gravity and the outputs);
+    """The body of `fit` for model dividing-head (cli/fit.py has checked --gravity and the outputs);
     unit_mps2: what one unit of the table's ax,ay,az is in m/s^2 (--units)."""
     if args.temperature_model != "none":
         raise CalibrationError("model dividing-head has no temperature model: fit it with --temperature-model none")

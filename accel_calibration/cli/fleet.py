@@ -5,32 +5,32 @@ Each recording is one task (the same replay as `accel-calib replay`), run on the
 cluster started and stopped here (processes, one per core by default) or of an existing cluster
 (`--scheduler tcp://HOST:PORT`). Results come back as they finish; this process is the history's one
 writer (a row per result, as it arrives). A recording that cannot be read or calibrated is reported
-in one line and never stops the others. `accel-calib replay --jobs N` runs its bags through
-`map_on_local_cluster` here: one way to run many.
+in one line and never stops the others. The cluster is cli/dask_cluster.py's, which
+`accel-calib replay --jobs N` uses too: one way to run many.
 
 Dask and SQLAlchemy are imported only when a command needs them (the CLI starts fast)."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
+from .dask_cluster import dask_client, default_workers, run_tasks
+from .options import add_settings_options, replay_settings
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
     from ..io.history import HistoryError, HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
-METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name", "sys_name")
+METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name")
 DEFAULT_HISTORY = "calibrations.sqlite"
-FORK_SERVER_PRELOAD = ("accel_calibration.cli.main", "accel_calibration.bag.replay", "accel_calibration.bag.recording")
 
 
 class FleetError(AccelCalibrationError):
@@ -125,13 +125,11 @@ def _bag_metadata(path: Path) -> dict:
 
 
 def _recorded_vehicle(path: Path, replay: Any) -> str | None:
-    """The vehicle as the recording names it: rosbag2 metadata custom_data, or what the reader found
-    (a ULog's system UUID or name) when it gives it."""
-    for source in (getattr(replay, "recording", None), replay):
-        for name in ("vehicle", "sys_uuid", "sys_name"):
-            value = getattr(source, name, None)
-            if isinstance(value, str) and value.strip():
-                return value.strip()
+    """The vehicle as the recording names it: what the reader found (a ULog's sys_uuid), or a rosbag2
+    directory's metadata custom_data."""
+    recording = replay.recording
+    if recording is not None and recording.vehicle:
+        return str(recording.vehicle)
     if path.is_dir():
         custom = _bag_metadata(path).get("custom_data") or {}
         if isinstance(custom, dict):
@@ -267,141 +265,6 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
     return outcome(status, reason, record, _line(record, where.name))
 
 
-# --- running many ----------------------------------------------------------------------------------------
-
-def default_workers() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
-
-
-@contextlib.contextmanager
-def local_cluster(workers: int | None = None, **options: Any) -> Iterator[Any]:
-    """A Dask LocalCluster of `workers` processes (default one per core), one thread each (replay is Python
-    and numpy, bound by the GIL), its HTTP server on a free port (8787 may be another cluster's), quiet;
-    closed with the block. Workers are forked from a
-    fork server that has Dask imported once (Dask's own test suite does this): a cluster starts and stops
-    seconds sooner than with fresh interpreters, which matters for `replay --jobs` of a few bags."""
-    import logging
-    import multiprocessing
-
-    import dask
-    from distributed import LocalCluster
-
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    with dask.config.set({"distributed.worker.multiprocessing-method": method}):
-        if method == "forkserver":
-            from distributed.utils import get_mp_context
-
-            # Dask sets the fork server's imports once per process; ours join them, so each worker starts
-            # with the replay (numpy, scipy, the readers) already imported. No effect once the server runs.
-            get_mp_context().set_forkserver_preload(["distributed", *FORK_SERVER_PRELOAD])
-        # The dashboard (no authentication) on the loopback only, on a free port: ":0" would listen on all
-        # interfaces, and None still starts it, on 127.0.0.1:8787.
-        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR, **options)
-    try:
-        yield cluster
-    finally:
-        cluster.close()
-
-
-SCHEDULER_TIMEOUT_S = 15.0  # to reach a scheduler and hear back from it, whatever listens there
-
-
-def _connect(scheduler: str) -> Any:
-    """A client of the Dask scheduler at `scheduler` (tcp://HOST:PORT), or one line: another scheme, nothing
-    there, or something there that is not a Dask scheduler (silent, or sending other bytes) within
-    SCHEDULER_TIMEOUT_S, whatever it does."""
-    import threading
-
-    from distributed import Client
-
-    scheme = scheduler.split("://", 1)[0] if "://" in scheduler else "tcp"
-    if scheme != "tcp":
-        raise FleetError(f"--scheduler {scheduler}: give the scheduler's tcp://HOST:PORT address ({scheme}:// needs "
-                         "Dask settings this command does not take)")
-    hint = "start one with 'dask scheduler' and 'dask worker tcp://HOST:8786'"
-    outcome: dict[str, Any] = {}
-
-    def connect() -> None:
-        try:
-            outcome["client"] = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
-        except BaseException as error:  # noqa: BLE001 - handed to the caller as one line
-            outcome["error"] = error
-
-    # Dask's own timeout covers connecting, not a peer that accepts and never answers: a thread waits for it.
-    thread = threading.Thread(target=connect, name="accel-calib-scheduler", daemon=True)
-    thread.start()
-    thread.join(SCHEDULER_TIMEOUT_S + 2.0)
-    if thread.is_alive():
-        raise FleetError(f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s "
-                         f"(something else listens there?); {hint}")
-    if "error" in outcome:
-        error = outcome["error"]
-        if isinstance(error, KeyboardInterrupt):
-            raise error
-        first = str(error).splitlines()[0][:160] if str(error) else ""
-        raise FleetError(f"cannot reach the Dask scheduler {scheduler} ({type(error).__name__}: {first}); "
-                         f"{hint}") from None
-    return outcome["client"]
-
-
-@contextlib.contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
-    """A Dask client: of the cluster at `scheduler`, or of a local cluster of `workers` processes that
-    lives as long as the block."""
-    from distributed import Client
-
-    if scheduler:
-        client = _connect(scheduler)
-        try:
-            yield client
-        finally:
-            client.close()
-        return
-    with local_cluster(workers) as cluster:
-        client = Client(cluster)
-        try:
-            yield client
-        finally:
-            client.close()
-
-
-def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple], label: str = "recordings"
-              ) -> Iterator[tuple[int, Any, str | None]]:
-    """Submit `function(*job)` for every job and yield (index, result, None) as each finishes, or
-    (index, None, one-line reason) when its task raised or its worker died; a progress bar counts them."""
-    from distributed import as_completed
-    from tqdm import tqdm
-
-    futures = [client.submit(function, *job, pure=False) for job in jobs]
-    index_of = {future.key: i for i, future in enumerate(futures)}
-    with tqdm(total=len(futures), unit=label.rstrip("s"), desc=label, disable=None, file=sys.stderr) as bar:
-        for future in as_completed(futures):
-            i = index_of[future.key]
-            try:
-                yield i, future.result(), None
-            except Exception as error:  # the task's exception, re-raised here, or a lost worker
-                text = str(error).splitlines()
-                yield i, None, f"{type(error).__name__}: {text[0] if text else ''}"
-            finally:
-                future.release()
-                bar.update(1)
-
-
-def map_on_local_cluster(function: Callable[..., Any], jobs: Sequence[tuple], workers: int,
-                         failed: Callable[[tuple, str], Any]) -> list[Any]:
-    """`function(*job)` for every job on a local cluster of `workers` processes, results in job order
-    (`failed(job, reason)` stands in for a task that raised). What `accel-calib replay --jobs` runs."""
-    results: list[Any] = [None] * len(jobs)
-    with dask_client(workers=min(workers, len(jobs))) as client:
-        for i, result, error in run_tasks(client, function, jobs, label="bags"):
-            results[i] = failed(jobs[i], error) if error is not None else result
-    return results
-
-
 # --- the command -----------------------------------------------------------------------------------------
 
 def add_parser(commands: Any) -> argparse.ArgumentParser:
@@ -424,30 +287,8 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
                         help="rule mapping a recording's path to its vehicle, e.g. '/fleet/(?P<vehicle>[^/]+)/' "
                              "(named group 'vehicle', else the first group, else the match; default: the "
                              "recording's metadata, else the folder holding it)")
-    parser.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
-    parser.add_argument("--temperature-topic", default=None,
-                        help="sensor_msgs/Temperature topic (default: the only one)")
-    parser.add_argument("--params-file", default=None, help="ROS 2 parameters YAML: the node's settings")
-    parser.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
-                        help="one setting as the node takes it (repeatable)")
-    parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
-    parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
-    from .flight_options import add_flight_state_options
-
-    add_flight_state_options(parser)
+    add_settings_options(parser, detector=False)
     return parser
-
-
-def _settings(args: argparse.Namespace) -> Any:
-    """The replay settings exactly as `accel-calib replay` builds them from the same options."""
-    from . import main
-
-    for flag in main.FLAG_PARAMETERS:
-        if not hasattr(args, flag):
-            setattr(args, flag, None)
-    if not hasattr(args, "jobs"):
-        args.jobs = 1
-    return main._replay_settings(args)
 
 
 def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutcome:
@@ -464,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
-    settings = _settings(args)
+    settings = replay_settings(args)
     recordings, problems = find_recordings(args.recordings)
     if args.vehicle is not None:  # the rule tried on every path here, before any work (each within a time limit)
         for path in recordings:

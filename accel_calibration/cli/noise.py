@@ -6,15 +6,15 @@ from __future__ import annotations
 import argparse
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.allan import Figure, NoiseFit, fit_noise, overlapping_adev, required_duration_s
 from ..core.errors import CalibrationError
-from ..core.session import CalibrationSession
 from ..io.calibration_file import write_text_atomically
-from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
+
+if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
+    from ..core.allan import Figure, NoiseFit
 from ..io.output_paths import check_outputs, write_bytes_atomically
 
 MIN_STILL_S = 20.0  # tau up to ~2 s with 9 clusters: the white-noise density at tau = 1 s, and no more
@@ -54,6 +54,8 @@ def still_stretch(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None) 
     """[first, last) sample indices of the longest still stretch: the calibration session's still intervals
     (poses), joined where one follows the other within MERGE_GAP_S in the same orientation (the detector
     hands a long stillness over as consecutive poses of about a minute)."""
+    from ..core.session import CalibrationSession
+
     session = CalibrationSession()
     poses = sorted(session.add_recording(t_ns, accel, gyro if gyro is not None else np.zeros_like(accel)),
                    key=lambda pose: pose.start_ns)
@@ -110,6 +112,8 @@ def noise_table(fits: dict[str, list[NoiseFit]]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ..bag.recording import open_recording
+    from ..core.allan import fit_noise, overlapping_adev, required_duration_s
+    from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
 
     check_outputs([("--kalibr", args.kalibr), ("--plot", args.plot)], [args.recording])
     recording = open_recording(args.recording, args.format, imu_topic=args.imu_topic, instance=args.instance,

@@ -1,0 +1,91 @@
+"""accel-calib fit: a calibration from a CSV table of static pose means."""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..core.calibration import STANDARD_GRAVITY
+from ..core.errors import CalibrationError
+from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
+from ..core.temperature_models import TEMPERATURE_MODELS
+from .options import UNIT_SCALE
+
+
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    parser = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
+    parser.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "
+                                       "(dividing-head: alpha_deg,beta_deg or pos k-j)")
+    parser.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
+    parser.add_argument("--model", choices=MODELS + (DIVIDING_HEAD,), default="sphere9",
+                         help="error model (default sphere9)")
+    parser.add_argument("--gravity", type=float, default=STANDARD_GRAVITY,
+                         help="local gravity, m/s^2 (default 9.80665)")
+    parser.add_argument("--frame-id", default="", help="sensor frame id stored in the file")
+    parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="none",
+                         help="temperature drift model, needs a temperature column (default none)")
+    parser.add_argument("--bias-order", type=int, default=2,
+                         help="polynomial: order of the bias drift, 0..3 (default 2)")
+    parser.add_argument("--scale-order", type=int, default=1,
+                         help="polynomial: order of the scale drift, 0..2 (default 1)")
+    parser.add_argument("--segment-width", type=float, default=10.0,
+                         help="segmented: segment width, degC (default 10)")
+    parser.add_argument("--segment-blend", action=argparse.BooleanOptionalAction, default=True,
+                         help="segmented: interpolate between the temperatures segments were learned at "
+                              "(default); --no-segment-blend: the seed paper's pick of the segment holding it")
+    parser.add_argument("--reference-temperature", type=float, default=None,
+                         help="T_ref, degC (default: the poses' median temperature)")
+    parser.add_argument("--min-span", type=float, default=10.0, help="smallest temperature span to fit a model, degC")
+    parser.add_argument("--output", "-o", required=True, help="calibration YAML to write")
+
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.fit import fit
+    from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC
+    from ..core.temperature_models import TemperatureOptions
+    from ..io.calibration_file import save_calibration
+    from ..io.output_paths import check_outputs
+    from ..io.pose_table import read_table
+
+    if not (args.gravity > 0 and args.gravity < 1e3):
+        raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {args.gravity}")
+    low, high = PLAUSIBLE_TEMPERATURE_DEGC
+    if args.reference_temperature is not None and not low <= args.reference_temperature <= high:
+        raise CalibrationError(f"--reference-temperature must be a sensor temperature within {low:g}..{high:g} degC, "
+                               f"got {args.reference_temperature:g}")
+    check_outputs([("--output", args.output)], [args.poses])
+    if args.model == DIVIDING_HEAD:
+        from . import dividing_head as dividing_head_command
+
+        return dividing_head_command.fit_table(args, UNIT_SCALE[args.units])
+    table = read_table(args.poses)
+    if args.model in REFERENCE_MODELS and table.reference is None:
+        raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
+    accel = table.accel * UNIT_SCALE[args.units]
+    options = None
+    if args.temperature_model != "none":
+        if table.temperature_degc is None:
+            raise CalibrationError(f"{args.poses}: --temperature-model {args.temperature_model} "
+                                   "needs a temperature column")
+        options = TemperatureOptions(model=args.temperature_model, bias_order=args.bias_order,
+                                     scale_order=args.scale_order,
+                                     segment_width_degc=args.segment_width, min_span_degc=args.min_span,
+                                     reference_degc=args.reference_temperature, segment_blend=args.segment_blend)
+    result = fit(
+        accel,
+        model=args.model,
+        gravity=args.gravity,
+        temperature_degc=table.temperature_degc,
+        reference=table.reference if args.model in REFERENCE_MODELS else None,
+        frame_id=args.frame_id,
+        temperature_model=args.temperature_model,
+        temperature_options=options,
+        pose_sigma_mps2=table.pose_sigma_mps2,
+    )
+    if not result.success:
+        raise CalibrationError(f"fit failed: {result.message}")
+    save_calibration(result.calibration, args.output)
+    print(result.summary())
+    print(f"written {args.output}")
+    return 0

@@ -1,0 +1,91 @@
+"""What several commands share: the program's name, the units of a table's accelerations, and the
+replay settings built from the options exactly as the node builds them (`replay` and `fleet`)."""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..core.calibration import STANDARD_GRAVITY
+from ..core.errors import CalibrationError
+from ..core.temperature_models import TEMPERATURE_MODELS
+from .flight_options import add_flight_state_options, flight_state_settings
+
+PROG = "accel-calib"
+UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
+
+# Flag -> the node's parameter it stands for. A command offers some of them (fleet: model, min_poses).
+FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "min_span": "temperature.min_span_degc",
+                   "gravity": "gravity", "min_poses": "min_poses", "window": "static.window_s",
+                   "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
+
+
+def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool) -> None:
+    """The topics, the node's settings (--params-file, -p, the flags standing for parameters) and the
+    flight state. `detector`: also the flags for the detector and the temperature model (replay)."""
+    parser.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
+    parser.add_argument("--temperature-topic", default=None,
+                        help="sensor_msgs/Temperature topic (default: the only one)")
+    parser.add_argument("--params-file", default=None,
+                        help="ROS 2 parameters YAML (config/accel_calibration.yaml): the node's settings")
+    parser.add_argument("--node", default=None, metavar="/NAMESPACE/NAME",
+                        help="the node whose --params-file blocks apply, as rcl matches them "
+                             "(default /accel_calibration)")
+    parser.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
+                        help="one setting as the node takes it, e.g. -p static.window_s:=0.3 (repeatable)")
+    parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
+    parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    if detector:
+        parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default=None,
+                            help="same as -p temperature.model:=...")
+        parser.add_argument("--min-span", type=float, default=None,
+                            help="same as -p temperature.min_span_degc:=...")
+        parser.add_argument("--gravity", type=float, default=None, help="same as -p gravity:=...")
+        parser.add_argument("--window", type=float, default=None,
+                            help="detector window, s (-p static.window_s:=...)")
+        parser.add_argument("--min-hold", type=float, default=None,
+                            help="shortest still interval, s (-p static.min_hold_s:=...)")
+        parser.add_argument("--k-sigma", type=float, default=None,
+                            help="detector threshold over the noise floor (-p static.k_sigma:=...)")
+    add_flight_state_options(parser)
+
+
+def replay_settings(args: argparse.Namespace) -> Any:
+    """ReplaySettings as the node builds its settings: defaults, then --params-file, then -p NAME:=VALUE,
+    then the flags of FLAG_PARAMETERS the command offers (add_settings_options)."""
+    from ..bag.replay import ReplaySettings
+    from ..core.settings import Settings
+    from ..io.calibration_file import safe_yaml_load
+    from ..io.params_file import DEFAULT_NODE, params_file_parameters
+
+    values: dict[str, Any] = {}
+    if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
+        values.update(params_file_parameters(args.params_file, args.node or DEFAULT_NODE, error=CalibrationError))
+        values.pop("calibration_file", None)  # the node's file; replay writes --output
+        values.pop("output_reliability", None)
+    for item in args.param:
+        name, sep, text = item.partition(":=")
+        if not sep:
+            raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
+        values[name.strip()] = safe_yaml_load(text, f"-p {item}: value", error=CalibrationError)
+    offered = vars(args)
+    for flag, name in FLAG_PARAMETERS.items():
+        if offered.get(flag) is not None:  # a flag this command does not offer is absent, not None
+            values[name] = offered[flag]
+    return ReplaySettings(session=Settings.from_parameters(values), imu_topic=args.imu_topic,
+                          temperature_topic=args.temperature_topic, **flight_state_settings(args))
+
+
+def calibration_in_force(path: str) -> Any:
+    """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
+    plausible under the default gates, else one line naming the problem."""
+    from ..core.plausibility import plausibility_problem
+    from ..core.settings import Settings
+    from ..io.calibration_file import load_calibration
+
+    calibration = load_calibration(path)
+    defaults = Settings()
+    problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
+                                   scale_band=(defaults.scale_min, defaults.scale_max))
+    if problem is not None:
+        raise CalibrationError(f"{path}: implausible, not used ({problem})")
+    return calibration

@@ -1,0 +1,241 @@
+"""accel-calib replay: recalibrate from recordings (rosbag2, PX4 ULog, ArduPilot DataFlash, CSV stream),
+the same session as the node, and write what was asked: the calibration, the pose table, a corrected
+copy, a report figure. Several recordings: one output of each per recording in the directories given,
+a table comparing them, and `--jobs N` runs them on a local Dask cluster (cli/dask_cluster.py)."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.calibration import MG
+from ..core.errors import AccelCalibrationError, CalibrationError
+from .dask_cluster import map_on_local_cluster
+from .options import PROG, add_settings_options, replay_settings
+from .report import render_report
+
+
+def add_parser(commands: Any) -> argparse.ArgumentParser:
+    parser = commands.add_parser(
+        "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
+                       "DataFlash .bin, CSV stream")
+    parser.add_argument("bags", nargs="+", metavar="RECORDING",
+                            help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
+                                 "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
+    parser.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"),
+                            default=None,
+                            help="the recordings' format (default: found from the path and content)")
+    parser.add_argument("--instance", type=int, default=None, metavar="N",
+                            help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
+                                 "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                            help="CSV: unit of the time column (default: s for t, ns for t_ns)")
+    parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
+                            help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
+    parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
+                            help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
+    parser.add_argument("--poses-out", default=None, metavar="POSES.csv",
+                            help="write the still intervals found as a CSV pose table (also when the fit is refused; "
+                                 "readable by 'fit' and 'report --poses'; several recordings: a directory)")
+    parser.add_argument("--output", "-o", default=None,
+                            help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
+    parser.add_argument("--corrected", "--corrected-bag", dest="corrected_bag", default=None, metavar="OUT",
+                            help="write a corrected copy in the recording's own format: a bag (directory or "
+                                 "file) with the IMU accelerations corrected, a CSV with ax,ay,az corrected; a ULog "
+                                 "gets a CSV of corrected samples (t_ns,ax,ay,az,gx,gy,gz,temperature) "
+                                 "(several recordings: a directory)")
+    parser.add_argument("--report", default=None,
+                            help="also write a report figure (PNG; several bags: a directory)")
+    add_settings_options(parser, detector=True)
+    parser.add_argument("--jobs", "-j", type=int, default=1,
+                            help="bags processed in parallel, on a local Dask cluster of N worker processes")
+
+    return parser
+
+
+def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
+    """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
+    The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
+    All the work (the replay, the calibration's file text, the corrected copy written aside, the report
+    rendered) comes before the first output is written, so a failure leaves every output as it was."""
+    from ..bag.recording import stage_corrected_copy
+    from ..bag.replay import replay_bag
+    from ..io.calibration_file import checked_calibration_text, write_text_atomically
+    from ..io.output_paths import write_bytes_atomically
+    from ..io.poses_out import poses_table_text
+
+    try:
+        replay = replay_bag(bag, settings, progress=progress)
+        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else None
+        if replay.calibration is None and poses_out:
+            write_text_atomically(poses_out, poses_text)
+    except AccelCalibrationError as error:
+        return None, None, str(error)
+    notes = flight_and_autopilot_lines(replay)
+    if replay.calibration is None:
+        return ("\n".join(notes) or None), None, f"{bag}: {replay.problem}" + (
+            f" (poses written to {poses_out})" if poses_out else "")
+    calibration = replay.calibration
+    unit = replay.recording.unit if replay.recording is not None else "messages"
+    lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
+             f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
+             replay.result.summary(), *notes]
+    bad = {k: v for k, v in replay.counts.items() if v}
+    if bad:
+        lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
+    copy = None
+    try:
+        calibration_text = checked_calibration_text(calibration, output) if output else None
+        if corrected_bag:
+            copy = stage_corrected_copy(replay, calibration, corrected_bag)
+        figure = (render_report(calibration, [p.accel_mps2 for p in replay.poses],
+                                 [p.temperature_degc for p in replay.poses], title=Path(bag).name)
+                  if report else None)
+        # All the work succeeded: now the outputs, the one that can still be taken by another run first.
+        if copy is not None:
+            copy.commit()
+        if output:
+            write_text_atomically(output, calibration_text)
+            lines.append(f"written {output}")
+        if poses_out:
+            write_text_atomically(poses_out, poses_text)
+            lines.append(f"poses {poses_out}")
+        if copy is not None:
+            lines.append(copy.line)
+        if report:
+            write_bytes_atomically(report, figure)
+            lines.append(f"report {report}")
+    except AccelCalibrationError as error:
+        return None, None, str(error)
+    finally:
+        if copy is not None:
+            copy.discard()
+    return "\n".join(lines), calibration, None
+
+
+def check_corrected_targets(jobs) -> None:
+    """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
+    is written over a directory."""
+    for job in jobs:
+        bag, destination = job[0], job[3]
+        if destination is None or not os.path.lexists(destination):
+            continue
+        if os.path.isdir(bag) or os.path.isdir(destination):
+            raise CalibrationError(f"--corrected {destination}: already exists "
+                                   + ("(a corrected bag is a new directory)" if os.path.isdir(bag)
+                                      else "and is a directory; give a file name"))
+
+
+def flight_and_autopilot_lines(replay) -> list[str]:
+    """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
+    lines = []
+    if replay.flight_state_line:
+        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
+    if replay.autopilot_calibration is not None:
+        lines.append(replay.autopilot_calibration.describe())
+        if replay.autopilot_difference_mg is not None:
+            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} "
+                         "mg at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+    return lines
+
+
+def bag_labels(bags) -> list[str]:
+    """A distinct name per bag for its outputs and its row: the bag's own name, or, where two bags share
+    it (a/flight, b/flight), as many parent directories as tell them apart (a_flight, b_flight)."""
+    parts = [Path(os.path.realpath(bag)).parts[::-1] for bag in bags]
+    labels = []
+    for own in parts:
+        depth = 1
+        while depth < len(own) and sum(other[:depth] == own[:depth] for other in parts) > 1:
+            depth += 1
+        labels.append("_".join(part.strip("/") or "root" for part in own[:depth][::-1]))
+    return labels
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ..io.output_paths import check_output_places, check_outputs
+
+    if args.jobs < 1:
+        raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
+    settings = dataclasses.replace(replay_settings(args), format=args.format, instance=args.instance,
+                                   time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    several = len(args.bags) > 1
+    first_seen: dict[str, str] = {}
+    for bag in args.bags:
+        real = os.path.realpath(bag)
+        if real in first_seen:
+            raise CalibrationError(f"bag {bag} given twice (also as {first_seen[real]}): give each bag once")
+        first_seen[real] = bag
+    labels = bag_labels(args.bags) if several else [Path(bag).name for bag in args.bags]
+
+    def target(option, label, suffix):
+        if option is None:
+            return None
+        if not several:
+            return option
+        return str(Path(option) / (label + suffix))
+
+    jobs = [(bag, settings, target(args.output, label, ".yaml"), target(args.corrected_bag, label, ""),
+             target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
+            for bag, label in zip(args.bags, labels)]
+    # Before any work: no output may be an input (a bag, a file inside one, the params file) or another output.
+    inputs = [*args.bags, args.params_file]
+    check_outputs([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected-bag", 3),
+                                                                    ("--report", 4), ("--poses-out", 6))],
+                  inputs, directories=("--corrected-bag",))
+    if several:  # the directories holding one output per bag
+        for flag, option in (("--output", args.output), ("--corrected-bag", args.corrected_bag),
+                             ("--report", args.report), ("--poses-out", args.poses_out)):
+            if option is not None:
+                check_outputs([(flag, option)], inputs, directories=(flag,))
+                try:
+                    Path(option).mkdir(parents=True, exist_ok=True)
+                except OSError as error:
+                    raise CalibrationError(f"cannot make output directory {option}: {error.strerror}") from None
+    check_output_places([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected", 3),
+                                                                         ("--report", 4), ("--poses-out", 6))])
+    check_corrected_targets(jobs)
+    if args.jobs > 1 and several:  # one way to run many: the fleet's local Dask cluster of --jobs processes
+        outcomes = map_on_local_cluster(
+            replay_one, jobs, workers=args.jobs,  # a lost worker (out of memory, a signal): that bag only
+            failed=lambda job, reason: (None, None, f"{job[0]}: its replay process died ({reason})"))
+    else:
+        outcomes = [replay_one(*job) for job in jobs]
+    errors = [error for _, _, error in outcomes if error]
+    for summary, _, _ in outcomes:
+        if summary:
+            print(summary)
+    if several:
+        print(comparison_table(labels, outcomes))
+    for error in errors:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+    return 1 if errors else 0
+
+
+def comparison_table(bags, outcomes) -> str:
+    """How the calibration wanders from bag to bag: bias (mg) and scale (diag M) per bag, then the spread."""
+    rows = ["", f"{'bag':32s} {'poses':>5s} {'rms mg':>7s} {'b_x mg':>8s} {'b_y mg':>8s} {'b_z mg':>8s} "
+                f"{'M_xx':>9s} {'M_yy':>9s} {'M_zz':>9s}"]
+    biases, scales = [], []
+    for bag, (_, calibration, error) in zip(bags, outcomes):
+        name = Path(bag).name[:32]
+        if calibration is None:
+            rows.append(f"{name:32s} {'-':>5s}  no calibration: {error.rsplit(': ', 1)[-1][:60] if error else ''}")
+            continue
+        b = calibration.bias / MG
+        m = np.diag(calibration.matrix)
+        biases.append(b)
+        scales.append(m)
+        rows.append(f"{name:32s} {calibration.quality.poses:5d} {calibration.quality.residual_rms_mg:7.2f} "
+                    f"{b[0]:8.2f} {b[1]:8.2f} {b[2]:8.2f} {m[0]:9.6f} {m[1]:9.6f} {m[2]:9.6f}")
+    if len(biases) > 1:
+        b, m = np.std(biases, axis=0, ddof=1), np.std(scales, axis=0, ddof=1)
+        rows.append(f"{'spread (1 sigma across bags)':32s} {'':5s} {'':7s} {b[0]:8.2f} {b[1]:8.2f} {b[2]:8.2f} "
+                    f"{m[0]:9.6f} {m[1]:9.6f} {m[2]:9.6f}")
+    return "\n".join(rows)
