@@ -20,8 +20,8 @@ from pyulog import ULog
 
 from accel_calibration.bag.recording import open_recording
 from accel_calibration.bag.replay import ReplaySettings, replay_bag, replay_recording
-from accel_calibration.bag.ulog_reader import write_ulog
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from msg_tools.ulog_writer import write_ulog
 
 N = 1_000_000
 RATE_HZ = 250.0  # PX4's sensor_combined rate; a logger's CSV alike

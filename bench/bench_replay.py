@@ -17,9 +17,9 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.main import main as cli_main
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 TARGET = 5.0

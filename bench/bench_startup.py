@@ -26,7 +26,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration.bag.bag_io import write_session_bag
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 IMPORT_TARGET = 2.0

@@ -11,15 +11,15 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.bag.replay import replay_bag
-from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
 from accel_calibration.cli.dask_cluster import local_cluster, run_tasks
 from accel_calibration.cli.fleet import _vehicle, calibrate_recording, find_recordings
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import MG
 from accel_calibration.io.history import open_history
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from msg_tools.ulog_writer import sensor_combined_array, write_ulog
 
 WEEK_NS = 7 * 86_400 * 10**9
 START_NS = 1_793_577_600 * 10**9  # 2026-11-02 00:00 UTC

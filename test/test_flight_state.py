@@ -20,14 +20,15 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation, Slerp
 
-from accel_calibration.bag.dataflash import FORMATS_4X, imu_records, read_dataflash, write_dataflash
+from accel_calibration.bag.dataflash import read_dataflash
 from accel_calibration.bag.flight_sources import FlightStateError, field_test
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
-from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
 from accel_calibration.cli.main import main
 from accel_calibration.core import flight_state as fs
 from accel_calibration.core.session import CalibrationSession
+from msg_tools.dataflash_writer import FORMATS_4X, imu_records, write_dataflash
 from msg_tools.synthetic_imu import SensorErrors, rotation_with_up, spread_orientations
+from msg_tools.ulog_writer import sensor_combined_array, write_ulog
 
 G = 9.80665
 RATE_HZ = 200.0

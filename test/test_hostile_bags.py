@@ -19,9 +19,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from accel_calibration.bag.bag_io import IMU, TEMPERATURE, write_session_bag
+from accel_calibration.bag.bag_io import IMU, TEMPERATURE
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.main import main
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 START_NS = 1_700_000_000 * 10**9
@@ -245,7 +246,7 @@ def test_a_corrected_copy_of_another_definition_keeps_it(tmp_path, session):
     replay = replay_bag(bag, through_rosbags=True)
     if replay.calibration is None:
         pytest.skip(f"no calibration from this session today: {replay.problem}")
-    from accel_calibration.bag.replay import write_corrected_bag
+    from accel_calibration.bag.corrected_copy import write_corrected_bag
 
     write_corrected_bag(replay, replay.calibration, tmp_path / "corrected")
     again = replay_bag(tmp_path / "corrected", through_rosbags=True)

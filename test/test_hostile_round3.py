@@ -54,7 +54,7 @@ def test_a_calibration_whose_file_would_be_refused_is_not_written(tmp_path, monk
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory):
     """A short calibration session as a rosbag2 directory (mcap storage)."""
-    from accel_calibration.bag.bag_io import write_session_bag
+    from msg_tools.bag_writer import write_session_bag
     from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
     rng = np.random.default_rng(25)
@@ -104,10 +104,10 @@ def test_a_corrected_copy_that_fails_leaves_every_output_as_it_was(bag, tmp_path
 
 def test_the_loser_of_two_replays_on_one_corrected_directory_keeps_the_winners_bag(bag, tmp_path, capsys,
                                                                                    monkeypatch):
-    from accel_calibration.bag import replay as replay_module
+    from accel_calibration.bag import corrected_copy
 
     out = tmp_path / "out"
-    real = replay_module.write_corrected_bag
+    real = corrected_copy.write_corrected_bag
 
     def winner_finishes_meanwhile(replay, calibration, destination, **groups):
         written = real(replay, calibration, destination, **groups)
@@ -115,7 +115,7 @@ def test_the_loser_of_two_replays_on_one_corrected_directory_keeps_the_winners_b
         (out / "out_0.mcap").write_bytes(b"the winner's bag")
         return written
 
-    monkeypatch.setattr(replay_module, "write_corrected_bag", winner_finishes_meanwhile)
+    monkeypatch.setattr(corrected_copy, "write_corrected_bag", winner_finishes_meanwhile)
     assert main(["replay", str(bag), "--corrected", str(out)]) == 1
     assert "out" in _one_error_line(capsys)
     assert (out / "out_0.mcap").read_bytes() == b"the winner's bag" and len(list(out.iterdir())) == 1
@@ -447,7 +447,7 @@ def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp
 # --- 11, 12. a .db3 whose messages is a view; message definitions too large to parse -------------------------
 
 def _sqlite_bag(directory, name="s"):
-    from accel_calibration.bag.bag_io import write_session_bag
+    from msg_tools.bag_writer import write_session_bag
     from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
     rng = np.random.default_rng(11)
@@ -534,7 +534,7 @@ def test_a_sample_stream_of_a_million_columns_says_so(tmp_path, capsys):
 # --- 21 and an unclear message: ULog stamps that would wrap, a broken format ---------------------------------
 
 def _ulog(path, t_us):
-    from accel_calibration.bag.ulog_reader import sensor_combined_array, write_ulog
+    from msg_tools.ulog_writer import sensor_combined_array, write_ulog
 
     rng = np.random.default_rng(21)
     accel = np.array([0.0, 0.0, 9.80665]) + rng.normal(0, 0.02, (len(t_us), 3))

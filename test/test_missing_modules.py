@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.cli.main import main
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 START_NS = 1_700_000_000 * 10**9

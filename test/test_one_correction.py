@@ -10,13 +10,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rclpy.parameter import Parameter
 
-from accel_calibration.bag.bag_io import write_session_bag
+from accel_calibration.bag.corrected_copy import write_corrected_bag
 from accel_calibration.bag.recording import open_recording
-from accel_calibration.bag.replay import replay_bag, write_corrected_bag
+from accel_calibration.bag.replay import replay_bag
 from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.correction import Correction
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import save_calibration
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.conversions import make_imu, make_temperature
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from accel_calibration import Calibration, load_calibration, save_calibration
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.cli.main import main
 from accel_calibration.io.output_paths import OutputPathError, check_outputs, write_bytes_atomically
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 G = 9.80665

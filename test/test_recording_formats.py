@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from accel_calibration import load_calibration
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.bag.recording import RecordingError, detect_format, open_recording
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
 from accel_calibration.cli.main import main
 from accel_calibration.io.pose_table import read_table
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 G = 9.80665

@@ -13,10 +13,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from accel_calibration.bag import recording as recording_module
-from accel_calibration.bag.bag_io import write_session_bag
 from accel_calibration.bag.recording import BagStream, Recording, open_recording
 from accel_calibration.bag.replay import replay_bag, replay_recording
 from accel_calibration.core.session import RecordingFeed
+from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 START_NS = 1_700_000_000 * 10**9
@@ -141,7 +141,7 @@ def test_a_corrected_copy_is_written_a_group_at_a_time_with_the_whole_recordings
     moves 10 mg per degC over the recording's 20-25 degC ramp), the gyro bias taken off: bit for bit the
     node's per-message floats (the correction temperature is rounded to 1 mdegC before its 0.05 degC step,
     so the filter's last bits, which differ between one reading at a time and all at once, never decide)."""
-    from accel_calibration.bag.replay import write_corrected_bag
+    from accel_calibration.bag.corrected_copy import write_corrected_bag
     from accel_calibration.core.temperature_models import TemperatureModel
 
     replay = replay_bag(bags[name])  # streamed: no whole read behind the copy

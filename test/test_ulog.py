@@ -15,11 +15,12 @@ from pyulog import ULog
 from accel_calibration import load_calibration
 from accel_calibration.bag.recording import open_recording
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
-from accel_calibration.bag.ulog_reader import UlogError, read_ulog, sensor_combined_array, write_ulog
+from accel_calibration.bag.ulog_reader import UlogError, read_ulog
 from accel_calibration.cli.main import main
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from msg_tools.ulog_writer import sensor_combined_array, write_ulog
 
 SAMPLE = "real/px4_ulog/sample.ulg"
 TAGGED = "real/px4_ulog/sample_logging_tagged_and_default_params.ulg"

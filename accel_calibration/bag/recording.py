@@ -1,15 +1,13 @@
 """One entry for every recording people have: a rosbag2 directory, a single .mcap or .db3 file, a PX4
 ULog, an ArduPilot DataFlash log, a CSV stream of raw samples. `open_recording` finds the format (from
 the path and content, or as named) and gives the same sample arrays whatever it was, for the same
-calibration session as the node (`replay.replay_recording`); `write_corrected_copy` writes a corrected
-copy in the input's own format (a ULog or DataFlash log gets a CSV of corrected samples).
+calibration session as the node (`replay.replay_recording`); corrected_copy.py writes a corrected copy
+in the input's own format.
 """
 from __future__ import annotations
 
 import os
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -382,125 +380,3 @@ def _size(path) -> int | None:
         return os.path.getsize(path)
     except OSError:
         return None
-
-
-# ------------------------------------------------------------------------------------------- writing
-# A corrected copy is written aside first (stage_corrected_copy) and put in place by one rename
-# (StagedCopy.commit), so that the CLI can do all its work before it writes any output; the clean-up
-# only ever removes the scratch directory this process made, never the destination.
-@dataclass
-class StagedCopy:
-    """A corrected copy written aside: commit() puts it in place, discard() drops what is left aside."""
-
-    line: str  # what was written, for the summary
-    commit_action: object  # () -> None
-    scratch: Path | None = None
-
-    def commit(self) -> None:
-        self.commit_action()
-        self.discard()
-
-    def discard(self) -> None:
-        if self.scratch is not None:
-            shutil.rmtree(self.scratch, ignore_errors=True)
-            self.scratch = None
-
-
-def write_corrected_copy(replay, calibration, destination) -> str:
-    """A corrected copy of the replayed recording in its own format (a ULog: a CSV of corrected samples,
-    t_ns,ax,ay,az,gx,gy,gz,temperature in SI units, temperature the filtered value the correction used).
-    Returns a line saying what was written."""
-    staged = stage_corrected_copy(replay, calibration, destination)
-    try:
-        staged.commit()
-    finally:
-        staged.discard()
-    return staged.line
-
-
-def _scratch_beside(target: Path) -> Path:
-    try:
-        return Path(tempfile.mkdtemp(prefix=".corrected-", dir=target.parent))
-    except OSError as error:
-        raise RecordingError(f"cannot write {target}: {error.strerror or error}") from None
-
-
-def rename_no_replace(source: Path, target: Path) -> None:
-    """Rename `source` to `target` only if nothing is there: atomic where the kernel has renameat2's
-    RENAME_NOREPLACE (Linux), else checked just before. A loser of two concurrent writers fails here."""
-    import ctypes
-    import errno
-
-    function = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
-    if function is not None:
-        at_cwd, no_replace = -100, 1
-        if function(at_cwd, os.fsencode(source), at_cwd, os.fsencode(target), no_replace) == 0:
-            return
-        code = ctypes.get_errno()
-        if code not in (errno.ENOSYS, errno.EINVAL):
-            raise OSError(code, os.strerror(code), str(target))
-    if os.path.lexists(target):
-        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(target))
-    os.rename(source, target)
-
-
-def stage_corrected_copy(replay, calibration, destination) -> StagedCopy:
-    """The corrected copy (see write_corrected_copy) written aside, not yet in place."""
-    from .replay import corrected_samples, write_corrected_bag
-
-    recording = replay.recording
-    kind = recording.format if recording is not None else "rosbag2"
-    source = Path(replay.bag)
-    if Path(destination).resolve() == source.resolve():
-        raise RecordingError(f"{destination}: is the recording itself; write the corrected copy elsewhere")
-    if kind in BAGS:
-        from ..io.output_paths import write_target
-
-        # A bag directory is new (never replaced); a single storage file replaces a file, through a symlink.
-        target = Path(destination) if kind == "rosbag2" else write_target(destination)
-        if kind == "rosbag2" and os.path.lexists(target):
-            raise RecordingError(f"{destination}: already exists (rosbag2 writes a new directory)")
-        if kind != "rosbag2" and target.is_dir():
-            raise RecordingError(f"{destination}: is a directory; the corrected copy of a single {kind} file "
-                                 "is a file")
-        scratch = _scratch_beside(target)
-        try:
-            bag = scratch / (target.name if kind == "rosbag2" else target.stem)
-            written = write_corrected_bag(replay, calibration, bag)
-            if kind == "rosbag2":
-                staged, move = bag, rename_no_replace
-            else:
-                files = [f for f in bag.iterdir() if f.suffix in (".mcap", ".db3")]
-                if len(files) != 1:
-                    raise RecordingError(f"{destination}: the corrected bag came out as {len(files)} files, "
-                                         "expected one")
-                staged, move = files[0], os.replace
-        except BaseException:
-            shutil.rmtree(scratch, ignore_errors=True)
-            raise
-
-        def put_in_place() -> None:
-            try:
-                move(staged, target)
-            except OSError as error:
-                raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
-
-        what = "bag" if kind == "rosbag2" else f"{kind} file"
-        return StagedCopy(f"corrected {what} {destination} ({written} messages; {replay.imu_topic} corrected)",
-                          put_in_place, scratch)
-    from ..io.calibration_file import write_text_atomically
-    from .csv_stream import corrected_csv_text, samples_csv_text
-
-    temperatures = replay.temperatures_at_samples()
-    gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
-    corrected, rates, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)
-    if recording.gyro_radps is None:
-        rates = None
-    if kind == "csv":
-        text = corrected_csv_text(recording.path, recording.source, corrected, valid, rates)
-        line = f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
-    else:
-        text = samples_csv_text(recording.t_ns, corrected, rates, temperatures)
-        line = (f"corrected samples {destination} (CSV t_ns,ax,ay,az,...: a ULog is not rewritten; "
-                f"{len(corrected)} samples)")
-    return StagedCopy(line, lambda: write_text_atomically(destination, text))

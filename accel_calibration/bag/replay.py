@@ -11,8 +11,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.calibration import Calibration
-from ..core.correction import correct_samples
-from ..core.errors import CalibrationError
 from ..core.fit import FitResult
 from ..core.pose import Pose
 from ..core.session import CalibrationSession
@@ -299,28 +297,3 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
         start_ns=start_ns,
         sensor_id=recording.sensor_id,
     )
-
-
-def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.ndarray, accel: np.ndarray,
-                      gyro: np.ndarray, covariance: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """What the node would publish for these samples of the replayed recording (core.correction's one
-    correction, at the temperatures the node would have used): (accel, gyro, covariance, corrected rows)."""
-    return correct_samples(calibration, t_ns, accel, gyro, covariance, replay.filtered_temperatures())
-
-
-def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
-    """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature), read
-    and written a group at a time (bag_io.write_corrected; `groups`: its group sizes)."""
-    from .bag_io import BagError, write_corrected
-
-    def correct(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray, covariance: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        corrected, rates, cov, _ = corrected_samples(replay, calibration, t_ns, accel, gyro, covariance)
-        assert cov is not None  # given one, it gives one
-        return corrected, rates, cov
-
-    try:
-        return write_corrected(replay.bag, destination, replay.imu_topic, correct, **groups)
-    except BagError as error:
-        raise CalibrationError(str(error)) from None

@@ -15,7 +15,7 @@ from ..core.errors import AccelCalibrationError
 # What each worker has imported before its first task: the replay of one recording (cli/replay.py,
 # cli/fleet.py's calibrate_recording) and the readers.
 FORK_SERVER_PRELOAD = ("accel_calibration.cli.replay", "accel_calibration.cli.fleet", "accel_calibration.bag.replay",
-                       "accel_calibration.bag.recording")
+                       "accel_calibration.bag.recording", "accel_calibration.bag.corrected_copy")
 
 
 class ClusterError(AccelCalibrationError):

@@ -62,7 +62,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
     The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
     All the work (the replay, the calibration's file text, the corrected copy written aside, the report
     rendered) comes before the first output is written, so a failure leaves every output as it was."""
-    from ..bag.recording import stage_corrected_copy
+    from ..bag.corrected_copy import stage_corrected_copy
     from ..bag.replay import replay_bag
     from ..io.calibration_file import checked_calibration_text, write_text_atomically
     from ..io.output_paths import write_bytes_atomically

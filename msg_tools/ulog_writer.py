@@ -1,0 +1,80 @@
+"""Minimal PX4 ULog files (the format pyulog and the PX4 logger speak), for tests and benchmarks: topics
+of structured arrays, interleaved by timestamp, and the info messages a log carries (sys_name, sys_uuid)."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+MAGIC = b"ULog\x01\x12\x35"
+_TYPES = {np.dtype("<u8"): "uint64_t", np.dtype("<i8"): "int64_t", np.dtype("<u4"): "uint32_t",
+          np.dtype("<i4"): "int32_t", np.dtype("<u2"): "uint16_t", np.dtype("<i2"): "int16_t",
+          np.dtype("u1"): "uint8_t", np.dtype("i1"): "int8_t", np.dtype("<f4"): "float", np.dtype("<f8"): "double"}
+
+
+def _record(kind: bytes, body: bytes) -> bytes:
+    return struct.pack("<HB", len(body), kind[0]) + body
+
+
+def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0,
+               info: dict[str, str] | None = None) -> int:
+    """Write a minimal ULog: `topics` are (name, multi_id, structured array with a uint64 `timestamp` field
+    first and scalar fields of the C types ULog knows). Messages of all topics are interleaved by timestamp,
+    as the PX4 logger writes them. `info`: the info messages (key: text; default sys_name only).
+    Returns the data messages written."""
+    out = [MAGIC + b"\x01" + struct.pack("<Q", start_us),
+           _record(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
+    formats = {}
+    for name, _, array in topics:
+        if name not in formats:
+            fields = "".join(f"{_TYPES[array.dtype[field].newbyteorder('<')]} {field};" for field in array.dtype.names)
+            formats[name] = fields
+            out.append(_record(b"F", f"{name}:{fields}".encode()))
+    for key, text in ({"sys_name": "accelcal"} if info is None else info).items():
+        value = text.encode()
+        field = f"char[{len(value)}] {key}".encode()
+        out.append(_record(b"I", bytes([len(field)]) + field + value))
+    keys, blocks = [], []
+    for msg_id, (name, multi_id, array) in enumerate(topics):
+        out.append(_record(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))
+        size = 2 + array.dtype.itemsize
+        rows = np.zeros((len(array), 3 + size), dtype=np.uint8)
+        rows[:, 0:2] = np.frombuffer(struct.pack("<H", size), dtype=np.uint8)
+        rows[:, 2] = ord("D")
+        rows[:, 3:5] = np.frombuffer(struct.pack("<H", msg_id), dtype=np.uint8)
+        packed = np.ascontiguousarray(array).view(np.uint8).reshape(len(array), array.dtype.itemsize)
+        rows[:, 5:] = packed
+        blocks.append(rows)
+        keys.append(np.asarray(array["timestamp"], dtype=np.int64))
+    # Interleave: every message's bytes go to its place in timestamp order.
+    stamps = np.concatenate(keys) if keys else np.zeros(0, dtype=np.int64)
+    lengths = np.concatenate([np.full(len(b), b.shape[1]) for b in blocks]) if blocks else np.zeros(0, dtype=np.int64)
+    order = np.argsort(stamps, kind="stable")
+    starts = np.empty(len(order), dtype=np.int64)
+    starts[order] = np.concatenate(([0], np.cumsum(lengths[order])[:-1])) if len(order) else []
+    body = np.empty(int(lengths.sum()), dtype=np.uint8)
+    first = 0
+    for rows in blocks:
+        where = starts[first:first + len(rows)]
+        body[where[:, None] + np.arange(rows.shape[1])] = rows
+        first += len(rows)
+    with open(path, "wb") as stream:
+        stream.write(b"".join(out))
+        stream.write(body.tobytes())
+    return len(order)
+
+
+def sensor_combined_array(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray) -> np.ndarray:
+    """A sensor_combined dataset as PX4 v1.14 logs it (for write_ulog)."""
+    dtype = np.dtype([("timestamp", "<u8"), ("gyro_rad[0]", "<f4"), ("gyro_rad[1]", "<f4"), ("gyro_rad[2]", "<f4"),
+                      ("gyro_integral_dt", "<u4"), ("accelerometer_timestamp_relative", "<i4"),
+                      ("accelerometer_m_s2[0]", "<f4"), ("accelerometer_m_s2[1]", "<f4"),
+                      ("accelerometer_m_s2[2]", "<f4"), ("accelerometer_integral_dt", "<u4"),
+                      ("accelerometer_clipping", "u1"), ("accel_calibration_count", "u1"),
+                      ("gyro_calibration_count", "u1")])  # trailing padding is not logged
+    out = np.zeros(len(t_us), dtype=dtype)
+    out["timestamp"] = t_us
+    for i in range(3):
+        out[f"gyro_rad[{i}]"] = gyro_radps[:, i]
+        out[f"accelerometer_m_s2[{i}]"] = accel_mps2[:, i]
+    return out
