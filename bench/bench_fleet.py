@@ -29,7 +29,8 @@ import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from accel_calibration.bag.bag_io import IMU, TEMPERATURE, decode_imus
+from accel_calibration.bag.bag_io import IMU, TEMPERATURE
+from accel_calibration.bag.imu_messages import decode_imus
 from accel_calibration.cli.dask_cluster import local_cluster
 from accel_calibration.cli.main import main as accel_calib
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations

@@ -88,12 +88,12 @@ def test_replay_refuses_an_unwritable_output_before_replacing_another(bag, tmp_p
 
 
 def test_a_corrected_copy_that_fails_leaves_every_output_as_it_was(bag, tmp_path, capsys, monkeypatch):
-    from accel_calibration.bag import bag_io
+    from accel_calibration.bag import bag_io, corrected_bag
 
     def fails(*_args, **_kwargs):
         raise bag_io.BagError(f"{bag}: topic /other: its recorded definition cannot be written")
 
-    monkeypatch.setattr(bag_io, "write_corrected", fails)
+    monkeypatch.setattr(corrected_bag, "write_corrected", fails)
     cal = tmp_path / "cal.yaml"
     cal.write_text("old\n")
     assert main(["replay", str(bag), "-o", str(cal), "--corrected", str(tmp_path / "out"),

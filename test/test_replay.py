@@ -11,7 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from accel_calibration import load_calibration, save_calibration
-from accel_calibration.bag.bag_io import decode_imus
+from accel_calibration.bag.imu_messages import decode_imus
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.main import main
 from msg_tools.bag_writer import write_session_bag

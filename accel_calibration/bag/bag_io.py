@@ -1,21 +1,15 @@
-"""rosbag2 in and out with the `rosbags` library (no ROS install): find the IMU and temperature topics,
-decode sensor_msgs/Imu in bulk, and write a copy of a bag with the IMU accelerations replaced.
-
-Bulk decoding: an Imu's CDR layout is fixed apart from the header's frame_id string, so messages of
-one length share every field offset; each such group is one uint8 matrix and each field one column
-slice viewed as little-endian int32/uint32/float64. (Per-message deserialization costs ~10-13 us
-here; this costs well under 1 us.) Only for the standard sensor_msgs/msg/Imu: a recording whose Imu
-definition (or its hash) differs is read message by message through its own recorded definition, by
-field name, or refused; and a metadata.yaml whose types disagree with the storage is refused.
+"""rosbag2 storage with the `rosbags` library (no ROS install): open a bag (directory, .mcap or .db3), its
+topics and recorded message definitions, refuse what must not be read (special files, foreign SQLite
+objects, definitions too large or not the ones the storage holds), and read the raw messages of the IMU
+and temperature topics (whole or in groups). Decoding them: imu_messages.py; writing a corrected copy:
+corrected_bag.py.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
-
-import numpy as np
 
 from ..core.errors import AccelCalibrationError
 
@@ -47,15 +41,6 @@ def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
     install = PIP_NAMES.get(module, module)
     return BagError(f"{where}the Python module '{module}' is not installed: pip install '{install}' "
                     "(in a ROS 2 workspace: pip install -r requirements-ros.txt; README)")
-
-
-@dataclass
-class ImuData:
-    topic: str
-    t_ns: np.ndarray  # header stamps, in the order read (not yet sorted)
-    accel: np.ndarray  # (N, 3) m/s^2
-    gyro: np.ndarray  # (N, 3) rad/s
-    frame_id: str
 
 
 def open_reader(path):
@@ -351,80 +336,6 @@ def declares_other_definition(topics) -> bool:
     return any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in topics)
 
 
-def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
-    """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
-    refuse_special_files(path)
-    wanted = [imu_topic] + ([temperature_topic] if temperature_topic else [])
-    if declares_other_definition(wanted):
-        return None  # rosbags reads it through its own definition, checked against this hash
-    topics = [topic.topic for topic in wanted]
-    if storage_of(path) == "mcap":
-        from .mcap_scan import scan_topics
-
-        recorded: dict[str, tuple[str, str, str]] | None = {}
-        found = scan_topics(path, topics, progress, schemas=recorded)
-    else:
-        found = _scan_sqlite(path, topics, progress)
-        recorded = recorded_definitions(path) if found is not None else None
-    if found is None or len(found[imu_topic.topic]) != imu_topic.msgcount:
-        return None
-    check_recorded_types(path, wanted, recorded)
-    if not all(is_standard_definition(topic, recorded) for topic in wanted):
-        return None
-    t, accel, gyro, frame_id, *_ = decode_imus(found[imu_topic.topic], path, jazzy_deserialize)
-    imu = ImuData(imu_topic.topic, t, accel, gyro, frame_id)
-    temperatures = None
-    if temperature_topic is not None:
-        temperatures = decode_temperatures(found[temperature_topic.topic], path, jazzy_deserialize)
-    return imu, temperatures
-
-
-def _fixed_temperatures(raws) -> tuple[np.ndarray, np.ndarray] | None:
-    """(stamps ns, degC) of standard little-endian sensor_msgs/Temperature messages read at their fixed
-    offsets, as decode_imus does; None when any message is otherwise (decode_temperatures then says which)."""
-    from .mcap_scan import PackedMessages
-
-    if not isinstance(raws, PackedMessages) or len(raws) == 0:
-        return None
-    stamps = np.empty(len(raws), dtype=np.int64)
-    values = np.empty(len(raws))
-    for length in np.unique(raws.lengths):
-        index = np.flatnonzero(raws.lengths == length)
-        block = raws.block(index)
-        if length < 16 or not (block[:, 1] == 1).all():
-            return None
-        string_length = block[:, 12:16].copy().view("<u4").ravel()
-        if not np.all(string_length == string_length[0]):
-            return None
-        temperature = 4 + ((12 + int(string_length[0]) + 7) // 8) * 8  # doubles align to 8 in the body
-        if temperature + 16 != length:  # temperature, variance: nothing else may follow
-            return None
-        sec = block[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
-        stamps[index] = sec * 1_000_000_000 + block[:, 8:12].copy().view("<u4").ravel().astype(np.int64)
-        values[index] = block[:, temperature:temperature + 8].copy().view("<f8").ravel()
-    return stamps, values
-
-
-def decode_temperatures(raws: Sequence, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps ns, degC) of sensor_msgs/Temperature messages: read at their fixed offsets where they are
-    packed standard ones (_fixed_temperatures), else one by one; a message that does not decode is one
-    BagError naming it."""
-    fixed = _fixed_temperatures(raws)
-    if fixed is not None:
-        return fixed
-    stamps = np.empty(len(raws), dtype=np.int64)
-    values = np.empty(len(raws))
-    for i, raw in enumerate(raws):
-        try:
-            msg = deserialize(raw, TEMPERATURE)
-            stamps[i] = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-            values[i] = float(msg.temperature)
-        except Exception as error:  # noqa: BLE001 - rosbags raises several types for damaged bytes
-            raise BagError(f"{path}: temperature message {i + 1} does not decode as {TEMPERATURE} "
-                           f"({type(error).__name__}): a damaged recording") from None
-    return stamps, values
-
-
 def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path) -> object | None:
     """The connection (or TopicInfo) of `msgtype` to use; None when there is none and none was asked for."""
     found = [c for c in connections if c.msgtype == msgtype]
@@ -440,118 +351,7 @@ def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path
     return found[0] if found else None
 
 
-def _layout(frame_id_length: int) -> dict:
-    """Byte offsets in a little-endian CDR Imu whose frame_id has this many bytes (with its NUL)."""
-    end_of_string = 4 + 8 + 4 + frame_id_length  # encapsulation, stamp, length, chars
-    body = end_of_string - 4
-    orientation = 4 + ((body + 7) // 8) * 8  # doubles align to 8 from the start of the body
-    gyro = orientation + 32 + 72
-    accel = gyro + 24 + 72
-    return {"gyro": gyro, "accel": accel, "size": accel + 24 + 72}
-
-
-def _imu_by_name(raw, index: int, path, deserialize) -> tuple[int, tuple, tuple, str]:
-    """(stamp ns, accel, gyro, frame_id) of one message through `deserialize` (the recording's own
-    definition), by field name; a missing field or damaged bytes is one BagError naming the message."""
-    try:
-        msg = deserialize(raw, IMU)
-    except Exception as error:  # noqa: BLE001 - rosbags raises several types for damaged bytes
-        raise BagError(f"{path}: IMU message {index + 1} does not decode as {IMU} ({type(error).__name__}): "
-                       "a damaged recording") from None
-    try:
-        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        a, w = msg.linear_acceleration, msg.angular_velocity
-        accel = (float(a.x), float(a.y), float(a.z))
-        gyro = (float(w.x), float(w.y), float(w.z))
-        frame_id = str(msg.header.frame_id)
-    except (AttributeError, TypeError, ValueError, OverflowError) as error:
-        raise BagError(f"{path}: its recorded {IMU} definition lacks what an IMU message has "
-                       f"({error}): cannot read it as accelerations") from None
-    return stamp, accel, gyro, frame_id
-
-
-def decode_imus(raws: Sequence, path, deserialize, fixed_layout: bool = True
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
-    """`fixed_layout`: the messages are the standard sensor_msgs/msg/Imu, so fields sit at known offsets
-    (the bulk path); False reads every message through `deserialize` by field name."""
-    from .mcap_scan import PackedMessages  # payload matrices straight from the storage: no join
-
-    if isinstance(raws, PackedMessages):
-        lengths = raws.lengths
-    else:
-        lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
-    t = np.empty(len(raws), dtype=np.int64)
-    accel = np.empty((len(raws), 3))
-    gyro = np.empty((len(raws), 3))
-    group_of = np.empty(len(raws), dtype=np.int64)
-    row_of = np.empty(len(raws), dtype=np.int64)
-    groups = {}
-    frame_id = ""
-    for length in np.unique(lengths):
-        index = np.flatnonzero(lengths == length)
-        if isinstance(raws, PackedMessages):
-            block = raws.block(index)
-        else:
-            joined = b"".join([raws[int(i)] for i in index])
-            block = np.frombuffer(joined, dtype=np.uint8).reshape(len(index), int(length))
-        layout = None
-        if fixed_layout and length >= 16:
-            little = block[:, 1] == 1
-            string_length = block[:, 12:16].copy().view("<u4").ravel()
-            if little.all() and np.all(string_length == string_length[0]):
-                layout = _layout(int(string_length[0]))
-                if layout["size"] != length:
-                    layout = None
-        if layout is None:
-            # Big-endian, unusual or another definition: deserialize one by one (rare; correctness first).
-            for i in index:
-                t[i], accel[i], gyro[i], message_frame = _imu_by_name(raws[int(i)], int(i), path, deserialize)
-                frame_id = frame_id or message_frame
-            group_of[index] = -1
-            continue
-        sec = block[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
-        nanosec = block[:, 8:12].copy().view("<u4").ravel().astype(np.int64)
-        t[index] = sec * 1_000_000_000 + nanosec
-        gyro[index] = block[:, layout["gyro"]:layout["gyro"] + 24].copy().view("<f8")
-        accel[index] = block[:, layout["accel"]:layout["accel"] + 24].copy().view("<f8")
-        frame_id = frame_id or bytes(block[0, 16:16 + int(string_length[0]) - 1]).decode("utf-8", "replace")
-        groups[int(length)] = (block, layout)
-        group_of[index] = int(length)
-        row_of[index] = np.arange(len(index))
-    return t, accel, gyro, frame_id, groups, group_of, row_of
-
-
-def read_imu_and_temperature(reader, imu_connection, temperature_connection, path, progress=None):
-    """Through rosbags, one pass for both topics (a second pass would decompress every mcap chunk
-    again), in rosbags' message order.
-    Returns (ImuData, (temperature stamps, values) or None)."""
-    raws = []
-    temperature_raws = []
-    connections = [imu_connection] + ([temperature_connection] if temperature_connection is not None else [])
-    check_recorded_types(path, [TopicInfo(c.topic, c.msgtype, 0) for c in connections], recorded_definitions(path))
-    imu_id = imu_connection.id
-    step = 0
-    for connection, _, raw in reader.messages(connections=connections):
-        if connection.id == imu_id:
-            raws.append(raw)
-        else:
-            temperature_raws.append(raw)
-        if progress is not None:
-            step += 1
-            if step == 4096:
-                progress.update(step)
-                step = 0
-    if progress is not None:
-        progress.update(step)
-    t, accel, gyro, frame_id, *_ = decode_imus(raws, path, reader.deserialize, fixed_layout=_reader_is_standard(reader))
-    imu = ImuData(imu_connection.topic, t, accel, gyro, frame_id)
-    temperatures = None
-    if temperature_connection is not None:
-        temperatures = decode_temperatures(temperature_raws, path, reader.deserialize)
-    return imu, temperatures
-
-
-def _reader_is_standard(reader) -> bool:
+def reader_is_standard(reader) -> bool:
     """The reader's typestore (built from the bag's recorded definitions where it has them, checked
     against their hashes) holds the standard Imu: only then do the fixed offsets apply."""
     try:
@@ -560,7 +360,7 @@ def _reader_is_standard(reader) -> bool:
         return False
 
 
-def _scan_sqlite(path, topics, progress=None) -> dict | None:
+def scan_sqlite(path, topics, progress=None) -> dict | None:
     """{topic: PackedMessages} straight from rosbag2's sqlite3 tables (one SELECT of the data column
     per topic and file, in the order rosbag2 readers give, joined into one buffer), or None when the
     layout or the values are not the expected ones (the caller falls back to rosbags)."""
@@ -626,117 +426,3 @@ def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
                 connection.close()
     except (sqlite3.Error, TypeError, ValueError) as error:  # a data value that is not a blob: damage
         raise NotStreamable(str(error)) from None
-
-
-# A corrected copy is read, corrected and written a group at a time: this many IMU messages, or this many
-# bytes of messages of any topic (camera images between them), whichever comes first.
-COPY_GROUP_MESSAGES = 1 << 14
-COPY_GROUP_BYTES = 64 << 20
-
-# (stamps ns, accel (N, 3), gyro (N, 3), linear_acceleration_covariance (N, 9)) -> the same corrected
-CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
-
-
-def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
-                    group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
-    """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
-    angular_velocity, linear_acceleration and its covariance, which become what `correct` gives (same
-    topic, same stamps, same storage type). Streamed: memory is a group of messages, whatever the bag's
-    length; the result does not depend on the groups. Returns messages written."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    destination = Path(destination)
-    if destination.exists():
-        raise BagError(f"{destination}: already exists (rosbag2 writes a new directory)")
-    plugin = StoragePlugin.MCAP if storage_of(source) == "mcap" else StoragePlugin.SQLITE3
-    reader = open_reader(source)
-    written = 0
-    created = False  # the destination is ours to remove only once our Writer has made it
-    try:
-        standard = _reader_is_standard(reader)
-        with Writer(destination, version=9, storage_plugin=plugin) as writer:
-            created = True
-            out = {}
-            for c in reader.connections:
-                out[c.id] = writer.add_connection(
-                    c.topic, c.msgtype, typestore=reader.typestore,
-                    # A single storage file read without metadata.yaml has no digest: the typestore gives both.
-                    msgdef=c.msgdef.data if c.msgdef else None, rihs01=c.digest or None,
-                    serialization_format=c.ext.serialization_format, offered_qos_profiles=c.ext.offered_qos_profiles,
-                )
-            pending: list = []  # (connection id, log time, raw; None for an IMU message), in log order
-            imu_raws: list = []
-            held = 0
-
-            def flush() -> None:
-                corrected = iter(_corrected_imus(imu_raws, reader, correct, source, standard))
-                for connection_id, timestamp, raw in pending:
-                    writer.write(out[connection_id], timestamp, next(corrected) if raw is None else raw)
-                pending.clear()
-                imu_raws.clear()
-
-            for c, timestamp, raw in reader.messages():
-                if c.topic == imu_topic and c.msgtype == IMU:
-                    imu_raws.append(raw)
-                    pending.append((c.id, timestamp, None))
-                else:
-                    pending.append((c.id, timestamp, raw))
-                held += len(raw)
-                written += 1
-                if len(imu_raws) >= group_messages or held >= group_bytes:
-                    flush()
-                    held = 0
-            flush()
-    except Exception as error:  # noqa: BLE001 - rosbags' reader and writer raise their own types
-        import shutil
-
-        if created:  # ours, half written; never another writer's bag that appeared after our check
-            shutil.rmtree(destination, ignore_errors=True)
-        if isinstance(error, BagError):
-            raise
-        first_line = str(error).splitlines()[0][:120] if str(error) else ""
-        raise BagError(f"{destination}: corrected bag not written ({type(error).__name__}: {first_line})") from None
-    finally:
-        reader.close()
-    return written
-
-
-def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: bool) -> list[bytes]:
-    """The IMU messages `raws` with angular_velocity, linear_acceleration and its covariance replaced by
-    what `correct` gives: the bytes patched in place where the layout is the standard one, else through the
-    recorded definition."""
-    if not raws:
-        return []
-    t, accel, gyro, _, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize, fixed_layout=standard)
-    covariance = np.zeros((len(t), 9))
-    for length, (block, layout) in groups.items():
-        rows = np.flatnonzero(group_of == length)
-        start = layout["accel"] + 24
-        covariance[rows] = block[row_of[rows], start:start + 72].copy().view("<f8").reshape(len(rows), 9)
-    by_name = np.flatnonzero(group_of < 0)
-    messages = {int(i): reader.deserialize(raws[int(i)], IMU) for i in by_name}
-    for i, msg in messages.items():
-        covariance[i] = np.asarray(msg.linear_acceleration_covariance, dtype=float)
-    accel, gyro, covariance = correct(t, accel, gyro, covariance)
-    patched = {}
-    for length, (block, layout) in groups.items():
-        rows = np.flatnonzero(group_of == length)
-        block = block.copy()
-        for field, values, width in (("gyro", gyro, 24), ("accel", accel, 24)):
-            block[row_of[rows], layout[field]:layout[field] + width] = \
-                np.ascontiguousarray(values[rows], dtype="<f8").view(np.uint8).reshape(len(rows), width)
-        start = layout["accel"] + 24
-        block[row_of[rows], start:start + 72] = \
-            np.ascontiguousarray(covariance[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 72)
-        patched[length] = block
-    out = []
-    for i, (group, row) in enumerate(zip(group_of.tolist(), row_of.tolist())):
-        if group >= 0:
-            out.append(patched[int(group)][row].tobytes())
-            continue
-        msg = messages[i]
-        msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in accel[i])
-        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in gyro[i])
-        msg.linear_acceleration_covariance = np.asarray(covariance[i], dtype=float)
-        out.append(bytes(reader.typestore.serialize_cdr(msg, IMU)))
-    return out

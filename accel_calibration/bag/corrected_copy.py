@@ -32,8 +32,9 @@ def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.n
 
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
     """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature), read
-    and written a group at a time (bag_io.write_corrected; `groups`: its group sizes)."""
-    from .bag_io import BagError, write_corrected
+    and written a group at a time (corrected_bag.write_corrected; `groups`: its group sizes)."""
+    from .bag_io import BagError
+    from .corrected_bag import write_corrected
 
     def correct(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray, covariance: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -147,14 +147,8 @@ class BagStream:
     vehicle: str = ""  # a bag names its vehicle in its metadata (cli/fleet.py reads it), not in its messages
 
     def pieces(self):
-        from .bag_io import (
-            TopicInfo,
-            check_recorded_types,
-            decode_imus,
-            decode_temperatures,
-            is_standard_definition,
-            jazzy_deserialize,
-        )
+        from .bag_io import TopicInfo, check_recorded_types, is_standard_definition, jazzy_deserialize
+        from .imu_messages import decode_imus, decode_temperatures
         from .mcap_scan import NotStreamable
 
         deserialize = jazzy_deserialize
@@ -297,7 +291,7 @@ def _chosen_topics(path, topics, imu_name: str | None, temperature_name: str | N
 
 def _read_fast(path, infos, imu_name, temperature_name, progress):
     """Messages straight from the storage; None when that cannot be trusted (rosbags then)."""
-    from .bag_io import read_fast
+    from .imu_messages import read_fast
 
     imu_topic, temperature_topic = _chosen_topics(path, infos, imu_name, temperature_name)
     bar = _bar(path, imu_topic.msgcount + (temperature_topic.msgcount if temperature_topic else 0), "msg", progress)
@@ -312,7 +306,8 @@ def _read_fast(path, infos, imu_name, temperature_name, progress):
 
 
 def _read_with_rosbags(path, imu_name, temperature_name, progress):
-    from .bag_io import open_reader, read_imu_and_temperature
+    from .bag_io import open_reader
+    from .imu_messages import read_imu_and_temperature
 
     reader = open_reader(path)
     try:
