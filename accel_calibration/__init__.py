@@ -13,7 +13,7 @@ import importlib
 from typing import Any
 
 _FROM = {
-    "MG": ".core.calibration", "STANDARD_GRAVITY": ".core.calibration", "Calibration": ".core.calibration",
+    "MG": ".core.units", "STANDARD_GRAVITY": ".core.units", "Calibration": ".core.calibration",
     "Quality": ".core.calibration", "CalibrationError": ".core.errors", "FitResult": ".core.fit",
     "Sigma": ".core.fit", "fit": ".core.fit", "MODELS": ".core.models", "Pose": ".core.pose",
     "load_calibration": ".io.calibration_file", "save_calibration": ".io.calibration_file",

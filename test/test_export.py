@@ -18,8 +18,9 @@ from accel_calibration.core.axis_calibration import (
     raw_for_true,
     sphere_directions,
 )
-from accel_calibration.core.calibration import MG, STANDARD_GRAVITY, Calibration
+from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.temperature_models import TemperatureModel
+from accel_calibration.core.units import MG, STANDARD_GRAVITY
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import save_calibration
 from accel_calibration.io.estimator_yaml import NoiseFigures, kalibr_imu_yaml

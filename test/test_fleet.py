@@ -15,7 +15,7 @@ from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.dask_cluster import local_cluster, run_tasks
 from accel_calibration.cli.fleet import _vehicle, calibrate_recording, find_recordings
 from accel_calibration.cli.main import main
-from accel_calibration.core.calibration import MG
+from accel_calibration.core.units import MG
 from accel_calibration.io.history import open_history
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations

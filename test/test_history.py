@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from accel_calibration.cli.main import main
-from accel_calibration.core.calibration import MG
+from accel_calibration.core.units import MG
 from accel_calibration.io.history import (
     DriftRule,
     HistoryError,

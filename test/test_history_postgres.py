@@ -25,7 +25,7 @@ from test_history import WRITERS, assert_round_trip, record
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.dask_cluster import local_cluster
 from accel_calibration.cli.main import main
-from accel_calibration.core.calibration import MG
+from accel_calibration.core.units import MG
 from accel_calibration.io.history import HistoryError, HistoryRecord, open_history
 
 _names = itertools.count()

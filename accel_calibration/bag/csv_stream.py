@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.settings import STANDARD_GRAVITY
-from ..core.units import units_problem
+from ..core.units import STANDARD_GRAVITY, units_problem
 from .bag_io import BagError, read_head
 
 TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}

@@ -4,37 +4,39 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..core.calibration import STANDARD_GRAVITY
 from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
-from ..core.temperature_models import TEMPERATURE_MODELS
+from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+from ..core.units import STANDARD_GRAVITY
 from .options import UNIT_SCALE
 
 
 def add_parser(commands: Any) -> argparse.ArgumentParser:
+    defaults = TemperatureOptions()  # the temperature fit's defaults, as the node's settings take them
     parser = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
     parser.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "
-                                       "(dividing-head: alpha_deg,beta_deg or pos k-j)")
+                                      "(dividing-head: alpha_deg,beta_deg or pos k-j)")
     parser.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
     parser.add_argument("--model", choices=MODELS + (DIVIDING_HEAD,), default="sphere9",
-                         help="error model (default sphere9)")
+                        help="error model (default sphere9)")
     parser.add_argument("--gravity", type=float, default=STANDARD_GRAVITY,
-                         help="local gravity, m/s^2 (default 9.80665)")
+                        help=f"local gravity, m/s^2 (default {STANDARD_GRAVITY})")
     parser.add_argument("--frame-id", default="", help="sensor frame id stored in the file")
     parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="none",
-                         help="temperature drift model, needs a temperature column (default none)")
-    parser.add_argument("--bias-order", type=int, default=2,
-                         help="polynomial: order of the bias drift, 0..3 (default 2)")
-    parser.add_argument("--scale-order", type=int, default=1,
-                         help="polynomial: order of the scale drift, 0..2 (default 1)")
-    parser.add_argument("--segment-width", type=float, default=10.0,
-                         help="segmented: segment width, degC (default 10)")
-    parser.add_argument("--segment-blend", action=argparse.BooleanOptionalAction, default=True,
-                         help="segmented: interpolate between the temperatures segments were learned at "
-                              "(default); --no-segment-blend: the seed paper's pick of the segment holding it")
+                        help="temperature drift model, needs a temperature column (default none)")
+    parser.add_argument("--bias-order", type=int, default=defaults.bias_order,
+                        help=f"polynomial: order of the bias drift, 0..3 (default {defaults.bias_order})")
+    parser.add_argument("--scale-order", type=int, default=defaults.scale_order,
+                        help=f"polynomial: order of the scale drift, 0..2 (default {defaults.scale_order})")
+    parser.add_argument("--segment-width", type=float, default=defaults.segment_width_degc,
+                        help=f"segmented: segment width, degC (default {defaults.segment_width_degc:g})")
+    parser.add_argument("--segment-blend", action=argparse.BooleanOptionalAction, default=defaults.segment_blend,
+                        help="segmented: interpolate between the temperatures segments were learned at "
+                             "(default); --no-segment-blend: the seed paper's pick of the segment holding it")
     parser.add_argument("--reference-temperature", type=float, default=None,
-                         help="T_ref, degC (default: the poses' median temperature)")
-    parser.add_argument("--min-span", type=float, default=10.0, help="smallest temperature span to fit a model, degC")
+                        help="T_ref, degC (default: the poses' median temperature)")
+    parser.add_argument("--min-span", type=float, default=defaults.min_span_degc,
+                        help=f"smallest temperature span to fit a model, degC (default {defaults.min_span_degc:g})")
     parser.add_argument("--output", "-o", required=True, help="calibration YAML to write")
 
     return parser

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
+from ..core.units import MG
 from .dask_cluster import dask_client, default_workers, run_tasks
 from .options import add_settings_options, replay_settings
 

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.calibration import MG
+from ..core.units import MG
 from .fleet import DEFAULT_HISTORY
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module

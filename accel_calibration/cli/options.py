@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..core.calibration import STANDARD_GRAVITY
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TEMPERATURE_MODELS
+from ..core.units import STANDARD_GRAVITY
 from .flight_options import add_flight_state_options, flight_state_settings
 
 PROG = "accel-calib"

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError, CalibrationError
+from ..core.units import MG
 from .dask_cluster import map_on_local_cluster
 from .options import PROG, add_settings_options, replay_settings
 from .report import render_report
@@ -24,35 +24,35 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
         "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
                        "DataFlash .bin, CSV stream")
     parser.add_argument("bags", nargs="+", metavar="RECORDING",
-                            help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
-                                 "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
+                        help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
+                             "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
     parser.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"),
-                            default=None,
-                            help="the recordings' format (default: found from the path and content)")
+                        default=None,
+                        help="the recordings' format (default: found from the path and content)")
     parser.add_argument("--instance", type=int, default=None, metavar="N",
-                            help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
-                                 "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
+                        help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
+                             "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
-                            help="CSV: unit of the time column (default: s for t, ns for t_ns)")
+                        help="CSV: unit of the time column (default: s for t, ns for t_ns)")
     parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
-                            help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
+                        help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
     parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
-                            help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
+                        help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
     parser.add_argument("--poses-out", default=None, metavar="POSES.csv",
-                            help="write the still intervals found as a CSV pose table (also when the fit is refused; "
-                                 "readable by 'fit' and 'report --poses'; several recordings: a directory)")
+                        help="write the still intervals found as a CSV pose table (also when the fit is refused; "
+                             "readable by 'fit' and 'report --poses'; several recordings: a directory)")
     parser.add_argument("--output", "-o", default=None,
-                            help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
+                        help="calibration YAML to write (several bags: a directory, one <bag>.yaml each)")
     parser.add_argument("--corrected", "--corrected-bag", dest="corrected_bag", default=None, metavar="OUT",
-                            help="write a corrected copy in the recording's own format: a bag (directory or "
-                                 "file) with the IMU accelerations corrected, a CSV with ax,ay,az corrected; a ULog "
-                                 "gets a CSV of corrected samples (t_ns,ax,ay,az,gx,gy,gz,temperature) "
-                                 "(several recordings: a directory)")
+                        help="write a corrected copy in the recording's own format: a bag (directory or "
+                             "file) with the IMU accelerations corrected, a CSV with ax,ay,az corrected; a ULog "
+                             "gets a CSV of corrected samples (t_ns,ax,ay,az,gx,gy,gz,temperature) "
+                             "(several recordings: a directory)")
     parser.add_argument("--report", default=None,
-                            help="also write a report figure (PNG; several bags: a directory)")
+                        help="also write a report figure (PNG; several bags: a directory)")
     add_settings_options(parser, detector=True)
     parser.add_argument("--jobs", "-j", type=int, default=1,
-                            help="bags processed in parallel, on a local Dask cluster of N worker processes")
+                        help="bags processed in parallel, on a local Dask cluster of N worker processes")
 
     return parser
 

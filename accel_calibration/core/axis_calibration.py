@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .calibration import MG, STANDARD_GRAVITY, Calibration
+from .calibration import Calibration
 from .errors import CalibrationError
+from .units import MG, STANDARD_GRAVITY
 
 # Orientations the cost is evaluated on (a Fibonacci sphere: ~4.5 deg apart) and fitted on; temperatures
 # across the calibrated range. The worst case between grid points differs from the grid's by < 0.1 %.

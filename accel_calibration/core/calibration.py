@@ -14,9 +14,7 @@ from .dividing_head import DividingHeadTerms
 from .errors import CalibrationError
 from .models import CALIBRATION_MODELS, DIVIDING_HEAD, apply_forward_inverse
 from .temperature_models import TemperatureModel
-
-STANDARD_GRAVITY = 9.80665
-MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
+from .units import STANDARD_GRAVITY
 
 
 def _frozen(values: ArrayLike, shape: tuple[int, ...], name: str) -> np.ndarray:

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .calibration import MG
 from .lapack import dsyevd as syevd
 from .models import SphereModel, matrix_entries
+from .units import MG
 
 # A pose "has x pointing down" when its measured specific force is within ~45 deg of -x
 # (an accelerometer at rest reads +g upwards, so a_x ~ -g means the x axis points down).

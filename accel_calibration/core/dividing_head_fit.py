@@ -13,13 +13,14 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
+from .calibration import Calibration, Quality
 from .coverage import CONDITION_LIMIT, normal_condition_number
 from .dividing_head import AXIS_PARAMETERS, DividingHeadModel, DividingHeadTerms, axes_matrix
 from .errors import CalibrationError
 from .fit import FitResult, Sigma
 from .gauss_newton import gauss_newton
 from .models import DIVIDING_HEAD
+from .units import MG, STANDARD_GRAVITY
 
 # The α of one tilt must leave no gap wider than this of the circle: otherwise the α-harmonic that
 # carries the tilt error (and at β = 90° all there is of it) is barely observable.

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .calibration import MG, STANDARD_GRAVITY, Calibration, Quality
+from .calibration import Calibration, Quality
 from .coverage import (
     CONDITION_LIMIT,
     SAME_DIRECTION_DEG,
@@ -52,6 +52,7 @@ from .temperature_models import (
     sphere_segment_drift,
     temperature_span_problem,
 )
+from .units import MG, STANDARD_GRAVITY
 
 AXES = "xyz"
 _ONES3 = np.ones(3)
@@ -171,7 +172,7 @@ class FitResult:
                          f"{t.range_degc[0]:.1f}..{t.range_degc[1]:.1f} degC")
             if t.kind == "polynomial":
                 for k, row in enumerate(t.bias_coefficients, start=1):
-                    lines.append(f"  bias drift dT^{k}: " + "  ".join(f"{v / 9.80665e-3:+.4g}" for v in row)
+                    lines.append(f"  bias drift dT^{k}: " + "  ".join(f"{v / MG:+.4g}" for v in row)
                                  + f" mg/degC^{k}")
                 for k, row in enumerate(t.scale_coefficients, start=1):
                     lines.append(f"  scale drift dT^{k}: " + "  ".join(f"{v:+.3g}" for v in row) + f" /degC^{k}")

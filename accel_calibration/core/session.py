@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .calibration import MG, Calibration
+from .calibration import Calibration
 from .coverage import missing_directions
 from .errors import SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
@@ -28,7 +28,7 @@ from .settings import BY_NAME, DYNAMIC, Settings
 from .static_detector import DISCARD, RESTART, StaticDetector
 from .temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
-from .units import units_problem
+from .units import MG, units_problem
 
 # |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
 # m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.

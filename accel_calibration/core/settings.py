@@ -16,9 +16,10 @@ from .coverage import SigmaBounds
 from .errors import SettingsError
 from .fit import OutlierOptions
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
+from .units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 ONLINE_MODELS = ("six", "sphere9")
+_TEMPERATURE = TemperatureOptions()  # the temperature fit's defaults, written once (temperature_models.py)
 RELIABILITIES = ("reliable", "best_effort")
 
 
@@ -89,18 +90,19 @@ PARAMETERS: tuple[Parameter, ...] = (
               3, 1_000_000),
     Parameter("temperature_timeout_s", 5.0, "a temperature older than this (header time) is stale and not used, s",
               0.01, 3600.0),
-    Parameter("temperature.model", "polynomial",
+    Parameter("temperature.model", _TEMPERATURE.model,
               "temperature model learned once the poses span min_span_degc: polynomial, segmented or none",
               choices=TEMPERATURE_MODELS),
-    Parameter("temperature.bias_order", 2, "polynomial model: order of the bias drift", 0, 3),
-    Parameter("temperature.scale_order", 1, "polynomial model: order of the scale drift", 0, 2),
-    Parameter("temperature.segment_width_degc", 10.0, "segmented model: segment width, degC", 1.0, 100.0),
-    Parameter("temperature.segment_blend", True,
+    Parameter("temperature.bias_order", _TEMPERATURE.bias_order, "polynomial model: order of the bias drift", 0, 3),
+    Parameter("temperature.scale_order", _TEMPERATURE.scale_order, "polynomial model: order of the scale drift", 0, 2),
+    Parameter("temperature.segment_width_degc", _TEMPERATURE.segment_width_degc,
+              "segmented model: segment width, degC", 1.0, 100.0),
+    Parameter("temperature.segment_blend", _TEMPERATURE.segment_blend,
               "segmented model: interpolate the drift between the temperatures neighbouring segments were "
               "learned at (no step at a segment edge); false: the seed paper's pick of the segment holding "
               "the temperature"),
-    Parameter("temperature.min_span_degc", 10.0, "smallest span of pose temperatures to fit a temperature model, degC",
-              0.0, 200.0),
+    Parameter("temperature.min_span_degc", _TEMPERATURE.min_span_degc,
+              "smallest span of pose temperatures to fit a temperature model, degC", 0.0, 200.0),
     Parameter("temperature.bin_degc", 5.0, "poses at one orientation but temperatures this far apart are kept apart, "
               "degC", 0.1, 100.0),
     Parameter("static.window_s", 0.5, "static detector: sliding window, s of header time", 0.02, 10.0),

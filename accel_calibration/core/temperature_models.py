@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .coverage import CONDITION_LIMIT, scaled_condition_number
 from .errors import CalibrationError
 from .gauss_newton import LeastSquaresSolution, gauss_newton
 
@@ -323,8 +324,6 @@ def _design(directions: np.ndarray, axis: int | None) -> np.ndarray:
 
 def _weak_axes(directions: np.ndarray, known_orientations: bool) -> list[int]:
     """Axes whose coefficients the poses leave undetermined (scaled normal matrix beyond CONDITION_LIMIT)."""
-    from .coverage import CONDITION_LIMIT, scaled_condition_number  # coverage imports calibration, which imports us
-
     if known_orientations:
         return [axis for axis in range(3)
                 if not scaled_condition_number(_design(directions, axis)) <= CONDITION_LIMIT]

@@ -1,10 +1,15 @@
-"""Is this stream in m/s^2? A driver publishing g (|a| ~ 1) or raw counts (|a| ~ 16384) would be
+"""Units: standard gravity and the milli-g, defined once for the package.
+
+And: is this stream in m/s^2? A driver publishing g (|a| ~ 1) or raw counts (|a| ~ 16384) would be
 fitted into nonsense (a 'scale' of 9.8 or 6e-4); say so instead. Used on the poses' magnitudes,
 which at rest are |M^-1 g + b|: within a few percent of g for any plausible MEMS part."""
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+STANDARD_GRAVITY = 9.80665  # m/s^2, by definition (CGPM 1901): 1 g
+MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
 
 
 def units_problem(accel_mps2: ArrayLike, gravity: float) -> str | None:
@@ -16,7 +21,7 @@ def units_problem(accel_mps2: ArrayLike, gravity: float) -> str | None:
         return None
     if 0.7 <= typical <= 1.3:
         return (f"units: still poses read |a| = {typical:.3f}, which looks like g, not m/s^2 "
-                f"(expected ~{gravity:.2f}): convert the stream (x 9.80665) before calibrating")
+                f"(expected ~{gravity:.2f}): convert the stream (x {STANDARD_GRAVITY}) before calibrating")
     if typical > 30 * gravity:
         return (f"units: still poses read |a| = {typical:.0f}, which looks like raw sensor counts, not m/s^2: "
                 "scale the driver's output to m/s^2 before calibrating")

@@ -34,6 +34,7 @@ from ..core.calibration import Calibration, GyroQuality, Quality
 from ..core.dividing_head import DividingHeadTerms
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TemperatureModel
+from ..core.units import STANDARD_GRAVITY
 from .output_paths import stale_temp_files, write_bytes_atomically
 
 
@@ -318,7 +319,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
             bias=body["bias"],
             matrix=body["matrix"],
             model=model,
-            gravity=_number(body.get("gravity", 9.80665), "gravity"),
+            gravity=_number(body.get("gravity", STANDARD_GRAVITY), "gravity"),
             quadratic=body.get("quadratic"),
             bias_sigma=uncertainty.get("bias"),
             matrix_sigma=uncertainty.get("matrix"),

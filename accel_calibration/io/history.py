@@ -28,8 +28,8 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from ..core.calibration import MG
 from ..core.errors import AccelCalibrationError
+from ..core.units import MG
 
 SCHEMA_VERSION = 1
 SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up

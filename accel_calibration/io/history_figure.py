@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from ..core.calibration import MG
 from ..core.errors import CalibrationError
+from ..core.units import MG
 from .history import AXES, DriftFlag, HistoryRecord, sensor_series
 from .output_paths import write_bytes_atomically
 

@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import CalibrationError
+from ..core.units import MG
 from .calibration_file import read_regular_file
 
 ACCEL_COLUMNS = ("ax", "ay", "az")
 REFERENCE_COLUMNS = ("ref_x", "ref_y", "ref_z")
 TEMPERATURE_COLUMN = "temperature"
 SIGMA_COLUMN = "sigma_mg"
-MG_MPS2 = 9.80665e-3
 MAX_COLUMNS = 1000  # a pose table has 3 to 7 columns; a CSV for `apply` may carry some more
 MAX_TABLE_BYTES = 256 << 20  # ~3 M rows of samples; parsing holds several times this in memory
 # |value| beyond this is no acceleration in any unit (raw counts of a 24-bit part at 16 g: ~1e8), and
@@ -110,7 +110,7 @@ def read_table(path) -> Table:
         reference = _numbers(rows, header, REFERENCE_COLUMNS, path)
     pose_sigma = None
     if SIGMA_COLUMN in header:
-        pose_sigma = _numbers(rows, header, (SIGMA_COLUMN,), path, (0.0, MAX_ACCEL))[:, 0] * MG_MPS2
+        pose_sigma = _numbers(rows, header, (SIGMA_COLUMN,), path, (0.0, MAX_ACCEL))[:, 0] * MG
     return Table(header, rows, accel, temperature, reference, pose_sigma)
 
 

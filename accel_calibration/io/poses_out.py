@@ -15,9 +15,9 @@ import csv
 import io
 from collections.abc import Sequence
 
-from ..core.calibration import MG
 from ..core.fit import pose_mean_sigma
 from ..core.pose import Pose
+from ..core.units import MG
 
 STATUSES = ("used", "outlier", "dropped", "not fitted")
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.calibration import MG, Calibration
+from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
+from ..core.units import MG
 
 
 def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "") -> None:

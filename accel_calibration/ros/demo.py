@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..core.calibration import MG
+from ..core.units import MG
 
 SPEED = 4.0
 
