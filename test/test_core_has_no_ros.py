@@ -1,5 +1,4 @@
 """The core must import and fit with no ROS on the path (habit 1 of STYLE.md)."""
-import ast
 import subprocess
 import sys
 from pathlib import Path
@@ -45,30 +44,4 @@ def test_core_imports_no_ros():
     assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
 
 
-# Which layers each layer may import (DESIGN.md): ros, bag, cli -> io -> core; core -> nothing of ours.
-ALLOWED = {"core": {"core"}, "io": {"core", "io"}, "bag": {"core", "io", "bag"}, "ros": {"core", "io", "ros"},
-           "cli": {"core", "io", "bag", "cli"}}
-
-
-def _imported_layers(path: Path, layer: str) -> set[str]:
-    layers = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
-            if node.level == 1:
-                layers.add(layer)
-            elif node.level == 2 and node.module:
-                layers.add(node.module.split(".")[0])
-            elif node.level == 0 and node.module and node.module.startswith("accel_calibration."):
-                layers.add(node.module.split(".")[1])
-    return layers
-
-
-def test_imports_point_one_way():
-    for layer, allowed in ALLOWED.items():
-        for path in (PACKAGE / layer).glob("*.py"):
-            assert _imported_layers(path, layer) <= allowed, \
-                f"{path.name} in {layer}/ imports {_imported_layers(path, layer) - allowed}"
-    for path in (PACKAGE.parent / "msg_tools").glob("*.py"):
-        assert "accel_calibration" not in {layer for node in ast.walk(ast.parse(path.read_text()))
-                                           if isinstance(node, ast.ImportFrom) and node.module
-                                           for layer in [node.module.split(".")[0]]}, path
+# The layers' import direction and the absence of import circles: test_layers.py.
