@@ -138,7 +138,8 @@ def test_imu_tk_xsens_recording_weights_come_out_nearly_equal(shared):
     variance 3-43 % worse (sandwich covariance with the noise s_i^2 + tau^2 the poses show)."""
     import gzip
 
-    from accel_calibration.core.fit import _sphere_rows, pose_mean_sigma
+    from accel_calibration.core.fit import pose_mean_sigma
+    from accel_calibration.core.fit_outliers import sphere_rows as _sphere_rows
     from accel_calibration.core.static_detector import StaticDetector
 
     accel = np.loadtxt(gzip.open(shared("real/imu_tk/xsens_acc.txt.gz")))

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from accel_calibration import Calibration, CalibrationError, fit
 from accel_calibration.core.calibration import _scaled_determinant
-from accel_calibration.core.fit import _critical_ratio
+from accel_calibration.core.fit_outliers import critical_ratio as _critical_ratio
 from accel_calibration.core.gauss_newton import gauss_newton, gauss_newton_stacked
 from accel_calibration.core.models import SphereModel, _ellipsoid_coefficients, seed_sphere
 
