@@ -5,20 +5,15 @@ autopilot's own formula (io/autopilot_params.py)."""
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.axis_calibration import AxisWiseCalibration, cost_against
 from ..core.errors import CalibrationError
-from ..io.autopilot_params import (
-    MAX_INSTANCES,
-    ParameterSet,
-    ardupilot_calibration,
-    px4_calibration,
-    read_parameters,
-)
-from ..io.calibration_file import load_calibration
+
+if TYPE_CHECKING:  # imported where used: `accel-calib --help` does not pay for YAML and the fits
+    from ..core.axis_calibration import AxisWiseCalibration
+    from ..io.autopilot_params import ParameterSet
 
 
 def add_parser(commands: Any) -> argparse.ArgumentParser:
@@ -37,6 +32,8 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
 
 
 def _instance(args: argparse.Namespace, parameters: ParameterSet, sensor_id: str) -> int:
+    from ..io.autopilot_params import MAX_INSTANCES
+
     if args.instance is not None:
         return int(args.instance)
     if parameters.autopilot == "px4" and sensor_id.strip().isdigit():
@@ -63,6 +60,10 @@ def describe(parameters: ParameterSet, instance: int, held: AxisWiseCalibration)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.axis_calibration import cost_against
+    from ..io.autopilot_params import MAX_INSTANCES, ardupilot_calibration, px4_calibration, read_parameters
+    from ..io.calibration_file import load_calibration
+
     calibration = load_calibration(args.calibration)
     parameters = read_parameters(args.parameters)
     instance = _instance(args, parameters, calibration.sensor_id)

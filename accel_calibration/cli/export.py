@@ -9,29 +9,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core.axis_calibration import (
-    AxisWiseCalibration,
-    Cost,
-    cost_against,
-    fit_axis_wise,
-    lower_triangular_with_rotation,
-)
-from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
-from ..io.autopilot_params import (
-    ARDUPILOT_TCAL_REFERENCE_DEGC,
-    ardupilot_param_text,
-    ardupilot_parameters,
-    px4_parameters,
-    px4_params_text,
-)
-from ..io.calibration_file import load_calibration, write_text_atomically
-from ..io.estimator_yaml import kalibr_imu_yaml, openvins_imu_chain_yaml, read_noise_figures
-from ..io.output_paths import check_outputs
+
+if TYPE_CHECKING:  # imported where used: `accel-calib --help` does not pay for YAML and the fits
+    from ..core.axis_calibration import AxisWiseCalibration, Cost
+    from ..core.calibration import Calibration
 
 TARGETS = ("px4", "ardupilot", "kalibr", "openvins")
 DEFAULT_MAX_LOSS_MG = 2.0
@@ -77,6 +63,9 @@ def _device_id(args: argparse.Namespace, calibration: Calibration) -> int | None
 
 def fit_for(target: str, calibration: Calibration) -> AxisWiseCalibration:
     """The axis-wise calibration an autopilot target holds closest to ours."""
+    from ..core.axis_calibration import fit_axis_wise
+    from ..io.autopilot_params import ARDUPILOT_TCAL_REFERENCE_DEGC
+
     order = 3 if calibration.temperature is not None else 0
     if target == "px4":
         reference = calibration.temperature.reference_degc if calibration.temperature is not None else 0.0
@@ -89,6 +78,8 @@ def fit_for(target: str, calibration: Calibration) -> AxisWiseCalibration:
 def _held_matrix_cost(calibration: Calibration) -> Cost:
     """OpenVINS: the matrix at the reference temperature with the bias there (OpenVINS estimates the bias
     online): what a temperature model adds is the cost; without one it is 0."""
+    from ..core.axis_calibration import cost_against
+
     reference = calibration.temperature.reference_degc if calibration.temperature is not None else None
     matrix_terms = calibration.terms_at(reference)
     matrix = np.array(matrix_terms[:9]).reshape(3, 3)
@@ -112,6 +103,10 @@ def _check_cost(cost: Cost, args: argparse.Namespace) -> None:
 
 def export_text(args: argparse.Namespace, calibration: Calibration) -> tuple[str, list[str]]:
     """(file text, lines to tell the user) for args.to."""
+    from ..core.axis_calibration import cost_against, lower_triangular_with_rotation
+    from ..io.autopilot_params import ardupilot_param_text, ardupilot_parameters, px4_parameters, px4_params_text
+    from ..io.estimator_yaml import kalibr_imu_yaml, openvins_imu_chain_yaml, read_noise_figures
+
     source = f"from accel_calibration {args.calibration} (model {calibration.model}, created {calibration.created})"
     notes: list[str] = []
     if args.to in ("px4", "ardupilot"):
@@ -152,6 +147,9 @@ def export_text(args: argparse.Namespace, calibration: Calibration) -> tuple[str
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.calibration_file import load_calibration, write_text_atomically
+    from ..io.output_paths import check_outputs
+
     check_outputs([("--output", args.output)], [args.calibration, args.noise])
     calibration = load_calibration(args.calibration)
     text, notes = export_text(args, calibration)

@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.errors import CalibrationError
-from ..io.calibration_file import write_text_atomically
 
 if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
     from ..core.allan import Figure, NoiseFit
@@ -113,6 +112,7 @@ def noise_table(fits: dict[str, list[NoiseFit]]) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..bag.recording import open_recording
     from ..core.allan import fit_noise, overlapping_adev, required_duration_s
+    from ..io.calibration_file import write_text_atomically
     from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
 
     check_outputs([("--kalibr", args.kalibr), ("--plot", args.plot)], [args.recording])
