@@ -10,12 +10,14 @@ IMU, TEMPERATURE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
 def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3", frame_id: str = "imu_link",
                       temperature_period_s: float = 0.1, imu_topic: str = "/imu/data_raw",
                       temperature_topic: str | None = "/imu/temperature", shuffle_seed: int | None = None,
-                      chunk_compression: str = "", typestore=None) -> int:
+                      chunk_compression: str = "", typestore=None, accel_covariance=None,
+                      gyro_covariance=None) -> int:
     """Record a SyntheticSamples session as a rosbag2 (what `ros2 bag record` of the synthetic publisher
     would give), serialized by rosbags itself. `shuffle_seed` swaps neighbouring IMU messages in the
     file order, as recorders do when messages arrive out of order. `chunk_compression` ("zstd", "lz4"):
     mcap chunks compressed as rosbag2's storage presets do. `typestore`: message definitions to record
-    (e.g. an Imu defined otherwise), by default ROS 2 Jazzy's. Returns IMU messages written."""
+    (e.g. an Imu defined otherwise), by default ROS 2 Jazzy's. `accel_covariance`, `gyro_covariance`: what
+    the driver reports (9 values; default zeros: unknown). Returns IMU messages written."""
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -23,7 +25,8 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
     Imu, Temperature = store.types[IMU], store.types[TEMPERATURE]
     Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
     Vector3, Quaternion = store.types["geometry_msgs/msg/Vector3"], store.types["geometry_msgs/msg/Quaternion"]
-    covariance = np.zeros(9)
+    accel_cov = np.zeros(9) if accel_covariance is None else np.asarray(accel_covariance, dtype=float).ravel()
+    gyro_cov = np.zeros(9) if gyro_covariance is None else np.asarray(gyro_covariance, dtype=float).ravel()
     no_orientation = np.zeros(9)
     no_orientation[0] = -1.0
 
@@ -68,9 +71,9 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
                 orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
                 orientation_covariance=no_orientation,
                 angular_velocity=Vector3(x=float(gyro[i, 0]), y=float(gyro[i, 1]), z=float(gyro[i, 2])),
-                angular_velocity_covariance=covariance,
+                angular_velocity_covariance=gyro_cov,
                 linear_acceleration=Vector3(x=float(accel[i, 0]), y=float(accel[i, 1]), z=float(accel[i, 2])),
-                linear_acceleration_covariance=covariance,
+                linear_acceleration_covariance=accel_cov,
             )
             writer.write(imu_connection, log_time, store.serialize_cdr(msg, IMU))
     return len(samples.t_ns)

@@ -31,7 +31,7 @@ def imus_to_arrays(msgs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.array([r[2] for r in rows], dtype=float).reshape(-1, 3))
 
 
-def make_imu(t_ns: int, accel, gyro, frame_id: str = "imu_link", accel_cov=None) -> Imu:
+def make_imu(t_ns: int, accel, gyro, frame_id: str = "imu_link", accel_cov=None, gyro_cov=None) -> Imu:
     msg = Imu()
     msg.header.stamp = ns_to_stamp(t_ns)
     msg.header.frame_id = frame_id
@@ -41,6 +41,8 @@ def make_imu(t_ns: int, accel, gyro, frame_id: str = "imu_link", accel_cov=None)
     w.x, w.y, w.z = (float(v) for v in gyro)
     if accel_cov is not None:
         msg.linear_acceleration_covariance = [float(v) for v in np.asarray(accel_cov).ravel()]
+    if gyro_cov is not None:
+        msg.angular_velocity_covariance = [float(v) for v in np.asarray(gyro_cov).ravel()]
     return msg
 
 

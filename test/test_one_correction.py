@@ -1,6 +1,6 @@
 """One correction: a corrected copy of a recording is what the node publishes for the same messages
-(acceleration, gyro bias and covariance alike), bit for bit, on any CPU (no BLAS in the correction). The
-node runs in this process (a real rclpy node; its callbacks called in the recording's order, what it
+(acceleration, gyro bias and matrix, and both covariances alike), bit for bit, on any CPU (no BLAS in the
+correction). The node runs in this process (a real rclpy node; its callbacks called in the recording's order, what it
 publishes captured), so no message can be lost and no timing decides anything."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 from accel_calibration.bag.corrected_copy import write_corrected_bag
 from accel_calibration.bag.recording import open_recording
 from accel_calibration.bag.replay import replay_bag
-from accel_calibration.core.calibration import Calibration
+from accel_calibration.core.calibration import Calibration, GyroQuality
 from accel_calibration.core.correction import Correction
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import save_calibration
@@ -23,6 +23,7 @@ from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientati
 
 START_NS = 1_700_000_000 * 10**9
 COVARIANCE = np.diag([1.6e-3, 1.6e-3, 1.6e-3]).ravel()  # what the driver reports, (m/s^2)^2
+GYRO_COVARIANCE = np.diag([3e-6, 3e-6, 3e-6]).ravel()  # (rad/s)^2
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,8 @@ def recording(tmp_path_factory):
     samples = SyntheticImu(errors, spread_orientations(6, rng), dwell_s=1.0, move_s=0.5, rate_hz=200.0, seed=8,
                            temperature_degc=lambda t: 20.0 + 0.4 * t).samples()
     bag = tmp_path_factory.mktemp("one_correction") / "bag"
-    write_session_bag(bag, samples, start_ns=START_NS, storage="mcap")
+    write_session_bag(bag, samples, start_ns=START_NS, storage="mcap", accel_covariance=COVARIANCE,
+                      gyro_covariance=GYRO_COVARIANCE)
     return samples, bag
 
 
@@ -41,6 +43,10 @@ def calibration_with_drift() -> Calibration:
     return Calibration(bias=rng.normal(0, 0.05, 3), matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
                        bias_sigma=np.full(3, 2e-4), matrix_sigma=np.full((3, 3), 1e-5),
                        gyro_bias_radps=np.array([0.01, -0.02, 0.003]),
+                       gyro_matrix=np.eye(3) + rng.normal(0, 0.01, (3, 3)),
+                       gyro_quality=GyroQuality(matrix_sigma=np.full((3, 3), 2e-4), residual_rms_mrad=0.5,
+                                                residual_max_mrad=1.0, motions=17,
+                                                bias_sigma_radps=np.full(3, 1e-4)),
                        temperature=TemperatureModel("polynomial", 22.0, (15.0, 35.0),
                                                     bias_coefficients=[[0.01, -0.01, 0.005]]))
 
@@ -61,7 +67,8 @@ def test_a_corrected_bag_is_what_the_node_publishes(ros, recording, tmp_path):
             if t >= next_reading:
                 node._on_temperature(make_temperature(START_NS + t, float(samples.temperature_degc[i])))
                 next_reading = t + 100_000_000
-            node._on_imu(make_imu(START_NS + t, samples.accel_raw[i], samples.gyro_raw[i]))  # as recorded
+            node._on_imu(make_imu(START_NS + t, samples.accel_raw[i], samples.gyro_raw[i],  # as recorded
+                                  accel_cov=COVARIANCE, gyro_cov=GYRO_COVARIANCE))
     finally:
         node.close()
         node.destroy_node()
@@ -74,21 +81,27 @@ def test_a_corrected_bag_is_what_the_node_publishes(ros, recording, tmp_path):
     assert len(published) == len(copy.t_ns) == len(samples.t_ns)
     np.testing.assert_array_equal(copy.accel_mps2, node_accel)
     np.testing.assert_array_equal(copy.gyro_radps, node_gyro)
-    # The drift moved the samples (the temperature took part), and the gyro bias came off.
+    # The drift moved the samples (the temperature took part), and the gyro bias and matrix were applied.
     assert np.abs(node_accel - calibration.replace(temperature=None).apply(samples.accel_raw)).max() > 1e-3
-    np.testing.assert_allclose(node_gyro, samples.gyro_raw - calibration.gyro_bias_radps, rtol=0, atol=1e-15)
-    # Covariance: the recording's driver said "unknown" (zeros) and the noise is not measured yet: it stays
-    # unknown in both (test_covariance_... has the other cases).
+    np.testing.assert_allclose(node_gyro, calibration.apply_gyro(samples.gyro_raw), rtol=0, atol=1e-14)
+    assert np.abs(node_gyro - (samples.gyro_raw - calibration.gyro_bias_radps)).max() > 1e-3
+    # Covariances: the noise is not measured yet: the driver's plus the calibration's own part, in both
+    # (test_covariance_... has the other cases); the gyro's own part grows with the rate (M_g's sigma).
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     with AnyReader([tmp_path / "copy"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         imus = [c for c in reader.connections if c.topic == "/imu/data_raw"]
-        copied = [np.asarray(reader.deserialize(raw, c.msgtype).linear_acceleration_covariance)
-                  for c, _, raw in reader.messages(connections=imus)]
+        messages = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=imus)]
+    copied = np.array([np.asarray(m.linear_acceleration_covariance) for m in messages])
+    copied_angular = np.array([np.asarray(m.angular_velocity_covariance) for m in messages])
     node_cov = np.array([np.asarray(m.linear_acceleration_covariance) for m in published])
-    np.testing.assert_array_equal(np.array(copied), node_cov)
-    assert not node_cov.any()
+    node_angular = np.array([np.asarray(m.angular_velocity_covariance) for m in published])
+    np.testing.assert_array_equal(copied, node_cov)
+    np.testing.assert_array_equal(copied_angular, node_angular)
+    assert np.all(node_cov[:, 0] > COVARIANCE[0]) and np.all(node_angular[:, 0] > GYRO_COVARIANCE[0])
+    rate = np.abs(samples.gyro_raw - calibration.gyro_bias_radps).sum(axis=1)
+    assert node_angular[rate.argmax(), 0] > node_angular[rate.argmin(), 0]  # faster turns, less certain
 
 
 def test_covariance_is_never_less_than_the_driver_said_until_the_noise_is_measured():
@@ -126,3 +139,31 @@ def test_one_sample_alone_and_in_any_group_are_corrected_to_the_same_bits(rows, 
         if len(part):
             grouped = np.column_stack(correction.apply(part[:, 0], part[:, 1], part[:, 2]))
             np.testing.assert_array_equal(grouped, alone[rows_])
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(finite, finite, finite), min_size=1, max_size=40), st.integers(1, 40),
+       st.sampled_from([None, 1e-6]))
+def test_a_rate_alone_and_in_any_group_gets_the_same_bits_and_covariance(rows, split, gyro_noise_var):
+    """The gyro's correction (bias, then M_g) and its covariance (REP-145: noise through M_g, the bias sigma,
+    M_g's sigma at the rate) are elementwise too; they agree with Calibration.apply_gyro and
+    gyro_rate_covariance (BLAS, so within a stated 1e-12 relative)."""
+    calibration = calibration_with_drift()
+    correction = Correction.build(calibration, 22.0, gyro_noise_var_per_axis=gyro_noise_var)
+    rates = np.array(rows) * 0.01  # up to 2 rad/s
+    alone = np.array([correction.apply_gyro(*(float(v) for v in row)) for row in rates])
+    alone_cov = np.array([correction.angular_covariance_for(GYRO_COVARIANCE, row) for row in rates])
+    for part in (slice(0, split), slice(split, None)):
+        if len(rates[part]):
+            grouped = np.column_stack(correction.apply_gyro(rates[part, 0], rates[part, 1], rates[part, 2]))
+            np.testing.assert_array_equal(grouped, alone[part])
+            driver = np.broadcast_to(GYRO_COVARIANCE, (len(rates[part]), 9))
+            np.testing.assert_array_equal(correction.angular_covariance_for(driver, rates[part]), alone_cov[part])
+    np.testing.assert_allclose(alone, calibration.apply_gyro(rates), rtol=1e-12, atol=1e-15)
+    noise = np.sqrt(gyro_noise_var) if gyro_noise_var is not None else 0.0
+    for row, cov in zip(rates, alone_cov):
+        expected = calibration.gyro_rate_covariance(row, noise)
+        if gyro_noise_var is None:  # not measured: the driver's plus the calibration's own part
+            expected = expected + GYRO_COVARIANCE.reshape(3, 3)
+            # Calibration's covariance holds M_g's sigma on the diagonal only, as Correction does.
+        np.testing.assert_allclose(cov.reshape(3, 3), expected, rtol=1e-12, atol=1e-20)

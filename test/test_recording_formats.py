@@ -159,12 +159,12 @@ def test_corrected_csv_keeps_the_file_and_its_units(recorded, tmp_path, capsys):
     before = list(csv.reader(io.StringIO(source.read_text())))
     after = list(csv.reader(io.StringIO(out.read_text())))
     assert after[0] == before[0] and len(after) == len(before)
-    gyro_bias = calibration.gyro_bias_radps
     for old, new in zip(before[1:], after[1:]):
         assert (old[0], old[7:]) == (new[0], new[7:])  # time and temperature cells as they were
-        # The gyro bias taken off, as the node does (rad/s: the file's gyro units).
+        # The gyro corrected as the node does (its bias, and its matrix when the motions gave one; rad/s: the
+        # file's gyro units).
         np.testing.assert_allclose([float(v) for v in new[4:7]],
-                                   np.array([float(v) for v in old[4:7]]) - gyro_bias, rtol=0, atol=1e-15)
+                                   calibration.apply_gyro([float(v) for v in old[4:7]]), rtol=0, atol=1e-15)
     raw_g = np.array([[float(v) for v in row[1:4]] for row in before[1:]])
     new_g = np.array([[float(v) for v in row[1:4]] for row in after[1:]])
     temps = replay_bag(source, ReplaySettings(units="g")).temperatures_at_samples()

@@ -1,5 +1,5 @@
 """A copy of a bag with its IMU messages corrected: every other message, topic and definition copied as
-recorded, the IMU messages' angular_velocity, linear_acceleration and its covariance replaced, read and
+recorded, the IMU messages' angular_velocity, linear_acceleration and their covariances replaced, read and
 written a group at a time (memory bounded whatever the bag's size)."""
 from __future__ import annotations
 
@@ -16,14 +16,16 @@ from .imu_messages import decode_imus
 COPY_GROUP_MESSAGES = 1 << 14
 COPY_GROUP_BYTES = 64 << 20
 
-# (stamps ns, accel (N, 3), gyro (N, 3), linear_acceleration_covariance (N, 9)) -> the same corrected
-CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+# (stamps ns, accel (N, 3), gyro (N, 3), linear_acceleration_covariance (N, 9), angular_velocity_covariance
+# (N, 9)) -> the same four corrected
+CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                      tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
 def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
                     group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
-    angular_velocity, linear_acceleration and its covariance, which become what `correct` gives (same
+    angular_velocity, linear_acceleration and their covariances, which become what `correct` gives (same
     topic, same stamps, same storage type). Streamed: memory is a group of messages, whatever the bag's
     length; the result does not depend on the groups. Returns messages written."""
     from rosbags.rosbag2 import StoragePlugin, Writer
@@ -85,22 +87,25 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
 
 
 def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: bool) -> list[bytes]:
-    """The IMU messages `raws` with angular_velocity, linear_acceleration and its covariance replaced by
+    """The IMU messages `raws` with angular_velocity, linear_acceleration and their covariances replaced by
     what `correct` gives: the bytes patched in place where the layout is the standard one, else through the
     recorded definition."""
     if not raws:
         return []
     t, accel, gyro, _, groups, group_of, row_of = decode_imus(raws, path, reader.deserialize, fixed_layout=standard)
-    covariance = np.zeros((len(t), 9))
+    # Each covariance follows its vector in the message (CDR: 3 doubles, then 9).
+    covariance, angular = np.zeros((len(t), 9)), np.zeros((len(t), 9))
     for length, (block, layout) in groups.items():
         rows = np.flatnonzero(group_of == length)
-        start = layout["accel"] + 24
-        covariance[rows] = block[row_of[rows], start:start + 72].copy().view("<f8").reshape(len(rows), 9)
+        for values, field in ((covariance, "accel"), (angular, "gyro")):
+            start = layout[field] + 24
+            values[rows] = block[row_of[rows], start:start + 72].copy().view("<f8").reshape(len(rows), 9)
     by_name = np.flatnonzero(group_of < 0)
     messages = {int(i): reader.deserialize(raws[int(i)], IMU) for i in by_name}
     for i, msg in messages.items():
         covariance[i] = np.asarray(msg.linear_acceleration_covariance, dtype=float)
-    accel, gyro, covariance = correct(t, accel, gyro, covariance)
+        angular[i] = np.asarray(msg.angular_velocity_covariance, dtype=float)
+    accel, gyro, covariance, angular = correct(t, accel, gyro, covariance, angular)
     patched = {}
     for length, (block, layout) in groups.items():
         rows = np.flatnonzero(group_of == length)
@@ -108,9 +113,10 @@ def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: boo
         for field, values, width in (("gyro", gyro, 24), ("accel", accel, 24)):
             block[row_of[rows], layout[field]:layout[field] + width] = \
                 np.ascontiguousarray(values[rows], dtype="<f8").view(np.uint8).reshape(len(rows), width)
-        start = layout["accel"] + 24
-        block[row_of[rows], start:start + 72] = \
-            np.ascontiguousarray(covariance[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 72)
+        for field, values in (("accel", covariance), ("gyro", angular)):
+            start = layout[field] + 24
+            block[row_of[rows], start:start + 72] = \
+                np.ascontiguousarray(values[rows], dtype="<f8").view(np.uint8).reshape(len(rows), 72)
         patched[length] = block
     out = []
     for i, (group, row) in enumerate(zip(group_of.tolist(), row_of.tolist())):
@@ -121,5 +127,6 @@ def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: boo
         msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in accel[i])
         msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in gyro[i])
         msg.linear_acceleration_covariance = np.asarray(covariance[i], dtype=float)
+        msg.angular_velocity_covariance = np.asarray(angular[i], dtype=float)
         out.append(bytes(reader.typestore.serialize_cdr(msg, IMU)))
     return out

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.calibration import Calibration
-from ..core.correction import correct_samples
+from ..core.correction import CorrectedSamples, correct_samples
 from ..core.errors import CalibrationError
 from .recording import BAGS, RecordingError
 
@@ -23,11 +23,12 @@ if TYPE_CHECKING:
 
 
 def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.ndarray, accel: np.ndarray,
-                      gyro: np.ndarray, covariance: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+                      gyro: np.ndarray, covariance: np.ndarray | None = None,
+                      angular_covariance: np.ndarray | None = None) -> CorrectedSamples:
     """What the node would publish for these samples of the replayed recording (core.correction's one
-    correction, at the temperatures the node would have used): (accel, gyro, covariance, corrected rows)."""
-    return correct_samples(calibration, t_ns, accel, gyro, covariance, replay.filtered_temperatures())
+    correction, at the temperatures the node would have used)."""
+    return correct_samples(calibration, t_ns, accel, gyro, covariance, replay.filtered_temperatures(),
+                           angular_covariance=angular_covariance)
 
 
 def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
@@ -36,11 +37,11 @@ def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destinat
     from .bag_io import BagError
     from .corrected_bag import write_corrected
 
-    def correct(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray, covariance: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        corrected, rates, cov, _ = corrected_samples(replay, calibration, t_ns, accel, gyro, covariance)
-        assert cov is not None  # given one, it gives one
-        return corrected, rates, cov
+    def correct(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray, covariance: np.ndarray,
+                angular_covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        done = corrected_samples(replay, calibration, t_ns, accel, gyro, covariance, angular_covariance)
+        assert done.covariance is not None and done.angular_covariance is not None  # given them, it gives them
+        return done.accel_mps2, done.gyro_radps, done.covariance, done.angular_covariance
 
     try:
         return write_corrected(replay.bag, destination, replay.imu_topic, correct, **groups)
@@ -155,7 +156,7 @@ def stage_corrected_copy(replay, calibration, destination) -> StagedCopy:
 
     temperatures = replay.temperatures_at_samples()
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
-    corrected, rates, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)
+    corrected, rates, _, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)
     if recording.gyro_radps is None:
         rates = None
     if kind == "csv":

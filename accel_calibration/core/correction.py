@@ -16,7 +16,7 @@ swapped whole, so a message is corrected by one consistent set.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -56,7 +56,8 @@ def rep145_covariance(matrix: np.ndarray, noise_var_per_axis: float | None, bias
 @dataclass(frozen=True)
 class Correction:
     """a_true = M (a_raw - b), then the reference15 quadratic inverted by fixed-point iteration, then the
-    segmented model's drift l a_raw^2 + m a_raw + n per axis added (the paper's eq. 5); w_true = w_raw - b_g.
+    segmented model's drift l a_raw^2 + m a_raw + n per axis added (the paper's eq. 5);
+    w_true = M_g (w_raw - b_g) (M_g once the gyro is calibrated, else the bias alone).
 
     Covariance (REP-145): `covariance` when the sensor's noise is measured (noise through M plus the
     calibration's own uncertainty); until then `calibration_covariance` (the calibration's part alone) is
@@ -72,17 +73,48 @@ class Correction:
     temperature_clamped: bool = False  # outside the calibrated range: evaluated at its edge
     drift: Floats9 | None = None  # segmented: l_x, l_y, l_z (s^2/m), m_x, m_y, m_z (1), n_x, n_y, n_z (m/s^2)
     calibration_covariance: Floats9 | None = None  # the calibration's own part, added to the driver's
+    gyro_matrix: Floats9 | None = None  # row-major M_g
+    # angular_velocity_covariance, as the acceleration's: the whole constant part once the gyro's noise is
+    # measured (noise through M_g, plus the bias sigma through M_g), else the calibration's constant part
+    # alone; plus, per sample, each row of M_g's sigma acting on the bias-free raw rate (diagonal).
+    gyro_covariance: Floats9 | None = None
+    gyro_calibration_covariance: Floats9 | None = None
+    gyro_matrix_variance: Floats9 | None = None  # M_g's sigma squared, row-major
+
+    @classmethod
+    def _gyro_terms(cls, calibration: Calibration | None, noise_var: float | None) -> dict[str, Floats9 | None]:
+        matrix = np.eye(3) if calibration is None or calibration.gyro_matrix is None else calibration.gyro_matrix
+        quality = None if calibration is None else calibration.gyro_quality
+        own = None
+        if quality is not None and quality.bias_sigma_radps is not None:
+            own = np.einsum("ik,k,jk->ij", matrix, np.asarray(quality.bias_sigma_radps) ** 2, matrix)
+        elif quality is not None:
+            own = np.zeros((3, 3))
+        whole = None
+        if noise_var is not None:
+            whole = float(noise_var) * np.einsum("ik,jk->ij", matrix, matrix) + (0.0 if own is None else own)
+        return {
+            "gyro_matrix": None if calibration is None or calibration.gyro_matrix is None
+            else _floats9(calibration.gyro_matrix),
+            "gyro_covariance": None if whole is None else _floats9(whole),
+            "gyro_calibration_covariance": None if own is None else _floats9(own),
+            "gyro_matrix_variance": None if quality is None else _floats9(np.asarray(quality.matrix_sigma) ** 2),
+        }
 
     @classmethod
     def build(cls, calibration: Calibration | None, temperature_degc: float | None = None,
-              noise_var_per_axis: float | None = None) -> Correction | None:
-        """None when there is nothing to apply and no covariance to report."""
+              noise_var_per_axis: float | None = None, gyro_noise_var_per_axis: float | None = None
+              ) -> Correction | None:
+        """None when there is nothing to apply and no covariance to report. The noise variances are per
+        axis, (m/s^2)^2 and (rad/s)^2, as measured at the still poses (None: not yet)."""
+        gyro = cls._gyro_terms(calibration, gyro_noise_var_per_axis)
         if calibration is None:
             cov = rep145_covariance(np.eye(3), noise_var_per_axis, None, None, 0.0)
-            if cov is None:
+            if cov is None and gyro["gyro_covariance"] is None:
                 return None
             identity = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-            return cls(identity, (0.0, 0.0, 0.0), covariance=_floats9(cov))
+            return cls(identity, (0.0, 0.0, 0.0), covariance=None if cov is None else _floats9(cov),
+                       gyro_covariance=gyro["gyro_covariance"])
         terms = calibration.terms_at(temperature_degc)
         clamped = bool(temperature_degc is not None and calibration.temperature is not None
                        and calibration.temperature_clamped(temperature_degc))
@@ -100,6 +132,7 @@ class Correction:
             temperature_clamped=clamped,
             drift=_floats9_or_none(calibration.drift_terms_at(temperature_degc)),
             calibration_covariance=None if own is None else _floats9(own),
+            **gyro,
         )
 
     def apply(self, ax: Value, ay: Value, az: Value) -> tuple[Value, Value, Value]:
@@ -127,11 +160,37 @@ class Correction:
         return (lx + (l0 * ax + s0) * ax + n0, ly + (l1 * ay + s1) * ay + n1, lz + (l2 * az + s2) * az + n2)
 
     def apply_gyro(self, gx: Value, gy: Value, gz: Value) -> tuple[Value, Value, Value]:
-        """Corrected angular rate: the gyro bias taken off (raw passes through without one)."""
-        if self.gyro_bias_radps is None:
+        """Corrected angular rate: the gyro bias taken off, then M_g (raw passes through without either)."""
+        if self.gyro_bias_radps is not None:
+            g0, g1, g2 = self.gyro_bias_radps
+            gx, gy, gz = gx - g0, gy - g1, gz - g2
+        if self.gyro_matrix is None:
             return gx, gy, gz
-        g0, g1, g2 = self.gyro_bias_radps
-        return gx - g0, gy - g1, gz - g2
+        m00, m01, m02, m10, m11, m12, m20, m21, m22 = self.gyro_matrix
+        return (m00 * gx + m01 * gy + m02 * gz, m10 * gx + m11 * gy + m12 * gz, m20 * gx + m21 * gy + m22 * gz)
+
+    def angular_covariance_for(self, driver: np.ndarray, raw_radps: np.ndarray) -> np.ndarray:
+        """angular_velocity_covariance of corrected samples from what the driver reported ((9,) or (N, 9))
+        and the raw rates ((3,) or (N, 3)): as covariance_for, plus M_g's own uncertainty at each rate.
+        Elementwise, so one sample alone and in a group agree bit for bit."""
+        driver = np.asarray(driver, dtype=float)
+        if self.gyro_covariance is None and self.gyro_calibration_covariance is None:
+            return driver
+        rate_part = np.zeros(driver.shape)
+        if self.gyro_matrix_variance is not None:
+            raw = np.asarray(raw_radps, dtype=float)
+            u0, u1, u2 = raw[..., 0], raw[..., 1], raw[..., 2]
+            if self.gyro_bias_radps is not None:
+                b0, b1, b2 = self.gyro_bias_radps
+                u0, u1, u2 = u0 - b0, u1 - b1, u2 - b2
+            s = self.gyro_matrix_variance
+            for row, column in ((0, 0), (1, 4), (2, 8)):
+                rate_part[..., column] = s[3 * row] * u0 * u0 + s[3 * row + 1] * u1 * u1 + s[3 * row + 2] * u2 * u2
+        if self.gyro_covariance is not None:
+            return np.asarray(self.gyro_covariance) + rate_part
+        known = (driver[..., :1] >= 0) & np.any(driver != 0, axis=-1, keepdims=True)
+        own = np.asarray(self.gyro_calibration_covariance)
+        return np.where(known, driver + own + rate_part, driver)
 
     def covariance_for(self, driver: np.ndarray) -> np.ndarray:
         """linear_acceleration_covariance of corrected samples, from what the driver reported ((9,) or
@@ -163,13 +222,20 @@ def correction_temperatures(filtered_degc: np.ndarray, held_degc: float | None =
     return out
 
 
+class CorrectedSamples(NamedTuple):
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+    covariance: np.ndarray | None  # linear_acceleration_covariance (N, 9), None when none was given
+    angular_covariance: np.ndarray | None  # angular_velocity_covariance (N, 9), None when none was given
+    corrected: np.ndarray  # which rows were corrected (finite acceleration)
+
+
 def correct_samples(calibration: Calibration, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                     covariance: np.ndarray | None = None,
                     temperatures: tuple[np.ndarray, np.ndarray] | None = None,
-                    noise_var_per_axis: float | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
-    """What the node publishes for these samples, as arrays: (accel, gyro, covariance (N, 9) or None
-    when none was given, which rows were corrected). `temperatures`: the filtered readings in arrival
+                    noise_var_per_axis: float | None = None, angular_covariance: np.ndarray | None = None,
+                    gyro_noise_var_per_axis: float | None = None) -> CorrectedSamples:
+    """What the node publishes for these samples, as arrays. `temperatures`: the filtered readings in arrival
     order (stamps ns, degC), as TemperatureFilter.take gives them; each sample is corrected at the
     correction temperature of the latest reading stamped at or before it (the node's latest reading),
     the reference temperature before the first. A sample whose acceleration is not finite passes
@@ -178,6 +244,7 @@ def correct_samples(calibration: Calibration, t_ns: np.ndarray, accel_mps2: np.n
     accel = np.array(accel_mps2, dtype=float).reshape(-1, 3)
     gyro = np.array(gyro_radps, dtype=float).reshape(-1, 3)
     cov = None if covariance is None else np.array(covariance, dtype=float).reshape(-1, 9)
+    angular = None if angular_covariance is None else np.array(angular_covariance, dtype=float).reshape(-1, 9)
     finite = np.all(np.isfinite(accel), axis=1)
     reading = np.full(len(t), -1)
     held = np.zeros(0)
@@ -197,14 +264,16 @@ def correct_samples(calibration: Calibration, t_ns: np.ndarray, accel_mps2: np.n
     for temperature, rows in groups.items():
         if not len(rows):
             continue
-        correction = Correction.build(calibration, temperature, noise_var_per_axis)
+        correction = Correction.build(calibration, temperature, noise_var_per_axis, gyro_noise_var_per_axis)
         assert correction is not None  # a calibration always gives one
         a, g = accel[rows], gyro[rows]
         accel[rows] = np.column_stack(correction.apply(a[:, 0], a[:, 1], a[:, 2]))
         gyro[rows] = np.column_stack(correction.apply_gyro(g[:, 0], g[:, 1], g[:, 2]))
         if cov is not None:
             cov[rows] = correction.covariance_for(cov[rows])
-    return accel, gyro, cov, finite
+        if angular is not None:
+            angular[rows] = correction.angular_covariance_for(angular[rows], g)
+    return CorrectedSamples(accel, gyro, cov, angular, finite)
 
 
 def _floats3(values: object) -> Floats3:

@@ -49,6 +49,7 @@ class Motion:
     gyro_radps: np.ndarray  # (n, 3) raw angular rate
     paused: bool = False  # collection was paused (armed, calibration/pause) during it
     saturated: bool = False  # the sample path saw a sample at or beyond the gyro's range
+    broken: bool = False  # a sample in it was screened out (not finite, out of range, frozen) or the clock jumped
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,8 @@ class RefusedMotion:
     """A motion not used, and why."""
 
     index: int  # motion k joins pose k and pose k + 1
-    kind: str  # "not recorded", "too short", "not finite", "stamps", "long", "gap", "saturated", "paused", "span"
+    kind: str  # "not recorded", "too short", "not finite", "stamps", "long", "gap", "saturated", "screened",
+    # "paused", "span"
     reason: str
 
     def describe(self) -> str:
@@ -192,6 +194,9 @@ def motion_problem(motion: Motion | None, index: int, poses: Sequence[Pose], opt
         return refuse("paused", "collection was paused during it")
     if motion.saturated:
         return refuse("saturated", "the gyro saturated during it")
+    if motion.broken:
+        return refuse("screened", "a sample in it was screened out (not finite, out of range, frozen) "
+                                  "or the clock jumped")
     stamps, rates = motion.stamps_ns, motion.gyro_radps
     if len(stamps) < 3:
         return refuse("too short", f"{len(stamps)} samples")

@@ -20,7 +20,9 @@ from .coverage import missing_directions
 from .errors import SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
+from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
+from .motion_recorder import MotionRecorder
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .screening import Counters, SampleScreen
@@ -63,6 +65,7 @@ class Verdict:
     message: str  # "gate <name>: <reason>" on refusal
     result: FitResult | None = None
     calibration: Calibration | None = None  # with gyro bias, frame_id and sensor_id filled in
+    gyro: GyroFitResult | None = None  # the gyro fit tried with it (applied when its gates passed)
 
 
 class CalibrationSession:
@@ -88,6 +91,10 @@ class CalibrationSession:
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
+        # The raw gyro between consecutive poses (the gyro fit's motions), fed by the same sample path.
+        self.motions = MotionRecorder(max_motion_s=settings.gyro_max_motion_s,
+                                      trailing_s=2.0 + 4 * settings.static_window_s, capacity=settings.max_poses,
+                                      overlap_s=settings.static_window_s)
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
         self._pause_reasons: frozenset[str] = frozenset()  # why collection is paused (armed, calibration/pause)
         # Means of the latest still intervals dropped as implausible for gravity (the stream side writes,
@@ -189,6 +196,7 @@ class CalibrationSession:
         """Drop the poses held (not the learned noise floor); returns how many were dropped."""
         dropped = len(self.store)
         self.store.clear()
+        self.motions.clear()
         self.last_fit = None
         return dropped
 
@@ -280,7 +288,34 @@ class CalibrationSession:
             return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id)
-        return Verdict(True, "passed every gate" + left_out, replace(result, calibration=calibration), calibration)
+        gyro, gyro_text = self.gyro_verdict(calibration)
+        if gyro is not None and gyro_text is None:
+            calibration = gyro.apply_to(calibration)
+        said = "" if gyro_text is None and gyro is None else (
+            f"; gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms"
+            if gyro_text is None and gyro is not None else f"; {gyro_text} (the gyro keeps its bias only)")
+        return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=calibration),
+                       calibration, gyro)
+
+    def gyro_noise_var(self) -> float | None:
+        """The gyro's white-noise variance per axis, (rad/s)^2: the quietest still windows' (None before)."""
+        _, floor = self.detector.quietest_floors  # window total over the three axes
+        return None if floor is None else floor / 3.0
+
+    def gyro_verdict(self, accel: Calibration) -> tuple[GyroFitResult | None, str | None]:
+        """The gyro fit from the motions between the poses found, in the frame of this accelerometer
+        calibration, and why it may not be applied (None: it may). (None, None) when gyro.calibrate is off
+        or no two consecutive poses were seen."""
+        poses, motions = self.motions.poses_and_motions()
+        if not self.settings.gyro_calibrate or len(poses) < 2 or all(p.gyro_radps is None for p in poses):
+            return None, None
+        if any(p.gyro_radps is None for p in poses):
+            return None, "gyro: the poses hold no angular rate"
+        variance = self.gyro_noise_var()
+        noise = None if variance is None else float(np.sqrt(variance))
+        result = fit_gyro(poses, motions, accel, options=self.settings.gyro_fit, gyro_noise_radps=noise)
+        refusal = self.settings.gyro_gates.check(result)
+        return result, refusal
 
     def auto_verdict(self, result: FitResult | None) -> Verdict | None:
         """With auto_calibrate on: the verdict to apply once the latest refit passes every gate (None when
@@ -414,12 +449,22 @@ class RecordingFeed:
     def finish(self) -> list[Pose]:
         """The end of the recording: the rest goes through, the interval open at the end ends."""
         self._run(final=True)
-        return [pose for pose, base in self._found if self.session._usable(pose, base) is not None]
+        return self._settle(self._found)
 
     def take_poses(self) -> list[Pose]:
         """Live: the poses ended since the last call (those that are poses: not frozen, plausible gravity)."""
         found, self._found = self._found, []
-        return [pose for pose, base in found if self.session._usable(pose, base) is not None]
+        return self._settle(found)
+
+    def _settle(self, found: list[tuple[Pose, int]]) -> list[Pose]:
+        """The poses found that are poses; the others leave the motion recorder's sequence too."""
+        usable = []
+        for pose, base in found:
+            if self.session._usable(pose, base) is None:
+                self.session.motions.drop(pose)
+            else:
+                usable.append(pose)
+        return usable
 
     def drain(self) -> None:
         """Live: everything buffered goes through now, without waiting for later temperature readings
@@ -517,6 +562,7 @@ class RecordingFeed:
         keep, restart = session.screen.screen_arrays(t, accel, gyro)
         paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
         session.counters.samples_paused += int(np.count_nonzero(keep & paused))
+        session.motions.add(t, gyro, keep, paused, restart)
         rows = np.flatnonzero(keep & ~paused)  # what the detector sees
         # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
         # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
@@ -558,4 +604,6 @@ class RecordingFeed:
             segment_bases = np.concatenate([[self._segment_base], bases[np.flatnonzero(breaks)]])
         if len(rows):
             self._segment_base = int(bases[-1])
+        for pose in poses:
+            session.motions.pose_found(pose)
         self._found += [(p, int(segment_bases[segment])) for p, segment in zip(poses, detector.pose_segments)]

@@ -15,12 +15,15 @@ from typing import Any
 from .coverage import SigmaBounds
 from .errors import SettingsError
 from .fit import OutlierOptions
+from .gyro_fit import GyroFitOptions
+from .gyro_gates import GyroGates
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from .units import STANDARD_GRAVITY
 
 ONLINE_MODELS = ("six", "sphere9")
 _TEMPERATURE = TemperatureOptions()  # the temperature fit's defaults, written once (temperature_models.py)
 RELIABILITIES = ("reliable", "best_effort")
+_GYRO_GATES, _GYRO_FIT = GyroGates(), GyroFitOptions()  # the gyro fit's defaults, written once
 
 
 @dataclass(frozen=True)
@@ -124,6 +127,25 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("static.max_floor_rise", 1.5,
               "static detector: the learned noise floors may rise at most this factor (rms) above the quietest "
               "floor seen since start, so flight vibration is never learned as noise", 1.0, 1000.0),
+    Parameter("gyro.calibrate", True,
+              "fit the gyro's scale and misalignment from the motions between poses at /calibrate (and in replay) "
+              "when they pass the gyro.* gates; false: the gyro gets its bias only", dynamic=True),
+    Parameter("gyro.max_motion_s", _GYRO_FIT.max_motion_s,
+              "a motion between two poses longer than this is not used for the gyro fit (nor kept), s", 1.0, 600.0),
+    Parameter("gyro.min_motions", _GYRO_GATES.min_motions, "gyro gate: usable motions needed", 5, 10_000,
+              dynamic=True),
+    Parameter("gyro.max_residual_rms_mrad", _GYRO_GATES.max_residual_rms_mrad,
+              "gyro gate: largest rms by which the fitted motions miss the next pose, mrad", 0.01, 1000.0,
+              dynamic=True),
+    Parameter("gyro.max_scale_sigma_ppm", _GYRO_GATES.max_scale_sigma_ppm,
+              "gyro gate: largest scale uncertainty (1 sigma) that may be applied, ppm", 0.1, 1e6, dynamic=True),
+    Parameter("gyro.max_misalignment_sigma_mrad", _GYRO_GATES.max_misalignment_sigma_mrad,
+              "gyro gate: largest misalignment uncertainty (1 sigma) that may be applied, mrad", 0.001, 1000.0,
+              dynamic=True),
+    Parameter("gyro.scale_min", _GYRO_GATES.scale_band[0], "gyro gate: smallest gain per axis (row norm of M_g)",
+              0.01, 0.999, dynamic=True),
+    Parameter("gyro.scale_max", _GYRO_GATES.scale_band[1], "gyro gate: largest gain per axis (row norm of M_g)",
+              1.001, 100.0, dynamic=True),
 )
 BY_NAME = {p.name: p for p in PARAMETERS}
 
@@ -208,6 +230,14 @@ class Settings:
     static_max_gyro_noise_mradps: float = _default("static.max_gyro_noise_mradps")
     static_max_floor_rise: float = _default("static.max_floor_rise")
     merge_tolerance_mg: float = _default("merge_tolerance_mg")
+    gyro_calibrate: bool = _default("gyro.calibrate")
+    gyro_max_motion_s: float = _default("gyro.max_motion_s")
+    gyro_min_motions: int = _default("gyro.min_motions")
+    gyro_max_residual_rms_mrad: float = _default("gyro.max_residual_rms_mrad")
+    gyro_max_scale_sigma_ppm: float = _default("gyro.max_scale_sigma_ppm")
+    gyro_max_misalignment_sigma_mrad: float = _default("gyro.max_misalignment_sigma_mrad")
+    gyro_scale_min: float = _default("gyro.scale_min")
+    gyro_scale_max: float = _default("gyro.scale_max")
 
     def __post_init__(self) -> None:
         for parameter in PARAMETERS:
@@ -249,6 +279,17 @@ class Settings:
     @property
     def outliers(self) -> OutlierOptions:
         return OutlierOptions(threshold_mg=self.outlier_threshold_mg, k_sigma=self.outlier_k_sigma)
+
+    @property
+    def gyro_gates(self) -> GyroGates:
+        return GyroGates(min_motions=self.gyro_min_motions, max_residual_rms_mrad=self.gyro_max_residual_rms_mrad,
+                         max_scale_sigma_ppm=self.gyro_max_scale_sigma_ppm,
+                         max_misalignment_sigma_mrad=self.gyro_max_misalignment_sigma_mrad,
+                         scale_band=(self.gyro_scale_min, self.gyro_scale_max))
+
+    @property
+    def gyro_fit(self) -> GyroFitOptions:
+        return GyroFitOptions(max_motion_s=self.gyro_max_motion_s, gyro_range_radps=self.gyro_range_radps)
 
     @property
     def temperature(self) -> TemperatureOptions:

@@ -36,6 +36,7 @@ class CalibrationInForce:
         self.temperature_degc: float | None = None  # where the correction's temperature terms were evaluated
         self.clamped_rebuilds = 0  # corrections built outside the calibrated temperature range
         self._noise_var: float | None = None
+        self._gyro_noise_var: float | None = None
         self._filter = TemperatureFilter(timeout_s=settings.temperature_timeout_s)
         self._lock = threading.Lock()
 
@@ -112,12 +113,13 @@ class CalibrationInForce:
             self.calibration = calibration
             self._rebuild()
 
-    def set_noise(self, noise_var_per_axis: float | None) -> None:
-        """The sensor's white-noise variance per axis, as measured at still poses (m/s^2)^2."""
-        if noise_var_per_axis == self._noise_var:
+    def set_noise(self, noise_var_per_axis: float | None, gyro_noise_var_per_axis: float | None = None) -> None:
+        """The sensor's white-noise variance per axis, as measured at still poses: (m/s^2)^2 and (rad/s)^2."""
+        if noise_var_per_axis == self._noise_var and gyro_noise_var_per_axis == self._gyro_noise_var:
             return
         with self._lock:
             self._noise_var = noise_var_per_axis
+            self._gyro_noise_var = gyro_noise_var_per_axis
             self._rebuild()
 
     def take_temperature(self, stamp_ns: int, degc: float) -> bool:
@@ -139,7 +141,7 @@ class CalibrationInForce:
 
     def _rebuild(self) -> None:
         """Caller holds the lock: calibration, temperature and noise are read together."""
-        correction = Correction.build(self.calibration, self.temperature_degc, self._noise_var)
+        correction = Correction.build(self.calibration, self.temperature_degc, self._noise_var, self._gyro_noise_var)
         if correction is not None and correction.temperature_clamped:
             self.clamped_rebuilds += 1
         self.correction = correction

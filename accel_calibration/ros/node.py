@@ -156,9 +156,13 @@ class CalibrationNode(Node):
         correction = self._in_force.correction
         if correction is not None and self._enabled and math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az):
             a.x, a.y, a.z = correction.apply(ax, ay, az)
-            w.x, w.y, w.z = correction.apply_gyro(w.x, w.y, w.z)
+            gx, gy, gz = w.x, w.y, w.z
+            w.x, w.y, w.z = correction.apply_gyro(gx, gy, gz)
             if correction.covariance is not None or correction.calibration_covariance is not None:
                 msg.linear_acceleration_covariance = correction.covariance_for(msg.linear_acceleration_covariance)
+            if correction.gyro_covariance is not None or correction.gyro_calibration_covariance is not None:
+                msg.angular_velocity_covariance = correction.angular_covariance_for(
+                    msg.angular_velocity_covariance, np.array((gx, gy, gz)))
         self._publisher.publish(msg)  # non-finite samples pass on untouched: the stack sees what the driver sent
 
     def _on_temperature(self, msg: Temperature) -> None:
@@ -234,7 +238,8 @@ class CalibrationNode(Node):
             log.debug(f"pose {event.index + 1}: mean {np.round(pose.accel_mps2, 5).tolist()} m/s^2 over "
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
-        self._in_force.set_noise(self._session.detector.noise_floor_accel_var)  # the covariance follows
+        # The covariances follow the noise measured at the still poses.
+        self._in_force.set_noise(self._session.detector.noise_floor_accel_var, self._session.gyro_noise_var())
         result = self._session.refit()
         progress = self._refresh_progress()
         if result is not None and result.success and result.calibration is not None \
