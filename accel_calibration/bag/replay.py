@@ -76,6 +76,8 @@ class ReplayResult:
     flight_state_line: str | None = None
     flight_state_found: bool = False
     autopilot_calibration: object = None  # dataflash.AutopilotCalibration logged with the recording
+    gyro: object = None  # core.gyro_fit.GyroFitResult: the gyro fit tried from the motions (None: none ran)
+    gyro_refusal: str | None = None  # why it was not applied (None: it was, or none ran)
     autopilot_difference_mg: float | None = None  # how far ours moves the autopilot's output, worst at 1 g
 
     @property
@@ -249,6 +251,8 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
 
     if not has_gyro:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
+        # The zeros standing in for a missing gyro are no motions to fit.
+        session.update_settings(dataclasses.replace(session.settings, gyro_calibrate=False))
     slots = []  # per pose, its place in the store (None once the store gave that place to a newer pose)
     for pose in poses:
         event = session.add_pose(pose)
@@ -296,4 +300,6 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
         temperature_timeout_s=s.session.temperature_timeout_s,
         start_ns=start_ns,
         sensor_id=recording.sensor_id,
+        gyro=verdict.gyro if has_gyro else None,
+        gyro_refusal=verdict.gyro_refusal if has_gyro else None,
     )

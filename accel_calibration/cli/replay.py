@@ -83,7 +83,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
-             replay.result.summary(), *notes]
+             replay.result.summary(), *gyro_lines(replay), *notes]
     bad = {k: v for k, v in replay.counts.items() if v}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
@@ -93,7 +93,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
         if corrected_bag:
             copy = stage_corrected_copy(replay, calibration, corrected_bag)
         figure = (render_report(calibration, [p.accel_mps2 for p in replay.poses],
-                                 [p.temperature_degc for p in replay.poses], title=Path(bag).name)
+                                 [p.temperature_degc for p in replay.poses], title=Path(bag).name, gyro=replay.gyro)
                   if report else None)
         # All the work succeeded: now the outputs, the one that can still be taken by another run first.
         if copy is not None:
@@ -239,3 +239,13 @@ def comparison_table(bags, outcomes) -> str:
         rows.append(f"{'spread (1 sigma across bags)':32s} {'':5s} {'':7s} {b[0]:8.2f} {b[1]:8.2f} {b[2]:8.2f} "
                     f"{m[0]:9.6f} {m[1]:9.6f} {m[2]:9.6f}")
     return "\n".join(rows)
+
+
+def gyro_lines(replay) -> list[str]:
+    """What replay says of the gyro: its calibration from the motions, or why it keeps its bias only."""
+    gyro, calibration = replay.gyro, replay.calibration
+    if gyro is None:
+        return []
+    if calibration is not None and calibration.gyro_matrix is not None:
+        return [gyro.summary()]
+    return [f"{replay.gyro_refusal or gyro.message} (the gyro keeps its bias only)"]

@@ -25,7 +25,7 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
     return parser
 
 
-def render_report(calibration, accel, temperatures, title: str) -> bytes:
+def render_report(calibration, accel, temperatures, title: str, gyro=None) -> bytes:
     """The report figure's PNG bytes, rendered aside (written later like every output)."""
     import tempfile
 
@@ -33,16 +33,16 @@ def render_report(calibration, accel, temperatures, title: str) -> bytes:
 
     with tempfile.TemporaryDirectory(prefix="accel-calib-report-") as scratch:
         rendered = Path(scratch) / "report.png"
-        draw_report(calibration, accel, temperatures, rendered, title=title)
+        draw_report(calibration, accel, temperatures, rendered, title=title, gyro=gyro)
         return rendered.read_bytes()
 
 
-def write_report(calibration, accel, temperatures, output, title: str) -> None:
+def write_report(calibration, accel, temperatures, output, title: str, gyro=None) -> None:
     """The report figure, rendered aside and then written like every output (whole, through symlinks,
     keeping the old file's mode)."""
     from ..io.output_paths import write_bytes_atomically
 
-    write_bytes_atomically(output, render_report(calibration, accel, temperatures, title))
+    write_bytes_atomically(output, render_report(calibration, accel, temperatures, title, gyro))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,12 +65,14 @@ def run(args: argparse.Namespace) -> int:
             raise CalibrationError(str(error)) from None
         accel = [p.accel_mps2 for p in replay.poses]
         temps = [p.temperature_degc for p in replay.poses]
+        gyro = replay.gyro  # the recording's motions, fitted by replay
     else:
+        gyro = None
         table = read_table(args.poses)
         accel = table.accel * UNIT_SCALE[args.units]
         temps = None if table.temperature_degc is None else list(table.temperature_degc)
     if len(accel) == 0:
         raise CalibrationError("no poses to show")
-    write_report(calibration, accel, temps, args.output, title=str(args.calibration))
+    write_report(calibration, accel, temps, args.output, title=str(args.calibration), gyro=gyro)
     print(f"report {args.output}")
     return 0

@@ -66,6 +66,7 @@ class Verdict:
     result: FitResult | None = None
     calibration: Calibration | None = None  # with gyro bias, frame_id and sensor_id filled in
     gyro: GyroFitResult | None = None  # the gyro fit tried with it (applied when its gates passed)
+    gyro_refusal: str | None = None  # why it was not applied ("gyro: gate ...: ..."), None when it was or none ran
 
 
 class CalibrationSession:
@@ -295,7 +296,7 @@ class CalibrationSession:
             f"; gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms"
             if gyro_text is None and gyro is not None else f"; {gyro_text} (the gyro keeps its bias only)")
         return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=calibration),
-                       calibration, gyro)
+                       calibration, gyro, gyro_text)
 
     def gyro_noise_var(self) -> float | None:
         """The gyro's white-noise variance per axis, (rad/s)^2: the quietest still windows' (None before)."""

@@ -1,9 +1,11 @@
 """A calibration report a person would rather look at than read: the pose directions on the sphere,
 |a| - g per pose before and after (mg), the residuals, and the bias against temperature when the
-calibration has a temperature model. matplotlib with the Agg backend: no display needed."""
+calibration has a temperature model; with a gyro fit, a row of its per-motion residuals before (the bias
+alone) and after (M_g). matplotlib with the Agg backend: no display needed."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,8 +13,12 @@ from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
 from ..core.units import MG
 
+if TYPE_CHECKING:
+    from ..core.gyro_fit import GyroFitResult
 
-def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "") -> None:
+
+def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "",
+                 gyro: GyroFitResult | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -28,11 +34,13 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
     after = (np.linalg.norm(corrected, axis=1) - g) / MG
     directions = corrected / np.linalg.norm(corrected, axis=1)[:, None]
 
-    figure = plt.figure(figsize=(13, 9))
+    motions = gyro is not None and len(gyro.residuals_mrad) > 0
+    rows = 3 if motions else 2
+    figure = plt.figure(figsize=(13, 4.5 * rows))
     figure.suptitle(f"accel_calibration report {title}\nmodel {calibration.model}, {len(accel)} poses, "
                     f"residual {np.sqrt(np.mean(after ** 2)):.2f} mg rms (raw {np.sqrt(np.mean(before ** 2)):.1f} mg)")
 
-    sphere = figure.add_subplot(2, 2, 1, projection="3d")
+    sphere = figure.add_subplot(rows, 2, 1, projection="3d")
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
     sphere.plot_wireframe(np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v), color="0.85", linewidth=0.5)
     colour = temps if temps is not None else np.abs(after)
@@ -44,7 +52,7 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
     sphere.set_ylabel("y")
     sphere.set_zlabel("z")
 
-    bars = figure.add_subplot(2, 2, 2)
+    bars = figure.add_subplot(rows, 2, 2)
     index = np.arange(len(accel))
     bars.bar(index - 0.2, before, width=0.4, label="raw", color="tab:red")
     bars.bar(index + 0.2, after, width=0.4, label="calibrated", color="tab:blue")
@@ -54,14 +62,14 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
     bars.set_title("magnitude error per pose")
     bars.legend()
 
-    residuals = figure.add_subplot(2, 2, 3)
+    residuals = figure.add_subplot(rows, 2, 3)
     residuals.plot(index, after, "o-", color="tab:blue")
     residuals.axhline(0, color="k", linewidth=0.5)
     residuals.set_xlabel("pose")
     residuals.set_ylabel("residual, mg")
     residuals.set_title(f"residuals after calibration (max {np.max(np.abs(after)):.2f} mg)")
 
-    drift = figure.add_subplot(2, 2, 4)
+    drift = figure.add_subplot(rows, 2, 4)
     if calibration.temperature is not None:
         lo, hi = calibration.temperature.range_degc
         grid = np.linspace(lo, hi, 200)
@@ -81,6 +89,8 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
         drift.text(0.0, 0.9, "\n".join(text), family="monospace", va="top")
         drift.set_title("parameters (no temperature model)")
 
+    if motions and gyro is not None:
+        _gyro_row(figure, gyro, rows)
     figure.tight_layout()
     path = Path(path)
     temporary = path.with_name(f".{path.name}.tmp.png")
@@ -92,3 +102,18 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
         raise CalibrationError(f"cannot write {path}: {error.strerror}") from None
     finally:
         plt.close(figure)
+
+
+def _gyro_row(figure, gyro: GyroFitResult, rows: int) -> None:
+    """Per motion used: by how much it misses the next pose with the gyro bias alone and with M_g."""
+    panel = figure.add_subplot(rows, 1, rows)
+    index = np.array(gyro.used) + 1
+    panel.bar(index - 0.2, gyro.residuals_before_mrad, width=0.4, label="bias only", color="tab:red")
+    panel.bar(index + 0.2, gyro.residuals_mrad, width=0.4, label="with M_g", color="tab:blue")
+    panel.set_yscale("log")
+    panel.set_xlabel("motion (pose k to k + 1)")
+    panel.set_ylabel("miss of the next pose, mrad")
+    refused = ", ".join(f"{n} {kind}" for kind, n in gyro.refused_counts().items())
+    panel.set_title(f"gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms "
+                    f"(bias only {gyro.residual_rms_before_mrad:.1f})" + (f"; not used: {refused}" if refused else ""))
+    panel.legend()

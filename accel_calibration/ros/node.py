@@ -286,7 +286,7 @@ class CalibrationNode(Node):
             self.get_logger().warning(f"{self._calibrate_service}: {saved}")
             return False, saved
         self.get_logger().info(f"{self._calibrate_service}: calibrated, {saved}")
-        return True, _summary_yaml(verdict.result, saved)
+        return True, _summary_yaml(verdict.result, saved, verdict.gyro_refusal)
 
     def _reset_job(self) -> tuple[bool, str]:
         self._feed()
@@ -380,7 +380,7 @@ def _face_of(accel: np.ndarray) -> str:
     return f"{'xyz'[axis]} {'up' if accel[axis] > 0 else 'down'}"
 
 
-def _summary_yaml(result: FitResult, saved_message: str) -> str:
+def _summary_yaml(result: FitResult, saved_message: str, gyro_refusal: str | None = None) -> str:
     c = result.calibration
     if c is None or c.quality is None or result.sigma is None:
         return f"saved: {saved_message}"
@@ -402,8 +402,20 @@ def _summary_yaml(result: FitResult, saved_message: str) -> str:
         lines.append("outliers: [" + ", ".join(
             f"{{pose: {o.index + 1}, residual_mg: {o.residual_mg:.1f}, orientation: '{o.orientation}'}}"
             for o in result.outliers) + "]")
+    if c.gyro_matrix is not None and c.gyro_quality is not None:
+        q = c.gyro_quality
+        lines.append(f"gyro: {{applied: true, motions: {q.motions}, residual_rms_mrad: {q.residual_rms_mrad:.3f}, "
+                     "matrix: [" + ", ".join("[" + ", ".join(f"{v:.7f}" for v in row) + "]" for row in c.gyro_matrix)
+                     + "]}")
+    elif gyro_refusal is not None:
+        lines.append(f"gyro: {{applied: false, reason: {yaml_quoted(gyro_refusal)}}}")
     lines.append(f"saved: {saved_message}")
     return "\n".join(lines)
+
+
+def yaml_quoted(text: str) -> str:
+    """A YAML single-quoted scalar of one line (quotes doubled)."""
+    return "'" + " ".join(text.splitlines()).replace("'", "''") + "'"
 
 
 def spin_until(node: Node, stop: threading.Event) -> None:
