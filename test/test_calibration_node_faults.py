@@ -13,7 +13,7 @@ from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 
 from accel_calibration import Calibration, load_calibration, save_calibration
-from msg_tools.conversions import make_imu, make_temperature
+from msg_tools.conversions import make_imu
 from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -153,8 +153,9 @@ def test_temperature_that_stops_is_reported_stale_and_used_again_when_it_resumes
     node = NodeProcess(tmp_path / "cal.yaml", "temperature_timeout_s:=1.0")
     try:
         tester.wait_ready()
-        for i in range(20):
-            tester.temperature_pub.publish(make_temperature(START_NS + i * 10**8, 30.0))
+        # 2 s of a driver publishing both (a reading is judged against the IMU stream's stamps: one far
+        # ahead of it is another clock's, test_node_as_ros_user).
+        tester.play(still_samples(2.0, seed=2), start_ns=START_NS, temperature_period_s=0.1)
         assert tester.spin_until(
             lambda: tester.diagnostics and tester.diagnostics[-1]["temperature_degc"] == "30.00", 5)
         # IMU goes on for 3 s of header time, the temperature does not.

@@ -251,8 +251,8 @@ def test_a_corrected_copy_of_another_definition_keeps_it(tmp_path, session):
     write_corrected_bag(replay, replay.calibration, tmp_path / "corrected")
     again = replay_bag(tmp_path / "corrected", through_rosbags=True)
     np.testing.assert_allclose(again.recording.accel_mps2, replay.calibration.apply(session.accel_raw), atol=1e-12)
-    # The gyro bias comes off too, as the node takes it off (core.correction's one correction).
-    np.testing.assert_allclose(again.recording.gyro_radps, session.gyro_raw - replay.calibration.gyro_bias_radps,
+    # The gyro corrected too, as the node corrects it (core.correction's one correction; BLAS: 1e-15).
+    np.testing.assert_allclose(again.recording.gyro_radps, replay.calibration.apply_gyro(session.gyro_raw),
                                rtol=0, atol=1e-15)
 
 

@@ -155,3 +155,28 @@ def test_a_params_file_that_would_hang_or_crash_rcl_is_one_line(kind, tmp_path, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("calibration_node: error:") and str(path) in err[0]
     assert yaml  # (the checks parse YAML themselves only after these)
+
+
+def test_a_temperature_stamped_an_hour_ahead_is_screened_and_counted(make_node, tmp_path):
+    """Issue 25 item 19: two temperature publishers, one stamped an hour ahead, drove the live correction
+    temperature to 60 degC while the sensor read 25 (and the true readings after it got no weight); no
+    counter moved. A reading stamped more than a minute ahead of the IMU stream is dropped and
+    counted (60 s: a pause of the IMU stream keeps its readings)."""
+    from accel_calibration.core.temperature_models import TemperatureModel
+    from msg_tools.conversions import make_temperature
+
+    calibration = Calibration(bias=np.zeros(3), matrix=np.eye(3), temperature=TemperatureModel(
+        "polynomial", 25.0, (0.0, 70.0), bias_coefficients=[[0.001, 0.0, 0.0]]))
+    save_calibration(calibration, tmp_path / "cal.yaml")
+    node = make_node()
+    start = 1_700_000_000 * 10**9
+    for k in range(200):
+        t = start + k * 5_000_000
+        node._on_imu(make_imu(t, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
+        if k % 20 == 0:
+            node._on_temperature(make_temperature(t, 25.0))
+        if k == 100:
+            node._on_temperature(make_temperature(t + 3600 * 10**9, 60.0))  # the other publisher's clock
+    assert abs(node._in_force.temperature_degc - 25.0) < 0.1
+    assert node.counters()["temperature_future"] == 1
+    assert diagnostics_of(node)["temperature_future"] == "1"

@@ -101,7 +101,8 @@ def test_sigints_until_it_has_exited_still_exit_0(tmp_path, tester, node_process
     (["-p", "accel_range_mps2:=-1.0"], "accel_range_mps2 must be within"),
     (["-p", "temperature_timeout_s:=-1.0"], "temperature_timeout_s must be within"),
     (["-p", "static.window_s:=0.0"], "static.window_s must be within"),
-    (["--params-file", "/nonexistent/params.yaml"], "cannot read --params-file /nonexistent/params.yaml"),
+    (["--params-file", "/nonexistent/params.yaml"],
+     "/nonexistent/params.yaml: --params-file (a ROS 2 parameters YAML) not found"),
 ])
 def test_bad_startup_parameters_are_one_line_and_exit_2(tmp_path, args, says):
     process = subprocess.run([*installed_command("calibration_node"), "--ros-args", *args],

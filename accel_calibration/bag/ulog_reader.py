@@ -183,7 +183,8 @@ def _definitions_problem(path: Path) -> str | None:
                 if kind == ord("F"):
                     formats[pos] = bytes(data[pos + 3:pos + 3 + length])
                 pos += 3 + length
-    return _formats_problem(formats)  # else definitions only: no data, said by the reader
+    # Definitions only (cut between two of them): a type defined later may be missing; no data, said by the reader.
+    return _formats_problem(formats, whole=False)
 
 
 _ULOG_TYPES = frozenset({"int8_t", "uint8_t", "int16_t", "uint16_t", "int32_t", "uint32_t", "int64_t", "uint64_t",
@@ -210,16 +211,16 @@ def _format_fields(body: bytes) -> tuple[str, list[str]] | str:
     return name, types
 
 
-def _formats_problem(formats: dict[int, bytes]) -> str | None:
-    """The first broken format record (by its byte offset): not parseable, or a field of a type that is
-    neither ULog's nor another format of the log."""
+def _formats_problem(formats: dict[int, bytes], whole: bool = True) -> str | None:
+    """The first broken format record (by its byte offset): not parseable, or (`whole`: every definition is
+    there) a field of a type that is neither ULog's nor another format of the log."""
     parsed = {pos: _format_fields(body) for pos, body in formats.items()}
     names = {entry[0] for entry in parsed.values() if isinstance(entry, tuple)}
     for pos, entry in sorted(parsed.items()):
         if isinstance(entry, str):
             return f"corrupt ULog: the format record at byte {pos} {entry}"
         unknown = [kind for kind in entry[1] if kind not in _ULOG_TYPES and kind not in names]
-        if unknown:
+        if unknown and whole:
             return f"corrupt ULog: the format of {entry[0]} (byte {pos}) has a field of unknown type {unknown[0]!r}"
     return None
 

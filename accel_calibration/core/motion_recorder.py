@@ -82,12 +82,14 @@ class MotionRecorder:
         if self._chunks and len(t) and t[0] < self._chunks[-1][0][-1]:
             # Stamps went back (a clock re-synchronisation): what came before is no motion of these stamps.
             self._chunks = []
-            self._last_end_ns = None
+            self.clear()
         self._chunks.append((t, np.asarray(gyro_radps, dtype=float)[rows].copy(), flags.astype(np.uint8)))
         self._trim()
 
     def pose_found(self, pose: Pose) -> None:
         """A pose the detector ended (in time order): the motion from the pose before is cut out."""
+        if self._sequence and pose.start_ns <= self._sequence[-1].found.end_ns:
+            self.clear()  # another clock's poses (a re-synchronisation): the sequence starts again
         motion = None
         if self._last_end_ns is not None and self._sequence:
             before = self._sequence[-1].found

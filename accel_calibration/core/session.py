@@ -17,7 +17,7 @@ import numpy as np
 
 from .calibration import Calibration
 from .coverage import missing_directions
-from .errors import SettingsError
+from .errors import CalibrationError, SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
 from .gyro_fit import GyroFitResult, fit_gyro
@@ -314,7 +314,10 @@ class CalibrationSession:
             return None, "gyro: the poses hold no angular rate"
         variance = self.gyro_noise_var()
         noise = None if variance is None else float(np.sqrt(variance))
-        result = fit_gyro(poses, motions, accel, options=self.settings.gyro_fit, gyro_noise_radps=noise)
+        try:
+            result = fit_gyro(poses, motions, accel, options=self.settings.gyro_fit, gyro_noise_radps=noise)
+        except CalibrationError as error:  # the accelerometer's calibration stands whatever the gyro's inputs
+            return None, f"gyro: not fitted ({error})"
         refusal = self.settings.gyro_gates.check(result)
         return result, refusal
 

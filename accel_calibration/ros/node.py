@@ -53,6 +53,9 @@ SERVICE_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, hist
 ARMED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 FEED_PERIOD_S = 0.05  # the worker takes the buffer this often: poses within tens of ms of their end
 MAX_BUFFERED = 1 << 18  # raw samples waiting for the worker (~65 s at 4 kHz); beyond, the oldest are dropped
+# A temperature reading stamped further than this ahead of the latest IMU stamp is another clock's: dropped
+# and counted (temperature_future). Generous: an IMU stream that pauses for a while keeps its readings.
+TEMPERATURE_AHEAD_NS = 60_000_000_000
 _LEVELS = {OK: DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, ERROR: DiagnosticStatus.ERROR}
 
 
@@ -80,6 +83,7 @@ class CalibrationNode(Node):
         self._feed_pending = False
         self._started = time.monotonic()
         self._last_imu: float | None = None
+        self._latest_imu_ns = -1  # the latest IMU header stamp: temperature stamps are judged against it
         self._last_temperature: float | None = None
         self._still = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accel_calibration_worker")
@@ -151,8 +155,9 @@ class CalibrationNode(Node):
         if len(self._samples) >= MAX_BUFFERED:
             self._samples.popleft()
             self._node_counts["samples_dropped_backlog"] += 1
-        self._samples.append((header.stamp.sec * 1_000_000_000 + header.stamp.nanosec, ax, ay, az, w.x, w.y, w.z,
-                              self._session.collecting))
+        stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        self._latest_imu_ns = stamp_ns if stamp_ns > self._latest_imu_ns else self._latest_imu_ns
+        self._samples.append((stamp_ns, ax, ay, az, w.x, w.y, w.z, self._session.collecting))
         correction = self._in_force.correction
         if correction is not None and self._enabled and math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az):
             a.x, a.y, a.z = correction.apply(ax, ay, az)
@@ -169,6 +174,11 @@ class CalibrationNode(Node):
         stamp = msg.header.stamp
         stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
         self._last_temperature = time.monotonic()
+        # A reading stamped far ahead of the IMU stream (another publisher's clock) would take the
+        # correction temperature with it, and leave the true readings after it none.
+        if self._latest_imu_ns >= 0 and stamp_ns > self._latest_imu_ns + TEMPERATURE_AHEAD_NS:
+            self._node_counts["temperature_future"] += 1
+            return
         self._readings.append((stamp_ns, float(msg.temperature)))
         clamped = self._in_force.clamped_rebuilds
         if self._in_force.take_temperature(stamp_ns, float(msg.temperature)) \

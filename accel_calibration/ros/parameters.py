@@ -145,55 +145,16 @@ class NodeParameters:
 def params_file_problem(argv: list[str]) -> str | None:
     """rcl reports a missing or broken --params-file in several lines of its own (or hangs on a FIFO, or
     recurses on deep nesting): say it in one line first."""
+    from ..core.errors import SettingsError
+    from ..io.params_file import read_params_file
+
     for flag, path in zip(argv, argv[1:]):
         if flag != "--params-file":
             continue
-        problem = _check_params_file(path)
-        if problem is not None:
-            return problem
-    return None
-
-
-MAX_PARAMS_FILE_BYTES = 1 << 20
-MAX_PARAMS_NESTING = 64
-
-
-def _check_params_file(path: str) -> str | None:
-    import os
-    import stat
-
-    import yaml
-
-    try:
-        info = os.stat(path)
-    except OSError as error:
-        return f"cannot read --params-file {path}: {error.strerror}"
-    if not stat.S_ISREG(info.st_mode):
-        return f"--params-file {path} is not a regular file (a directory, FIFO, device or socket)"
-    if info.st_size > MAX_PARAMS_FILE_BYTES:
-        return f"--params-file {path} is {info.st_size} bytes; a parameters file is at most {MAX_PARAMS_FILE_BYTES}"
-    try:
-        with open(path, "rb") as stream:
-            text = stream.read(MAX_PARAMS_FILE_BYTES + 1).decode("utf-8")
-    except OSError as error:
-        return f"cannot read --params-file {path}: {error.strerror}"
-    except UnicodeDecodeError:
-        return f"--params-file {path} is not UTF-8 text"
-    depth = deepest = 0
-    for char in text:  # before YAML: 100,000 nested brackets would exhaust the parser's recursion
-        if char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    if deepest > MAX_PARAMS_NESTING:
-        return f"--params-file {path} nests {deepest} levels deep; at most {MAX_PARAMS_NESTING}"
-    try:
-        yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        return f"--params-file {path} is not valid YAML ({first_line(error)})"
-    except RecursionError:
-        return f"--params-file {path} nests too deep"
+        try:
+            read_params_file(path)  # the CLI's reading: the same one line for the same file
+        except SettingsError as error:
+            return str(error)
     return None
 
 
