@@ -4,7 +4,8 @@ format keep the same motions.
 
 Bounded. Between poses only the first `max_motion_s` (+ margin) after a pose's end is kept (a longer
 motion is not used anyway: its Motion comes out longer than gyro.max_motion_s and is refused as
-"long"), plus a trailing window, so the end of a pose found a little after it ended is still held.
+"long"), plus the newest part and a trailing window before it, so the end of a pose found a little
+after it ended is still held.
 At most `capacity` poses with their motions are remembered (the pose store's capacity).
 
 A pose later found unusable (frozen, implausible gravity) leaves the sequence, and the motion after it
@@ -154,8 +155,8 @@ class MotionRecorder:
         window; the chunk holding the sample at or before a pose's end stays."""
         if not self._chunks:
             return
-        latest = int(self._chunks[-1][0][-1])
-        trailing_from = latest - self.trailing_ns
+        # The newest part whole (its poses are found after it is added) and the trailing window before it.
+        trailing_from = int(self._chunks[-1][0][0]) - self.trailing_ns
         head = None if self._last_end_ns is None else (self._last_end_ns - self.overlap_ns,
                                                        self._last_end_ns + self.max_motion_ns + _MARGIN_NS)
         kept = []
