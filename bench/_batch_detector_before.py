@@ -26,10 +26,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from accel_calibration.core.pose import Pose
-from accel_calibration.core.static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
+from accel_calibration.core.stream.detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
 
 if TYPE_CHECKING:
-    from accel_calibration.core.static_detector import StaticDetector
+    from accel_calibration.core.stream.detector import StaticDetector
 
 _QUERY_EVERY = 64
 

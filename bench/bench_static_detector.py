@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from accel_calibration.core.static_detector import StaticDetector
-from accel_calibration.core.static_detector_batch import detect_batch
+from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.detector_batch import detect_batch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _batch_detector_before  # noqa: E402  (the frozen peer, beside this file)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from accel_calibration import CalibrationError, fit
-from accel_calibration.core.static_detector import StaticDetector
+from accel_calibration.core.stream.detector import StaticDetector
 
 G = 9.80665
 

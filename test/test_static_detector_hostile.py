@@ -28,7 +28,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from accel_calibration import CalibrationError
-from accel_calibration.core.static_detector import StaticDetector, _VarianceFloor
+from accel_calibration.core.stream.detector import StaticDetector, _VarianceFloor
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 RATE_HZ = 200.0

@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from accel_calibration.core.temperature_filter import TemperatureFilter
+from accel_calibration.core.stream.temperature_filter import TemperatureFilter
 
 
 def one_by_one(timeout_s, stamps, degc, samples, carried=None):

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.calibration import Calibration
-from ..core.screening import Counters
+from ..core.stream.screening import Counters
 from ..core.session import Progress
 
 
