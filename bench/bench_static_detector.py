@@ -6,8 +6,8 @@ Xsens recording, against the frozen copy of it from before the issue-13 speed wo
 import gzip
 import sys
 import time
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 

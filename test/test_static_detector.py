@@ -5,7 +5,6 @@ import gzip
 
 import numpy as np
 import pytest
-
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -239,8 +238,9 @@ def test_peek_gives_the_held_pose_without_ending_it():
 
 @st.composite
 def dwells_and_turns(draw):
-    """Still dwells (2..6 s, the first 3..6 s) at random orientations joined by turns (0.6..2 s, smooth steps), at a rate
-    of 50 Hz..1 kHz, 0.2 mg of noise: (stamps, accel, [(first, stop) rows of each dwell], true means)."""
+    """Still dwells (2..6 s, the first 3..6 s) at random orientations joined by turns (0.6..2 s, smooth
+    steps), at a rate of 50 Hz..1 kHz, 0.2 mg of noise: (stamps, accel, [(first, stop) rows of each
+    dwell], true means)."""
     rate_hz = draw(st.sampled_from([50.0, 100.0, 400.0, 1000.0]))
     count = draw(st.integers(2, 6))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))

@@ -18,10 +18,10 @@ from hypothesis import strategies as st
 
 from accel_calibration import MG, Pose
 from accel_calibration.core.pose_store import AGREEMENT_CHI2, PoseStore, means_agree
-from accel_calibration.core.stream.screening import Counters
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.stream.detector import DISCARD, RESTART, StaticDetector
+from accel_calibration.core.stream.screening import Counters
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 G = 9.80665

@@ -514,12 +514,12 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     gyro_limit = np.full(n, np.nan)
     warm_full = full_time[full_index] >= config.warmup_ns
     accel_limit[full_index], state.accel_quietest = _limit_per_window(
-        accel_var, accel_evidence, full_index, warm_full, state.accel_floor, config.accel_var_threshold, config.k_sigma,
-        config.rise_var, config.accel_cap, state.accel_quietest)
+        accel_var, accel_evidence, full_index, warm_full, state.accel_floor, config.accel_var_threshold,
+        config.k_sigma, config.rise_var, config.accel_cap, state.accel_quietest)
     if gyro_var is not None and gyro_evidence is not None:  # there is a gyro
         gyro_limit[full_index], state.gyro_quietest = _limit_per_window(
-            gyro_var, gyro_evidence, full_index, warm_full, state.gyro_floor, config.gyro_var_threshold, config.gyro_k_sigma,
-            config.rise_var, config.gyro_cap, state.gyro_quietest)
+            gyro_var, gyro_evidence, full_index, warm_full, state.gyro_floor, config.gyro_var_threshold,
+            config.gyro_k_sigma, config.rise_var, config.gyro_cap, state.gyro_quietest)
     learning = full & np.isnan(accel_limit)
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))

@@ -69,9 +69,9 @@ class TemperatureFilter:
         """The filtered value after each (plausible, stamp-ordered) reading.
 
         The filter is the affine step v_k = (1 - a_k) v_(k-1) + a_k x_k, a_k = dt / (TAU_S + dt) (a reading
-        after no state, or after one with a negative stamp, starts afresh: factor 0). Steps compose into steps, so all prefixes are
-        found in log2(n) array passes (a Hillis-Steele scan), about the first reading so the terms stay
-        small; factors are products of numbers in [0, 1], so nothing overflows.
+        after no state, or after one with a negative stamp, starts afresh: factor 0). Steps compose into
+        steps, so all prefixes are found in log2(n) array passes (a Hillis-Steele scan), about the first
+        reading so the terms stay small; factors are products of numbers in [0, 1], so nothing overflows.
         """
         previous = np.concatenate([[self.stamp_ns], stamps[:-1]])
         dt = np.maximum(0.0, (stamps - previous) * 1e-9)
