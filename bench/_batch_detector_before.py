@@ -26,10 +26,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from accel_calibration.core.pose import Pose
-from accel_calibration.core.static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
+from accel_calibration.core.stream.detector_batch import HARD_LIMIT as _HARD_LIMIT
+from accel_calibration.core.stream.noise_floor import BINS_PER_DECADE as _BINS_PER_DECADE
+from accel_calibration.core.stream.noise_floor import LOG_MAX as _LOG_MAX
+from accel_calibration.core.stream.noise_floor import LOG_MIN as _LOG_MIN
+from accel_calibration.core.stream.noise_floor import NBINS as _NBINS
 
 if TYPE_CHECKING:
-    from accel_calibration.core.static_detector import StaticDetector
+    from typing import Any as StaticDetector  # the bench's view of the detector's settings, old names
 
 _QUERY_EVERY = 64
 

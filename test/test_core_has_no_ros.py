@@ -15,7 +15,7 @@ CORE_MODULES = [f"accel_calibration.core.{p.stem}" for p in sorted((PACKAGE / "c
     "accel_calibration.io.calibration_file",
     "accel_calibration.io.pose_table",
     "accel_calibration.cli.main",
-    "accel_calibration.core.static_detector",
+    "accel_calibration.core.stream.detector",
 ]
 
 PROBE = f"""

@@ -140,7 +140,7 @@ def test_imu_tk_xsens_recording_weights_come_out_nearly_equal(shared):
 
     from accel_calibration.core.fit import pose_mean_sigma
     from accel_calibration.core.fit_outliers import sphere_rows as _sphere_rows
-    from accel_calibration.core.static_detector import StaticDetector
+    from accel_calibration.core.stream.detector import StaticDetector
 
     accel = np.loadtxt(gzip.open(shared("real/imu_tk/xsens_acc.txt.gz")))
     gyro = np.loadtxt(gzip.open(shared("real/imu_tk/xsens_gyro.txt.gz")))

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from session_doors import per_message
 from test_session import hostile, stream, temperature_readings
 
-from accel_calibration.core.session import CalibrationSession, RecordingFeed
+from accel_calibration.core.session import CalibrationSession
+from accel_calibration.core.stream.feed import RecordingFeed
 
 FAST = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])

@@ -15,7 +15,7 @@ from rosbags.typesys import Stores, get_typestore
 from accel_calibration.bag import recording as recording_module
 from accel_calibration.bag.recording import BagStream, Recording, open_recording
 from accel_calibration.bag.replay import replay_bag, replay_recording
-from accel_calibration.core.session import RecordingFeed
+from accel_calibration.core.stream.feed import RecordingFeed
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -111,7 +111,7 @@ def node_corrections(calibration, temperature_readings, t_ns, accel, gyro):
     comes (stamp order), the correction rebuilt when the correction temperature moves (core.correction's
     rule), each Imu corrected with the Correction in force at its stamp."""
     from accel_calibration.core.correction import Correction, correction_temperatures
-    from accel_calibration.core.temperature_filter import TemperatureFilter
+    from accel_calibration.core.stream.temperature_filter import TemperatureFilter
 
     stamps, values = temperature_readings
     order = np.argsort(stamps, kind="stable")

@@ -17,7 +17,7 @@ from accel_calibration import MG, Pose, fit
 from accel_calibration.core.fit import OutlierOptions
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
-from accel_calibration.core.static_detector import StaticDetector
+from accel_calibration.core.stream.detector import StaticDetector
 from accel_calibration.core.temperature_models import TemperatureOptions
 from msg_tools.synthetic_imu import SensorErrors
 

@@ -13,8 +13,9 @@ from session_doors import per_message
 from accel_calibration import MG, Calibration, Pose, fit
 from accel_calibration.core.correction import Correction, rep145_covariance
 from accel_calibration.core.errors import SettingsError
-from accel_calibration.core.session import CalibrationSession, RecordingFeed
+from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import PARAMETERS, Settings
+from accel_calibration.core.stream.feed import RecordingFeed
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 G = 9.80665

@@ -5,9 +5,11 @@ import gzip
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from accel_calibration import CalibrationError, fit
-from accel_calibration.core.static_detector import StaticDetector
+from accel_calibration import MG, CalibrationError, fit
+from accel_calibration.core.stream.detector import StaticDetector
 
 G = 9.80665
 
@@ -165,39 +167,25 @@ def streams():
     yield "explicit threshold", dict(t_ns=t, accel=accel), dict(accel_var_threshold=0.01)
 
 
-@pytest.mark.parametrize("name, data, settings", list(streams()), ids=lambda v: v if isinstance(v, str) else "")
-def test_batch_process_equals_streaming(name, data, settings):
-    batch_detector, stream_detector = StaticDetector(**settings), StaticDetector(**settings)
-    batch = batch_detector.process(**data)
-    streamed = stream_detector.process_streaming(**data)
-    assert len(streamed) >= 2
-    assert_same_poses(batch, streamed)
-    assert batch_detector.rejected_samples == stream_detector.rejected_samples
-
-
-def test_batch_equals_streaming_on_real_recordings(shared):
-    for loader in (load_imu_tk, load_mpu6050):
-        t, accel, gyro = loader(shared)
-        assert_same_poses(StaticDetector().process(t, accel, gyro), StaticDetector().process_streaming(t, accel, gyro))
-
-
 def test_bad_samples_are_skipped_and_counted():
+    """NaN rows and stamps not after the last are skipped and counted; the poses are those of the stream
+    without them."""
     rng = np.random.default_rng(4)
     t, accel, _ = synthetic_stream(100.0, rng)
-    detector = StaticDetector()
     clean = StaticDetector().process(t, accel)
-    poses = []
+    bad_t, bad_accel, inserted = [], [], 0
     for i in range(len(t)):
-        if i % 97 == 0:
-            assert detector.update(int(t[i]) - 5, np.nan, 0.0, 9.8) is None  # NaN
-            # stamp not after the last
-            assert detector.update(int(t[i - 1]) if i else 0, 0.0, 0.0, 9.8) is None or i == 0
-        if (p := detector.update(int(t[i]), *accel[i])) is not None:
-            poses.append(p)
-    if (p := detector.flush()) is not None:
-        poses.append(p)
-    assert detector.rejected_samples >= 2 * (len(t) // 97)
-    assert len(poses) == len(clean)
+        if i % 97 == 0 and i:
+            bad_t += [int(t[i]) - 5, int(t[i - 1])]  # NaN; then a stamp not after the last
+            bad_accel += [[np.nan, 0.0, 9.8], [0.0, 0.0, 9.8]]
+            inserted += 2
+        bad_t.append(int(t[i]))
+        bad_accel.append(accel[i])
+    detector = StaticDetector()
+    poses = detector.process(np.array(bad_t, dtype=np.int64), np.array(bad_accel))
+    assert detector.rejected_samples == inserted and detector.rejected_out_of_range == 0
+    assert len(clean) == 8
+    assert_same_poses(poses, clean)
 
 
 def test_gap_longer_than_a_window_ends_the_interval():
@@ -235,13 +223,60 @@ def test_a_stream_that_starts_moving_gives_no_pose_from_the_warmup():
 
 def test_peek_gives_the_held_pose_without_ending_it():
     rng = np.random.default_rng(12)
-    t, accel, _ = synthetic_stream(100.0, rng)
-    last_dwell_end = len(t)  # the stream ends inside the last still dwell
+    t, accel, _ = synthetic_stream(100.0, rng)  # the stream ends inside the last still dwell
     detector = StaticDetector()
-    for i in range(last_dwell_end):
-        detector.update(int(t[i]), *accel[i])
-    held = detector.peek()
-    assert held is not None and detector.peek().samples == held.samples  # no state changed
-    flushed = detector.flush()
+    assert detector.process(t, accel, final=False) and detector.holding_still
+    held = detector.peek_open()
+    again = detector.peek_open()
+    assert held is not None and again is not None and again.samples == held.samples  # no state changed
+    (flushed,) = detector.process(np.zeros(0, np.int64), np.zeros((0, 3)))
     np.testing.assert_array_equal(held.accel_mps2, flushed.accel_mps2)
     assert (held.start_ns, held.end_ns, held.samples) == (flushed.start_ns, flushed.end_ns, flushed.samples)
+    assert np.abs(held.accel_mps2 - G * np.array([0.0, -0.6, 0.8])).max() < 0.01
+    assert not detector.continuing
+
+
+@st.composite
+def dwells_and_turns(draw):
+    """Still dwells (2..6 s, the first 3..6 s) at random orientations joined by turns (0.6..2 s, smooth
+    steps), at a rate of 50 Hz..1 kHz, 0.2 mg of noise: (stamps, accel, [(first, stop) rows of each
+    dwell], true means)."""
+    rate_hz = draw(st.sampled_from([50.0, 100.0, 400.0, 1000.0]))
+    count = draw(st.integers(2, 6))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    directions = rng.normal(size=(count, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    pieces, dwells, rows = [], [], 0
+    for k in range(count):
+        # The first dwell also warms the floor up (2 s of full windows): it must outlast that.
+        hold = int(draw(st.floats(3.0 if k == 0 else 2.0, 6.0)) * rate_hz)
+        pieces.append(np.tile(G * directions[k], (hold, 1)))
+        dwells.append((rows, rows + hold))
+        rows += hold
+        if k + 1 < count:
+            turn = int(draw(st.floats(0.6, 2.0)) * rate_hz)
+            s = (np.arange(1, turn + 1) / turn)[:, None]
+            s = s * s * (3 - 2 * s)
+            path = (1 - s) * directions[k] + s * directions[k + 1]
+            pieces.append(G * path / np.linalg.norm(path, axis=1)[:, None])
+            rows += turn
+    truth = np.vstack(pieces)
+    t = (np.arange(len(truth)) * (1e9 / rate_hz)).astype(np.int64)
+    return t, truth + rng.normal(0, 0.002, truth.shape), dwells, G * directions
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=dwells_and_turns(), parts=st.lists(st.floats(0.0, 1.0), max_size=6))
+def test_each_dwell_is_one_pose_with_its_mean_to_a_tenth_of_a_mg(data, parts):
+    """Known still/turn sequences: one pose per dwell, inside it, its mean within 0.1 mg of the true
+    gravity vector (0.2 mg noise over >= 75 samples: 6 standard errors), in any parts."""
+    t, accel, dwells, truth = data
+    cuts = sorted({int(f * (len(t) - 2)) + 1 for f in parts})
+    detector, poses = StaticDetector(), []
+    for first, stop in zip([0, *cuts], [*cuts, len(t)]):
+        poses += detector.process(t[first:stop], accel[first:stop], final=stop == len(t))
+    assert len(poses) == len(dwells)
+    for pose, (first, stop), mean in zip(poses, dwells, truth):
+        assert t[first] <= pose.start_ns and pose.end_ns <= t[stop - 1]
+        assert pose.duration_s >= 1.0
+        assert np.abs(pose.accel_mps2 - mean).max() < 0.1 * MG

@@ -1,6 +1,6 @@
 """StaticDetector against hostile samples: one finite but absurd value (gyro 2e154, accel 1e300, -1e200)
-in the middle of a still interval must neither crash update() nor cost the rest of the recording, in
-the streaming path (update) and in the batch path (process) alike.
+in the middle of a still interval must neither crash process() nor cost the rest of the recording, whole
+or in parts.
 
 What is asserted:
   * a sample beyond the hard internal guard (or the user's accel_limit / gyro_limit) is rejected and
@@ -9,16 +9,17 @@ What is asserted:
   * a large value below the guard is accepted: it breaks the still interval it falls in (the window is
     not still while it is inside), so that dwell may give a pose before and one after it, but every
     other pose is unchanged, no pose holds a non-finite value, and once it has left the window the
-    detector finds still poses again (the running sums recover: they are not left poisoned);
-  * a glitch as the very first sample (the running sums' shift) costs at most the warm-up pose;
-  * process() gives the same poses and counts as process_streaming() on all these streams, also when
-    the hole a rejected sample leaves makes a window inside a still interval not full;
-  * property (hypothesis): arbitrary finite floats, huge magnitudes included, never make update(),
-    peek(), flush() or process() raise, never put a non-finite value into the running sums or the noise
-    floor's histogram, and every pose has finite accel_mps2 / accel_cov (and gyro, temperature); the
-    rejection counts of both paths agree, and on noisy streams with hostile values injected their poses
-    agree too (not asserted on wholly arbitrary floats, where a window variance can fall exactly on a
-    histogram bin edge and the two paths' rounding may decide differently).
+    detector finds still poses again (a window's sums hold only its own samples);
+  * a glitch as the very first sample costs at most the warm-up pose;
+  * process() in parts (cut at thirds and either side of each hostile row) gives the poses and counts of
+    one call on all these streams, also when the hole a rejected sample leaves makes a window inside a
+    still interval not full;
+  * property (hypothesis): arbitrary finite floats, huge magnitudes included, never make process() or
+    peek_open() raise, never put a non-finite value into the noise floor's histogram, and every pose has
+    finite accel_mps2 / accel_cov (and gyro, temperature); the rejection counts in any parts agree, and
+    on noisy streams with hostile values injected the poses agree too (not asserted on wholly arbitrary
+    floats, where a window variance can fall exactly on a histogram bin edge and the rounding of other
+    blocks may decide differently).
 """
 import math
 
@@ -28,7 +29,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from accel_calibration import CalibrationError
-from accel_calibration.core.static_detector import StaticDetector, _VarianceFloor
+from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.noise_floor import FloorConfig, VarianceFloor
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 RATE_HZ = 200.0
@@ -51,16 +53,25 @@ def middle_of_second_dwell(t_ns) -> int:
     return int(np.searchsorted(t_ns, int((start + DWELL_S / 2) * 1e9)))
 
 
-def streamed(detector, t, accel, gyro, temps):
-    """update() per sample (checking the detector's internals stay finite), then flush()."""
+def assert_state_finite(detector):
+    state = detector.state
+    for floor in (state.accel_floor, state.gyro_floor):
+        assert np.all(np.isfinite(floor.counts)) and math.isfinite(floor.total)
+        assert floor.value is None or math.isfinite(floor.value)
+    assert not math.isnan(state.accel_quietest) and not math.isnan(state.gyro_quietest)
+
+
+def streamed(detector, t, accel, gyro, temps, cuts=()):
+    """process() over the parts between `cuts` (the last one final), checking the learned state stays
+    finite and the interval held at each cut is a finite pose."""
+    bounds = [0, *sorted(c for c in set(cuts) if 0 < c < len(t)), len(t)]
     poses = []
-    for i in range(len(t)):
-        pose = detector.update(int(t[i]), *accel[i].tolist(), *gyro[i].tolist(), float(temps[i]))
-        assert all(math.isfinite(v) for v in detector._sums)
-        if pose is not None:
-            poses.append(pose)
-    if (last := detector.flush()) is not None:
-        poses.append(last)
+    for first, stop in zip(bounds[:-1], bounds[1:]):
+        part = slice(first, stop)
+        poses += detector.process(t[part], accel[part], gyro[part], temps[part], final=stop == len(t))
+        assert_state_finite(detector)
+        if stop < len(t) and (held := detector.peek_open()) is not None:
+            assert_finite(held)
     return poses
 
 
@@ -82,16 +93,19 @@ def assert_same_poses(a_list, b_list, atol=1e-9):
         assert a.temperature_degc == pytest.approx(b.temperature_degc, abs=atol)
 
 
-def assert_batch_equals_streaming(t, accel, gyro, temps, **settings):
-    batch_detector, stream_detector = StaticDetector(**settings), StaticDetector(**settings)
-    batch = batch_detector.process(t, accel, gyro, temps)
-    stream = stream_detector.process_streaming(t, accel, gyro, temps)
-    for pose in batch:
+def assert_parts_equal_whole(t, accel, gyro, temps, **settings):
+    """Whole, and in parts cut at thirds and either side of every hostile row: the same poses and counts."""
+    whole_detector, parts_detector = StaticDetector(**settings), StaticDetector(**settings)
+    whole = whole_detector.process(t, accel, gyro, temps)
+    odd = np.flatnonzero((np.abs(accel) > 100).any(axis=1) | (np.abs(gyro) > 100).any(axis=1))
+    cuts = [len(t) // 3, 2 * len(t) // 3, *odd.tolist(), *(odd + 1).tolist()]
+    parts = streamed(parts_detector, t, accel, gyro, temps, cuts)
+    for pose in whole:
         assert_finite(pose)
-    assert_same_poses(batch, stream, atol=1e-12)
-    assert batch_detector.rejected_samples == stream_detector.rejected_samples
-    assert batch_detector.rejected_out_of_range == stream_detector.rejected_out_of_range
-    return batch
+    assert_same_poses(parts, whole, atol=1e-12)
+    assert parts_detector.rejected_samples == whole_detector.rejected_samples
+    assert parts_detector.rejected_out_of_range == whole_detector.rejected_out_of_range
+    return whole
 
 
 HOSTILE = [
@@ -118,7 +132,7 @@ def test_one_absurd_sample_is_rejected_and_changes_nothing(name, sensor, value):
         assert_finite(pose)
     assert_same_poses(poses, clean)  # identical to the stream without that sample
     assert detector.rejected_samples == 1 and detector.rejected_out_of_range == 1
-    assert_batch_equals_streaming(t, accel_h, gyro_h, temps)
+    assert_parts_equal_whole(t, accel_h, gyro_h, temps)
 
 
 def test_several_absurd_samples_and_the_stream_still_recovers():
@@ -135,7 +149,7 @@ def test_several_absurd_samples_and_the_stream_still_recovers():
     clean = streamed(StaticDetector(), *(np.delete(x, hits, axis=0) for x in (t, accel, gyro, temps)))
     assert_same_poses(poses, clean)
     assert detector.rejected_samples == detector.rejected_out_of_range == len(hits)
-    assert_batch_equals_streaming(t, accel_h, gyro_h, temps)
+    assert_parts_equal_whole(t, accel_h, gyro_h, temps)
 
 
 @pytest.mark.parametrize("sensor, value, limits", [
@@ -152,7 +166,7 @@ def test_user_limits_reject_what_the_sensor_cannot_read(sensor, value, limits):
     clean = streamed(StaticDetector(**limits), *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
     assert_same_poses(poses, clean)
     assert detector.rejected_out_of_range == 1
-    assert_batch_equals_streaming(t, accel_h, gyro_h, temps, **limits)
+    assert_parts_equal_whole(t, accel_h, gyro_h, temps, **limits)
 
 
 @pytest.mark.parametrize("sensor, axis, value", [("gyro", 0, 1e9), ("accel", 2, -3e11), ("gyro", 1, 7e5)])
@@ -160,7 +174,7 @@ def test_a_large_accepted_sample_only_breaks_its_own_dwell(sensor, axis, value):
     """Below the guard and with no user limit the sample is data: the window holding it is not still,
     so the second dwell is cut around it. Asserted: the other dwells' poses are unchanged; the second
     dwell gives a pose ending before the spike and one starting after it left the window (the sums
-    recovered: without that the rest of the recording is lost); nothing non-finite; batch == streaming."""
+    recovered: without that the rest of the recording is lost); nothing non-finite; parts == whole."""
     t, accel, gyro, temps = still_stream(4)
     i = middle_of_second_dwell(t)
     accel_h, gyro_h = accel.copy(), gyro.copy()
@@ -181,18 +195,18 @@ def test_a_large_accepted_sample_only_breaks_its_own_dwell(sensor, axis, value):
         assert part.duration_s > 1.0
         # Same dwell: means agree with the clean pose's within the noise (0.02 m/s^2 per sample).
         assert np.all(np.abs(part.accel_mps2 - clean[1].accel_mps2) < 0.01)
-    assert_batch_equals_streaming(t, accel_h, gyro_h, temps)
+    assert_parts_equal_whole(t, accel_h, gyro_h, temps)
 
 
 def test_a_rejected_sample_that_leaves_the_window_short_loses_no_other_sample():
     """With a 10-sample window the hole a rejected sample leaves makes one window not full (no verdict)
-    inside the still interval: that sample still belongs to the pose, per sample as in process()."""
+    inside the still interval: that sample still belongs to the pose."""
     t, accel, gyro, temps = still_stream(6)
     i = middle_of_second_dwell(t)
     accel_h = accel.copy()
     accel_h[i, 0] = 1e300
     settings_ = dict(window_s=0.05, min_hold_s=0.5)
-    poses = assert_batch_equals_streaming(t, accel_h, gyro, temps, **settings_)
+    poses = assert_parts_equal_whole(t, accel_h, gyro, temps, **settings_)
     clean = streamed(StaticDetector(**settings_), *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
     assert_same_poses(poses, clean)
     second = poses[1]
@@ -201,8 +215,7 @@ def test_a_rejected_sample_that_leaves_the_window_short_loses_no_other_sample():
 
 
 def test_a_glitch_as_the_very_first_sample_does_not_spoil_the_stream():
-    """Accepted (below the guard), it becomes the running sums' shift; once it has left the window the
-    sums are rebuilt about the window's mean. It spoils the warm-up (the loudest window held it), so the
+    """Accepted (below the guard), it is data: it spoils the warm-up (the loudest window held it), so the
     first pose starts later; every other pose is unchanged."""
     t, accel, gyro, temps = still_stream(7)
     gyro_h = gyro.copy()
@@ -212,7 +225,7 @@ def test_a_glitch_as_the_very_first_sample_does_not_spoil_the_stream():
     assert len(poses) == len(clean) == 4
     assert_same_poses(poses[1:], clean[1:])
     assert poses[0].start_ns > clean[0].start_ns and poses[0].end_ns == clean[0].end_ns
-    assert_batch_equals_streaming(t, accel, gyro_h, temps)
+    assert_parts_equal_whole(t, accel, gyro_h, temps)
 
 
 def test_bad_temperatures_are_treated_as_missing():
@@ -224,15 +237,15 @@ def test_bad_temperatures_are_treated_as_missing():
     for pose in poses:
         assert_finite(pose)
     assert len(poses) == 4
-    assert_batch_equals_streaming(t, accel, gyro, temps_h)
+    assert_parts_equal_whole(t, accel, gyro, temps_h)
 
 
 def test_variance_floor_ignores_non_finite_and_survives_extremes():
-    floor = _VarianceFloor(0.05)
-    for value in (1e-3, float("nan"), float("inf"), -float("inf"), 1.7e308, -5.0, 0.0, 5e-324):
-        floor.add(value)
-    assert floor.total == 5.0 and all(math.isfinite(c) for c in floor.counts)
+    floor = VarianceFloor(FloorConfig(0.05))
+    values = floor.add(np.array([1e-3, np.nan, np.inf, -np.inf, 1.7e308, -5.0, 0.0, 5e-324]))
+    assert floor.total == 5.0 and np.all(np.isfinite(floor.counts))
     assert floor.value is not None and math.isfinite(floor.value)
+    assert np.all(np.isfinite(values))  # after the first add, the value in force is carried over the skipped
 
 
 @pytest.mark.parametrize("name", ["accel_limit", "gyro_limit"])
@@ -281,34 +294,24 @@ def hostile_streams(draw):
 
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-@given(data=hostile_streams())
-def test_arbitrary_finite_floats_never_break_the_detector(data):
+@given(data=hostile_streams(), cuts=st.lists(st.integers(1, 299), max_size=6))
+def test_arbitrary_finite_floats_never_break_the_detector(data, cuts):
     t, accel, gyro, temps, settings_, noisy = data
     detector = StaticDetector(**settings_)
-    poses = []
-    for i in range(len(t)):
-        pose = detector.update(int(t[i]), *accel[i].tolist(), *gyro[i].tolist(), float(temps[i]))
-        assert all(math.isfinite(v) for v in detector._sums)
-        assert all(math.isfinite(c) for c in detector._accel_floor.counts + detector._gyro_floor.counts)
-        if pose is not None:
-            poses.append(pose)
-        if i % 37 == 0 and (held := detector.peek()) is not None:
-            assert_finite(held)
-    if (last := detector.flush()) is not None:
-        poses.append(last)
+    poses = streamed(detector, t, accel, gyro, temps, cuts)
     for pose in poses:
         assert_finite(pose)
-    batch_detector = StaticDetector(**settings_)
-    batch = batch_detector.process(t, accel, gyro, temps)
-    for pose in batch:
+    whole_detector = StaticDetector(**settings_)
+    whole = whole_detector.process(t, accel, gyro, temps)
+    for pose in whole:
         assert_finite(pose)
-    assert (batch_detector.rejected_samples, batch_detector.rejected_out_of_range) == (
+    assert (whole_detector.rejected_samples, whole_detector.rejected_out_of_range) == (
         detector.rejected_samples, detector.rejected_out_of_range)
     if noisy:
         # Sensor noise under the hostile values: no window variance sits on a threshold or a histogram
-        # bin edge, where the two paths' rounding could decide differently. So: the same poses.
-        assert len(batch) == len(poses)
-        for a, b in zip(batch, poses):
+        # bin edge, where other blocks' rounding could decide differently. So: the same poses.
+        assert len(whole) == len(poses)
+        for a, b in zip(whole, poses):
             assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
             np.testing.assert_allclose(a.accel_mps2, b.accel_mps2, rtol=1e-9, atol=1e-9)
             np.testing.assert_allclose(a.accel_cov, b.accel_cov, rtol=1e-7, atol=1e-12)

@@ -156,7 +156,7 @@ def test_real_mpu6050_bag_span_is_too_small(shared):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from accel_calibration.core.static_detector import StaticDetector
+    from accel_calibration.core.stream.detector import StaticDetector
 
     for name in ("sunsided_full_sphere_imu_temp_sqlite3", "sunsided_full_sphere_imu_temp_mcap_zstd"):
         path = shared(f"real/bags/{name}")

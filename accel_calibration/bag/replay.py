@@ -15,7 +15,7 @@ from ..core.fit import FitResult
 from ..core.pose import Pose
 from ..core.session import CalibrationSession
 from ..core.settings import Settings
-from ..core.temperature_filter import TemperatureFilter
+from ..core.stream.temperature_filter import TemperatureFilter
 from .bag_io import BagError, missing_module
 
 

@@ -20,7 +20,7 @@ from ..core.correction import Correction, correction_temperatures
 from ..core.errors import CalibrationError
 from ..core.plausibility import plausibility_problem
 from ..core.settings import Settings
-from ..core.temperature_filter import TemperatureFilter
+from ..core.stream.temperature_filter import TemperatureFilter
 from .calibration_file import load_calibration, remove_stale_temp_files, save_calibration
 
 OK, WARN, ERROR = "ok", "warn", "error"

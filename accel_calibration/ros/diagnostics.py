@@ -7,8 +7,8 @@ from dataclasses import dataclass
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..core.calibration import Calibration
-from ..core.screening import Counters
 from ..core.session import Progress
+from ..core.stream.screening import Counters
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
-"""Screening: which samples may reach the detector. The same rules per sample (live node) and over a
-whole recording (replay), counted in one `Counters` record.
+"""Screening: which samples may reach the detector, over arrays (a recording whole or in parts, the
+node's buffer alike), counted in one `Counters` record.
 
 A sample is kept out of the calibration (it is still passed on, corrected, by the node) when
 - any accel or gyro value is NaN or infinite (`non_finite`),
@@ -20,13 +20,12 @@ accelerometer judges stillness, and the detector never learns its noise floor fr
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from .settings import Settings
+from ..settings import Settings
 
 SATURATION_FRACTION = 0.995
 # A stamp this many detector windows (or more) before the last one re-synchronises the clock.
@@ -67,7 +66,8 @@ class Counters:
 
 
 class SampleScreen:
-    """Per-sample screening (plain floats, O(1)); `screen_arrays` is the same over arrays."""
+    """The screen's rules and what it carries from one part to the next (the last stamp, the clock, the
+    runs of repeated values in progress, the frozen runs found)."""
 
     def __init__(self, settings: Settings, counters: Counters):
         self.accel_limit = SATURATION_FRACTION * settings.accel_range_mps2
@@ -77,7 +77,6 @@ class SampleScreen:
         self.counters = counters
         self.last_ns: int | None = None
         self.time_base = 0  # how many times the clock was re-synchronised
-        self.restarted = False  # set by check() on a re-synchronisation; the session clears it
         self._previous_accel: tuple[float, float, float] | None = None
         self._previous_gyro: tuple[float, float, float] | None = None
         self._accel_run = 0  # identical accelerations so far in the current run (1 = just this one)
@@ -86,58 +85,6 @@ class SampleScreen:
         # (first, last, time base) stamps of frozen runs, newest last
         self.frozen_spans: list[tuple[int, int, int]] = []
 
-    def check(self, t_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> bool:
-        """True when the sample may reach the detector; otherwise counted under its reason."""
-        c = self.counters
-        c.samples += 1
-        if not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)
-                and math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
-            c.non_finite += 1
-            return False
-        if ax == 0.0 and ay == 0.0 and az == 0.0:
-            c.zero_accel += 1  # before the stamp: an empty message's stamp (often 0) must not move the clock
-            return False
-        last = self.last_ns
-        if last is not None and t_ns <= last:
-            if last - t_ns <= self.jump_ns:
-                c.stamp_backwards += 1
-                return False
-            c.stamp_jumps += 1
-            self.restarted = True
-            self.time_base += 1
-            self._previous_accel = self._previous_gyro = None  # runs do not continue across clocks
-        self.last_ns = t_ns
-        limit = self.accel_limit
-        if abs(ax) >= limit or abs(ay) >= limit or abs(az) >= limit:
-            c.saturated += 1
-            return False
-        limit = self.gyro_limit
-        if abs(gx) > limit or abs(gy) > limit or abs(gz) > limit:
-            c.gyro_out_of_range += 1
-            return False
-        accel = (ax, ay, az)
-        if accel == self._previous_accel:
-            self._accel_run += 1
-        else:
-            self._previous_accel, self._accel_run, self._run_start_ns = accel, 1, t_ns
-        gyro = (gx, gy, gz)
-        if gyro == self._previous_gyro:
-            self._gyro_run += 1
-        else:
-            self._previous_gyro, self._gyro_run = gyro, 1
-        if self._accel_run >= self.frozen_samples:
-            c.frozen += 1
-            span = (self._run_start_ns, t_ns, self.time_base)
-            if self._accel_run == self.frozen_samples:
-                self.frozen_spans.append(span)
-                del self.frozen_spans[:-16]  # only recent runs can overlap a pose still to come
-            else:
-                self.frozen_spans[-1] = span
-            return False
-        if self._gyro_run >= self.frozen_samples:
-            c.gyro_frozen += 1
-        return True
-
     def overlaps_frozen(self, start_ns: int, end_ns: int, time_base: int | None = None) -> bool:
         """A frozen run on the clock `time_base` (default: the current one) overlaps start..end."""
         base = self.time_base if time_base is None else time_base
@@ -145,9 +92,9 @@ class SampleScreen:
                    for first, last, span_base in self.frozen_spans)
 
     def screen_arrays(self, t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The `check` rules over a whole recording in one go (fresh screen only): (mask of the samples
-        that may reach the detector, mask of those before which the clock was re-synchronised); counters,
-        frozen spans and the clock as `check` leaves them."""
+        """The rules over the next samples (arrival order): (mask of the samples that may reach the
+        detector, mask of those before which the clock was re-synchronised); counters, frozen spans and
+        the clock advanced. The same samples in any parts give the same masks and state."""
         c = self.counters
         n = len(t_ns)
         c.samples += n
@@ -169,7 +116,7 @@ class SampleScreen:
             base = self.time_base + np.cumsum(restart)[candidate]
             new_clock = np.ones(len(candidate), dtype=bool)
             new_clock[1:] = base[1:] != base[:-1]
-            new_clock[0] = bool(base[0] != self.time_base)  # `check` forgets the last values at a jump
+            new_clock[0] = bool(base[0] != self.time_base)  # a jump forgets the last values
             accel_run, accel_start = self._runs(accel[candidate], new_clock, self._previous_accel, self._accel_run)
             gyro_run, _ = self._runs(gyro[candidate], new_clock, self._previous_gyro, self._gyro_run)
             frozen = accel_run >= self.frozen_samples
@@ -207,7 +154,7 @@ class SampleScreen:
         return run, run_start
 
     def _stamp_rule(self, t_ns: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The stamp rule of `check` over the usable rows: (in order, re-synchronised here). Sequential
+        """The stamp rule over the usable rows: (in order, re-synchronised here). Sequential
         over stamp jumps, vectorised between them (chunks growing from _FIRST_CHUNK find the next one)."""
         n = len(t_ns)
         in_order = np.zeros(n, dtype=bool)

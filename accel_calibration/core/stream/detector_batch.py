@@ -1,50 +1,214 @@
-"""StaticDetector.process(): the streaming detector's rules applied to a whole recording with array
-operations, for bag replay and the CLI where per-sample Python would dominate the run time.
+"""The static detector's rules over arrays, in parts of a recording of any length: window membership from
+timestamps, window variances against a noise floor that cannot learn flight vibration, the interval rules
+(warm-up adoption, trims, gaps, max_pose_s cuts). The detector's settings are a frozen `DetectorConfig`;
+what it carries between parts (floors, quietest floors, warm-up, the rows an open interval and the next
+windows need) is a `DetectorState` this module owns.
 
-Equivalent to update() per sample then flush() (tested): the same validity rules, window
-membership from timestamps, the noise floor's histogram queried at the same add counts (every 64
-windows, halved every 200k) and fed by the same windows (not those mostly of repeated samples), its
-bound by the quietest floor seen and the ceiling, the same warm-up adoption, trims, gap and
-max_pose_s cuts. Only the window variances differ, by rounding (block sums instead of running sums).
+The rules (what a per-sample detector would do, stated once):
+- a sample with a NaN/inf or a value beyond `accel_limit` / `gyro_limit` (always beyond HARD_LIMIT, where
+  squares and sums could overflow), or a stamp not after the last accepted one, is skipped and counted;
+- a window is the samples of the last `window_s` of stream time; it is full when it spans 0.9 window_s and
+  holds 5 samples; a hole longer than a window ends the interval in progress and starts a new window;
+- a full window is still when its variance (sum of the axes) is below k_sigma x the learned floor (gyro
+  likewise), the floor bounded by max_floor_rise^2 x the quietest floor seen after warm-up and by the
+  noise ceilings; a window mostly of repeated samples, or whose mean is no gravity, never feeds the floor;
+- until the floor is warm, a provisional interval is kept and adopted if the warm-up's loudest windows
+  pass the first threshold known;
+- an interval ends when motion starts (trim_s dropped at both ends), at max_pose_s, or at the end of the
+  recording (not trimmed there); it is a Pose when it lasted min_hold_s.
 
 Window sums are not differences of cumulative sums over the whole recording: one large value would
 leave its rounding in every later difference (and a value beyond ~1e154 makes them inf - inf = NaN),
 so the rest of the recording would be lost. Each window is split at a block boundary into the end of
 one block and the start of the next (plus whole blocks between, for an unusually long window), each
-summed within its block only, so a window's sums hold nothing but its own samples.
+summed within its block only, so a window's sums hold nothing but its own samples. Parts cut elsewhere
+give other blocks: window variances then differ by rounding (~1e-12 relative), never the pose sums,
+which are elementwise numpy over the pose's own rows (no BLAS).
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .pose import Pose
-from .static_detector import _BINS_PER_DECADE, _HARD_LIMIT, _LOG_MAX, _LOG_MIN, _NBINS
+from ..errors import CalibrationError
+from ..pose import Pose
+from .noise_floor import FloorConfig, VarianceFloor
 
-if TYPE_CHECKING:
-    from .static_detector import StaticDetector, _VarianceFloor
+# Largest magnitude accepted on any axis (and for temperature) whatever the limits: its squares, summed
+# over any window, stay far from overflow. Beyond it a sample is rejected (a temperature: ignored).
+HARD_LIMIT = 1e12
 
-_QUERY_EVERY = 64
-# Each histogram bin's value, by _VarianceFloor._query's own expression (Python's pow: numpy's power can
-# differ from it in the last bit).
-_CENTRES = np.array([10 ** (_LOG_MIN + (index + 0.5) / _BINS_PER_DECADE) for index in range(_NBINS)])
 
+def _positive(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise CalibrationError(f"{name} must be a positive number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """The detector's settings, checked once (a bad one raises CalibrationError naming it). Times in
+    seconds of the stream's own clock.
+
+      window_s: sliding window for the variance test.
+      min_hold_s: shortest still interval kept as a pose.
+      accel_var_threshold: explicit threshold on the window's total acceleration variance (sum of the
+        three axes, input units squared); None = k_sigma * learned noise floor.
+      gyro_var_threshold: same for the gyro (rad/s)^2; None = learned. Used only when gyro samples come.
+      k_sigma: accel threshold as a multiple of the noise-floor variance.
+      gyro_k_sigma: gyro threshold multiple. Looser: MEMS gyro noise is far less steady than the
+        accelerometer's (a hand-held still pose varies 10-100x above the quietest windows), while
+        rotation raises it 1000x and more.
+      noise_quantile: quantile of window variances taken as the noise floor (the fraction of time the
+        sensor must be still for the floor to be right).
+      warmup_s: stream time of full windows needed before the learned floor is trusted.
+      trim_s: dropped from both ends of each interval (None: window_s / 2).
+      max_pose_s: a longer still interval is cut into poses of this length (tracks temperature drift).
+      accel_limit, gyro_limit: largest absolute value per axis the sensor can read (input units); a
+        sample beyond it is a glitch, skipped and counted. None = no limit but HARD_LIMIT.
+      max_floor_rise: the learned floors may rise at most this factor (rms) above the quietest floor seen
+        after warm-up: hours of flight vibration are never learned as noise.
+      accel_noise_ceiling, gyro_noise_ceiling: largest noise (rms per axis, input units) of a still
+        window; None = no ceiling (the unit is not known here; the session sets them in SI).
+      floor_min_magnitude: smallest |mean acceleration| of a window that may teach the floor (input
+        units; the session: 0.05 g): a dead sensor's quiet zeros must not become the quietest floor.
+    """
+
+    window_s: float = 0.5
+    min_hold_s: float = 1.0
+    accel_var_threshold: float | None = None
+    gyro_var_threshold: float | None = None
+    k_sigma: float = 6.0
+    gyro_k_sigma: float = 300.0
+    noise_quantile: float = 0.05
+    warmup_s: float = 2.0
+    trim_s: float | None = None
+    max_pose_s: float = 60.0
+    accel_limit: float | None = None
+    gyro_limit: float | None = None
+    max_floor_rise: float = 1.5
+    accel_noise_ceiling: float | None = None
+    gyro_noise_ceiling: float | None = None
+    floor_min_magnitude: float | None = None
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: object) -> None:
+            object.__setattr__(self, name, value)
+
+        for name in ("window_s", "min_hold_s", "k_sigma", "gyro_k_sigma", "warmup_s", "max_pose_s",
+                     "max_floor_rise"):
+            put(name, _positive(name, getattr(self, name)))
+        for name in ("accel_var_threshold", "gyro_var_threshold", "accel_limit", "gyro_limit",
+                     "accel_noise_ceiling", "gyro_noise_ceiling", "floor_min_magnitude"):
+            if getattr(self, name) is not None:
+                put(name, _positive(name, getattr(self, name)))
+        trim = self.window_s / 2 if self.trim_s is None else self.trim_s
+        if isinstance(trim, bool) or not isinstance(trim, (int, float)) or not 0.0 <= trim < self.min_hold_s:
+            raise CalibrationError(f"trim_s must be in [0, min_hold_s), got {self.trim_s!r}")
+        put("trim_s", float(trim))
+        if self.max_pose_s < self.min_hold_s:
+            raise CalibrationError("max_pose_s must be at least min_hold_s")
+        if not (isinstance(self.noise_quantile, float) and 0.0 < self.noise_quantile < 0.5):
+            raise CalibrationError(f"noise_quantile must be in (0, 0.5), got {self.noise_quantile!r}")
+        if self.max_floor_rise < 1.0:
+            raise CalibrationError(f"max_floor_rise must be at least 1, got {self.max_floor_rise!r}")
+
+    # Derived, in the units the rules use (ns, window totals of three axes).
+    @property
+    def window_ns(self) -> int:
+        return int(self.window_s * 1e9)
+
+    @property
+    def full_ns(self) -> int:
+        return int(0.9 * self.window_s * 1e9)
+
+    @property
+    def trim_ns(self) -> int:
+        return int(self.trim_s * 1e9)  # type: ignore[operator]  # set in __post_init__
+
+    @property
+    def warmup_ns(self) -> float:
+        return self.warmup_s * 1e9
+
+    @property
+    def rise_var(self) -> float:
+        return self.max_floor_rise ** 2
+
+    @property
+    def accel_max(self) -> float:
+        return HARD_LIMIT if self.accel_limit is None else min(self.accel_limit, HARD_LIMIT)
+
+    @property
+    def gyro_max(self) -> float:
+        return HARD_LIMIT if self.gyro_limit is None else min(self.gyro_limit, HARD_LIMIT)
+
+    @property
+    def accel_cap(self) -> float:
+        """The largest learned accel threshold (a window total)."""
+        return math.inf if self.accel_noise_ceiling is None else 3.0 * self.accel_noise_ceiling ** 2
+
+    @property
+    def gyro_cap(self) -> float:
+        return math.inf if self.gyro_noise_ceiling is None else 3.0 * self.gyro_noise_ceiling ** 2
+
+    @property
+    def min_magnitude_squared(self) -> float:
+        return 0.0 if self.floor_min_magnitude is None else self.floor_min_magnitude ** 2
+
+
+@dataclass
+class BatchCarry:
+    """What a detect_batch call leaves for the next part of the same recording (final=False): the rows
+    the next windows and the open interval still need (accepted rows: stamps, accel, gyro, temperature),
+    where in them the open interval began (and its window's first row) and last grew, and from which row
+    on the next windows need them (`window_from`: the rows before it are only the open interval's, kept
+    for its pose, never passed through the window sums again)."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray | None
+    temperature: np.ndarray | None
+    opened: int | None
+    opened_window: int  # the first row of the opened row's window (where its pose may start)
+    last: int
+    window_from: int
+
+
+@dataclass
+class DetectorState:
+    """What the detector learns and carries: the noise floors, the quietest floors seen after warm-up
+    (window totals; inf before), the stream time of full windows that were evidence of the floor, the
+    warm-up's loudest windows (accel, gyro; None once a threshold is known), and the carry of a recording
+    going through in parts."""
+
+    accel_floor: VarianceFloor
+    gyro_floor: VarianceFloor
+    full_time_ns: int = 0
+    accel_quietest: float = math.inf
+    gyro_quietest: float = math.inf
+    warmup_max: tuple[float, float] | None = (0.0, 0.0)
+    carry: BatchCarry | None = field(default=None)
+
+    @classmethod
+    def fresh(cls, config: DetectorConfig) -> DetectorState:
+        floor = FloorConfig(config.noise_quantile)
+        return cls(VarianceFloor(floor), VarianceFloor(floor),
+                   warmup_max=(0.0, 0.0) if config.accel_var_threshold is None else None)
 
 
 def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndarray | slice, warm_full: np.ndarray,
-                      floor: _VarianceFloor, fixed: float | None, k_sigma: float, rise_var: float,
+                      floor: VarianceFloor, fixed: float | None, k_sigma: float, rise_var: float,
                       cap: float, quietest: float) -> tuple[np.ndarray, float]:
     """One channel's stillness threshold at each full window: the fixed one, or k_sigma x the learned
     floor bounded above the quietest floor seen and by the absolute cap; NaN while still learning.
     `floor` is advanced past these windows; `quietest` is the lowest floor seen before them, returned
     updated."""
-    # NaN marks a window that does not feed the floor (_floor_values carries the last value over it).
-    # The floor is learned under a fixed threshold too, as update() learns it (diagnostics show it).
-    values = _floor_values(np.where(evidence[full_index], var[full_index], np.nan), floor)
+    # NaN marks a window that does not feed the floor (the floor carries the last value over it).
+    # The floor is learned under a fixed threshold too (diagnostics show it).
+    values = floor.add(np.where(evidence[full_index], var[full_index], np.nan))
     lowest = _quietest(values, warm_full, quietest)
     quietest = float(lowest[-1]) if len(lowest) else quietest
     if fixed is not None:
@@ -58,103 +222,6 @@ def _limit_per_window(var: np.ndarray, evidence: np.ndarray, full_index: np.ndar
         np.minimum(limit, cap, out=limit)
     np.copyto(limit, np.nan, where=~warm_full)
     return limit, quietest
-
-
-def _floor_values(variances: np.ndarray, floor: _VarianceFloor) -> np.ndarray:
-    """The floor value in force after each window, as _VarianceFloor.add per window would give it (it
-    skips non-finite variances, which finite sums inside the guard cannot give; NaN until the first
-    add), starting from `floor`'s state and leaving `floor` as those adds would."""
-    before = np.nan if floor.value is None else floor.value
-    finite = np.isfinite(variances)
-    if not finite.all():
-        values = _floor_values_of_adds(variances[finite], floor)
-        last_add = np.cumsum(finite) - 1
-        return np.where(last_add >= 0, values[np.maximum(last_add, 0)] if len(values) else np.nan, before)
-    return _floor_values_of_adds(variances, floor)
-
-
-def _floor_values_of_adds(variances: np.ndarray, floor: _VarianceFloor) -> np.ndarray:
-    """The floor value in force after each add, from `floor`'s state (its histogram, the adds since its
-    last query and last halving), which is advanced to after the last add.
-
-    Epoch by epoch (adds between two halvings), the queries of an epoch at once, each seeing the halved
-    histogram carried in plus its epoch's adds so far. Counts are sums of halved integers, exact in
-    floats, so the order of the additions does not change them: the values are _VarianceFloor's."""
-    count = len(variances)
-    if count == 0:
-        return np.zeros(0)
-    quantile, half_life = floor.quantile, floor.half_life
-    with np.errstate(divide="ignore", invalid="ignore"):
-        position = np.log10(variances)
-    position -= _LOG_MIN
-    position *= _BINS_PER_DECADE
-    np.floor(position, out=position)
-    np.fmax(position, 0.0, out=position)  # a variance <= 0 gives -inf or NaN (fmax takes 0 over NaN): bin 0
-    np.minimum(position, _NBINS - 1, out=position)
-    index = position.astype(np.int64)
-    # add() queries after the first add ever, then every _QUERY_EVERY adds; it halves every half_life adds
-    # (before the query of the same add). Numbered 1.. within these adds.
-    first_query = 1 if floor.value is None else _QUERY_EVERY - floor._since_query
-    query_adds = np.arange(first_query, count + 1, _QUERY_EVERY)
-    halvings = np.arange(half_life - floor._since_decay, count + 1, half_life)
-    carried = np.asarray(floor.counts, dtype=float)
-    hit_bins = np.flatnonzero(carried)
-    # Only bins ever hit matter: empty bins below add nothing, and a hit needs counts.
-    low = int(min(index.min(), hit_bins.min() if len(hit_bins) else _NBINS))
-    high = int(max(index.max(), hit_bins.max() if len(hit_bins) else -1)) + 1
-    width = high - low
-    index -= low
-    centres = _CENTRES[low:high]
-    base = carried[low:high].copy()
-    base_total = float(floor.total)
-    values = np.empty(len(query_adds))
-    epoch_of_query = np.searchsorted(halvings, query_adds, side="right")  # halvings done by each query
-    epoch_starts = np.concatenate([[0], halvings])  # an epoch holds the adds after its start, to the next
-    for epoch, begin in enumerate(epoch_starts.tolist()):
-        end = int(epoch_starts[epoch + 1]) if epoch + 1 < len(epoch_starts) else count
-        chosen = np.flatnonzero(epoch_of_query == epoch)
-        if len(chosen):
-            upto = query_adds[chosen]
-            # Adds begin+1 .. the epoch's last query (later ones never reach one), each keyed by (its first
-            # query at or after it, its bin): those up to the first query, then _QUERY_EVERY per query.
-            head, reached = int(upto[0]) - begin, int(upto[-1]) - begin
-            keys = index[begin:begin + reached].copy()
-            keys[head:].reshape(len(chosen) - 1, _QUERY_EVERY)[...] += width * np.arange(1, len(chosen))[:, None]
-            # Per query, this epoch's adds per bin so far (integers: a fast cumsum), plus the carried counts:
-            # the histogram it sees; then its running count over the bins, in add()'s order.
-            adds = np.bincount(keys, minlength=len(chosen) * width).reshape(-1, width)
-            np.cumsum(adds, axis=0, out=adds)
-            running = adds + base
-            np.cumsum(running, axis=1, out=running)
-            total = base_total + (upto - begin).astype(float)
-            # add() takes the first bin reaching quantile x total that holds counts: the first bin reaching a
-            # target above 0 does (the running count rose there); a target of 0, the first bin holding any.
-            target = np.maximum(quantile * total, 5e-324)
-            first_hit = np.count_nonzero(running < target[:, None], axis=1)
-            values[chosen] = np.where(first_hit < width, centres[np.minimum(first_hit, width - 1)], 10.0**_LOG_MAX)
-        base = base + np.bincount(index[begin:end], minlength=width)
-        base_total += end - begin
-        if epoch + 1 < len(epoch_starts):  # the halving after this epoch's last add
-            base *= 0.5
-            base_total *= 0.5
-    previous = np.nan if floor.value is None else floor.value
-    # After each add: the value of the latest query at or before it (every _QUERY_EVERY adds from first_query).
-    before_first = min(first_query - 1, count)
-    per_add = np.empty(count)
-    per_add[:before_first] = previous
-    after = per_add[before_first:]
-    runs = len(after) // _QUERY_EVERY
-    after[:runs * _QUERY_EVERY].reshape(runs, _QUERY_EVERY)[:] = values[:runs, None]
-    after[runs * _QUERY_EVERY:] = values[runs] if len(after) > runs * _QUERY_EVERY else 0.0
-    # The state add() would leave.
-    carried[low:high] = base
-    floor.counts = carried.tolist()
-    floor.total = base_total
-    floor._since_decay = floor._since_decay + count if not len(halvings) else count - int(halvings[-1])
-    floor._since_query = floor._since_query + count if not len(query_adds) else count - int(query_adds[-1])
-    if len(values):
-        floor.value = float(values[-1])
-    return np.asarray(per_add)
 
 
 def _window_variance(channels: list[np.ndarray], start: np.ndarray, firsts: np.ndarray,
@@ -290,7 +357,7 @@ def _median(values: np.ndarray) -> float:
 
 def _repeats_in_window(values: np.ndarray, start: np.ndarray) -> np.ndarray:
     """Per row: twice how many rows of its window start_i .. i repeat their predecessor bit for bit (all
-    three axes; the first row of the recording has none), as update() counts them."""
+    three axes; the first row of the recording has none)."""
     # running[k + 1]: repeats among rows 0 .. k (exact in int32 below 2**31 rows)
     running = np.zeros(len(values) + 1, dtype=np.int32 if len(values) < 2**31 else np.int64)
     if len(values) > 1:
@@ -316,39 +383,19 @@ def _quietest(floor: np.ndarray, warm: np.ndarray, before: float = math.inf) -> 
     return np.asarray(np.minimum.accumulate(candidates, out=candidates))
 
 
-@dataclass
-class BatchCarry:
-    """What a detect_batch call leaves for the next part of the same recording (final=False): the rows
-    the next windows and the open interval still need (accepted rows: stamps, accel, gyro, temperature),
-    where in them the open interval began (and its window's first row) and last grew, and from which row
-    on the next windows need them (`window_from`: the rows before it are only the open interval's, kept
-    for its pose, never passed through the window sums again). The floors, the quietest floors, the
-    full-window time and the warm-up's loudest windows live on the detector, as update() keeps them."""
-
-    t: np.ndarray
-    accel: np.ndarray
-    gyro: np.ndarray | None
-    temperature: np.ndarray | None
-    opened: int | None
-    opened_window: int  # the first row of the opened row's window (where its pose may start)
-    last: int
-    window_from: int
-
-
-def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
-                 temperature_degc: ArrayLike | None = None,
+def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, accel: ArrayLike,
+                 gyro: ArrayLike | None = None, temperature_degc: ArrayLike | None = None,
                  drop: ArrayLike | None = None, flush: bool = True, final: bool = True) -> tuple[list[Pose], int, int]:
-    """(poses, rejected samples, of which finite but out of range). `drop` (per sample, optional): the
-    interval open before this sample is dropped, not emitted (discard(); the stamps must then make this
-    sample start a new window). `flush` False: the interval open at the end is dropped too.
+    """(poses, rejected samples, of which finite but out of range), `state` advanced. `drop` (per sample,
+    optional): the interval open before this sample is dropped, not emitted (the stamps must then make
+    this sample start a new window). `flush` False: the interval open at the end is dropped too.
 
     `final` False: more of the same recording follows (a later call, with the same gyro/temperature
     presence); the interval open at the end stays open and the rows it and the next windows need are kept
-    on the detector (BatchCarry), so the parts give the poses one call would (window variances to
-    rounding: their sums are taken over other blocks)."""
-    d = detector
-    carry: BatchCarry | None = d._batch_carry
-    d._batch_carry = None
+    in `state.carry`, so the parts give the poses one call would (window variances to rounding: their
+    sums are taken over other blocks)."""
+    carry: BatchCarry | None = state.carry
+    state.carry = None
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     # Contiguous rows (a column slice of a loaded table is not): every pass below runs faster on them.
     a_all = np.ascontiguousarray(np.asarray(accel, dtype=float).reshape(-1, 3))
@@ -356,17 +403,17 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     temp_all = None if temperature_degc is None else np.asarray(temperature_degc, dtype=float).reshape(-1)
     if temp_all is not None:
         with np.errstate(invalid="ignore"):
-            # NaN, inf or absurd: that sample has no temperature, as in update()
-            temp_all = np.where(np.abs(temp_all) <= _HARD_LIMIT, temp_all, np.nan)
+            # NaN, inf or absurd: that sample has no temperature, the motion is fine
+            temp_all = np.where(np.abs(temp_all) <= HARD_LIMIT, temp_all, np.nan)
     with np.errstate(invalid="ignore"):
-        # As update(): NaN/inf or beyond the limit on any axis rejects the sample (NaN propagates through
+        # NaN/inf or beyond the limit on any axis rejects the sample (NaN propagates through
         # max and min and compares False; no |x| copy: fresh memory is slow to touch).
-        if _within(a_all, d._accel_max) and (g_all is None or _within(g_all, d._gyro_max)):
+        if _within(a_all, config.accel_max) and (g_all is None or _within(g_all, config.gyro_max)):
             valid = np.ones(len(a_all), bool)  # the usual recording: one reduction each says all are valid
         else:
-            valid = np.abs(a_all).max(axis=1, initial=0.0) <= d._accel_max
+            valid = np.abs(a_all).max(axis=1, initial=0.0) <= config.accel_max
             if g_all is not None:
-                valid &= np.abs(g_all).max(axis=1, initial=0.0) <= d._gyro_max
+                valid &= np.abs(g_all).max(axis=1, initial=0.0) <= config.gyro_max
     invalid = np.flatnonzero(~valid)  # few: finiteness is checked on these only
     finite = np.all(np.isfinite(a_all[invalid]), axis=1)
     if g_all is not None:
@@ -380,7 +427,7 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     else:
         previous_max = np.concatenate([[latest], np.maximum.accumulate(t_f)[:-1]])
         previous_max[1:] = np.maximum(previous_max[1:], latest)
-        accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped, as update() does
+        accepted = t_f > previous_max  # a stamp not after the last accepted one is skipped
     rejected = len(t_all) - int(accepted.sum())
     everything = rejected == 0  # nothing rejected: the arrays as given, without copies
     keep = None if everything else np.flatnonzero(valid)[accepted]
@@ -407,11 +454,11 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     n = len(t)
     if n == context:  # nothing new
         if carry is not None:
-            d._batch_carry = carry
+            state.carry = carry
             if final:
-                return _finish(d, [], carry, t, a, g, temps, flush), rejected, out_of_range
+                return _finish(config, state, [], carry, t, a, g, temps, flush), rejected, out_of_range
         return [], rejected, out_of_range
-    trim_ns = int(d.trim_s * 1e9)
+    trim_ns = config.trim_ns
     # The window rules run over the rows from `held` on (the rows before it are an open interval's only);
     # indices below are of those rows, `held` + index in the whole.
     held = 0 if carry is None else carry.window_from
@@ -424,10 +471,10 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         context -= held
         n -= held
 
-    window_ns = d._window_ns
+    window_ns = config.window_ns
     dt = np.zeros(n, dtype=np.int64)
     np.subtract(t[1:], t[:-1], out=dt[1:])
-    gaps = dt > d._gap_ns
+    gaps = dt > config.window_ns
     segment_firsts = np.flatnonzero(gaps)  # the first row of each segment after the first
     start = np.searchsorted(t, t - window_ns, side="right")
     if len(segment_firsts):  # a window starts no earlier than its segment
@@ -439,25 +486,25 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
     count -= start
     span = t[start]
     np.subtract(t, span, out=span)
-    full = span >= d._full_ns
+    full = span >= config.full_ns
     full &= count >= 5
     full[:context] = False  # decided in the part before
-    # Windows mostly of repeated samples are no evidence of the noise (update(): 2 * repeats <= n).
+    # Windows mostly of repeated samples are no evidence of the noise (2 * repeats <= n).
     accel_evidence = _repeats_in_window(a, start) <= count
     gyro_evidence = None if g is None else _repeats_in_window(g, start) <= count
     variances, accel_mean_square = _window_variance([a] if g is None else [a, g], start, segment_firsts, full)
     accel_var = variances[0]
     gyro_var = None if g is None else variances[1]
     # A window whose mean is no gravity (a dead sensor's quiet zeros) does not teach the floor either.
-    plausible = accel_mean_square >= d._min_magnitude_squared
+    plausible = accel_mean_square >= config.min_magnitude_squared
     accel_evidence &= plausible
     if gyro_evidence is not None:
         gyro_evidence &= plausible
     full_time = dt  # dt is not needed any more: the full-window time in its place
     full_time *= full & accel_evidence
     np.cumsum(full_time, out=full_time)
-    full_time += d._full_time_ns
-    d._full_time_ns = int(full_time[-1])
+    full_time += state.full_time_ns
+    state.full_time_ns = int(full_time[-1])
 
     full_rows = np.flatnonzero(full)
     full_index: np.ndarray | slice = full_rows
@@ -465,14 +512,14 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         full_index = slice(int(full_rows[0]), int(full_rows[-1]) + 1)  # views instead of copies
     accel_limit = np.full(n, np.nan)
     gyro_limit = np.full(n, np.nan)
-    warm_full = full_time[full_index] >= d._warmup_ns
-    accel_limit[full_index], d._accel_quietest = _limit_per_window(
-        accel_var, accel_evidence, full_index, warm_full, d._accel_floor, d.accel_var_threshold, d.k_sigma,
-        d._rise_var, d._accel_cap, d._accel_quietest)
+    warm_full = full_time[full_index] >= config.warmup_ns
+    accel_limit[full_index], state.accel_quietest = _limit_per_window(
+        accel_var, accel_evidence, full_index, warm_full, state.accel_floor, config.accel_var_threshold,
+        config.k_sigma, config.rise_var, config.accel_cap, state.accel_quietest)
     if gyro_var is not None and gyro_evidence is not None:  # there is a gyro
-        gyro_limit[full_index], d._gyro_quietest = _limit_per_window(
-            gyro_var, gyro_evidence, full_index, warm_full, d._gyro_floor, d.gyro_var_threshold, d.gyro_k_sigma,
-            d._rise_var, d._gyro_cap, d._gyro_quietest)
+        gyro_limit[full_index], state.gyro_quietest = _limit_per_window(
+            gyro_var, gyro_evidence, full_index, warm_full, state.gyro_floor, config.gyro_var_threshold,
+            config.gyro_k_sigma, config.rise_var, config.gyro_cap, state.gyro_quietest)
     learning = full & np.isnan(accel_limit)
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
@@ -488,30 +535,30 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
         return int(start[row - held]) + held
 
     def emit(opened: int, last: int, trim_end: bool) -> None:
-        _emit(poses, d, full_t, full_a, full_g, full_temps, window_of(opened), opened, last, trim_end, trim_ns)
+        _emit(poses, config, full_t, full_a, full_g, full_temps, window_of(opened), opened, last, trim_end, trim_ns)
 
     # The interval rules, applied per run of samples in the same state (runs break at gaps and at
     # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
-    state = full.view(np.int8) * np.int8(3)  # learning and still are parts of full, apart
-    state -= learning.view(np.int8) * np.int8(2)
-    state -= still.view(np.int8)
-    changes = (state[context + 1:] != state[context:-1]) | gaps[context + 1:]
+    row_kind = full.view(np.int8) * np.int8(3)  # learning and still are parts of full, apart
+    row_kind -= learning.view(np.int8) * np.int8(2)
+    row_kind -= still.view(np.int8)
+    changes = (row_kind[context + 1:] != row_kind[context:-1]) | gaps[context + 1:]
     boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
     ends = np.concatenate([boundary[1:], [n]]) - 1
     # In the whole's rows (held + index): the row that opened the current interval, the last one added to it
     # (read only while one is open).
     opened: int | None = None if carry is None else carry.opened
     last = 0 if carry is None else carry.last
-    warmup = d._warmup_max  # the loudest windows of the warm-up, until the threshold is known
+    warmup = state.warmup_max  # the loudest windows of the warm-up, until the threshold is known
     loudest_accel, loudest_gyro = (0.0, 0.0) if warmup is None else warmup
     warmup_open = warmup is not None
-    max_pose_ns = int(d.max_pose_s * 1e9) if math.isfinite(d.max_pose_s) else None
+    max_pose_ns = int(config.max_pose_s * 1e9) if math.isfinite(config.max_pose_s) else None
     for first, final_row in zip(boundary.tolist(), ends.tolist()):
         if gaps[first] and opened is not None:
             if dropped is None or not dropped[first]:
                 emit(opened, last, True)
             opened = None
-        kind = state[first]
+        kind = row_kind[first]
         if kind == 0:
             continue
         if kind == 1:
@@ -547,7 +594,7 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
             emit(opened, split + held, True)
             opened = last = split + held
             i = split + 1
-    d._warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
+    state.warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
     # What the next part needs: the window of the last row (the next rows' windows start no earlier), and
     # the open interval from its window's first row (emit trims from there).
     windows_from = window_of(held + n - 1)
@@ -559,38 +606,50 @@ def detect_batch(detector: StaticDetector, t_ns: ArrayLike, accel: ArrayLike, gy
                       0 if opened is None else window_of(opened) - keep_from,
                       max(last - keep_from, 0), windows_from - keep_from)
     if not final:
-        d._batch_carry = left
+        state.carry = left
         return poses, rejected, out_of_range
-    return _finish(d, poses, left, full_t, full_a, full_g, full_temps, flush, opened, last,
+    return _finish(config, state, poses, left, full_t, full_a, full_g, full_temps, flush, opened, last,
                    None if opened is None else window_of(opened), trim_ns), rejected, out_of_range
 
 
-def _finish(d: StaticDetector, poses: list[Pose], carry: BatchCarry, t: np.ndarray, a: np.ndarray,
-            g: np.ndarray | None, temps: np.ndarray | None, flush: bool, opened: int | None = None,
-            last: int = 0, opened_window: int | None = None, trim_ns: int = 0) -> list[Pose]:
-    """The end of the recording: the interval still open is a pose when `flush` (it was not moving)."""
-    d._batch_carry = None
+def _finish(config: DetectorConfig, state: DetectorState, poses: list[Pose], carry: BatchCarry, t: np.ndarray,
+            a: np.ndarray, g: np.ndarray | None, temps: np.ndarray | None, flush: bool, opened: int | None = None,
+            last: int = 0, opened_window: int | None = None, trim_ns: int = 0, trim_end: bool = False) -> list[Pose]:
+    """The end of the recording: the interval still open is a pose when `flush` (it was not moving;
+    `trim_end`: it ends as at a gap, its newest trim_s dropped)."""
+    state.carry = None
     if opened_window is None:  # no new rows came: the open interval is the carried one
         opened, opened_window, last = carry.opened, carry.opened_window, carry.last
-        trim_ns = int(d.trim_s * 1e9)
+        trim_ns = config.trim_ns
     if opened is not None and flush:
-        _emit(poses, d, t, a, g, temps, opened_window, opened, last, False, trim_ns)
+        _emit(poses, config, t, a, g, temps, opened_window, opened, last, trim_end, trim_ns)
     return poses
 
 
-def peek_carry(d: StaticDetector) -> Pose | None:
+def peek_carry(config: DetectorConfig, state: DetectorState) -> Pose | None:
     """The pose the carried open interval would end as at the end of the recording (flushed), the carry
     left as it was."""
-    carry = d._batch_carry
+    carry = state.carry
     if carry is None or carry.opened is None:
         return None
     poses: list[Pose] = []
-    _finish(d, poses, carry, carry.t, carry.accel, carry.gyro, carry.temperature, True)
-    d._batch_carry = carry
+    _finish(config, state, poses, carry, carry.t, carry.accel, carry.gyro, carry.temperature, True)
+    state.carry = carry
     return poses[0] if poses else None
 
 
-def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
+def end_carry(config: DetectorConfig, state: DetectorState) -> Pose | None:
+    """The clock was re-synchronised: the carried open interval ends as at a gap (its newest trim_s
+    dropped), returned when it is a pose; nothing is carried on (the next rows start a new window)."""
+    carry = state.carry
+    if carry is None:
+        return None
+    poses: list[Pose] = []
+    _finish(config, state, poses, carry, carry.t, carry.accel, carry.gyro, carry.temperature, True, trim_end=True)
+    return poses[0] if poses else None
+
+
+def _emit(poses: list[Pose], config: DetectorConfig, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
           temps: np.ndarray | None, opened_window: int, opened: int, last: int, trim_end: bool, trim_ns: int) -> None:
     """The interval opened at row `opened` (its window's first row, `opened_window`, gives the start,
     trimmed) up to row `last` (trimmed at the end when motion ended it) as a pose, when long enough."""
@@ -599,15 +658,19 @@ def _emit(poses: list[Pose], d: StaticDetector, t: np.ndarray, a: np.ndarray, g:
     k0 = max(k0, opened_window)
     k1 = int(np.searchsorted(t, t[last] - trim_ns, side="right")) - 1 if trim_end else last
     k1 = min(k1, last)
-    if k1 - k0 + 1 < 2 or t[k1] - t[k0] < d.min_hold_s * 1e9:
+    if k1 - k0 + 1 < 2 or t[k1] - t[k0] < config.min_hold_s * 1e9:
         return
     rows = a[k0:k1 + 1]
     samples = k1 - k0 + 1
-    # np.mean and np.cov's own operations, without their per-call overhead (the same values, bit for bit).
+    # Elementwise sums in a fixed order over the pose's own rows, no BLAS: the same pose gives the same
+    # numbers whatever part it was found in and on any CPU.
     mean = np.add.reduce(rows, axis=0) / samples
-    centred = (rows - mean).T
-    cov = np.dot(centred, centred.T.conj())
-    cov *= np.true_divide(1, samples - 1)
+    centred = np.ascontiguousarray((rows - mean).T)
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            cov[i, j] = cov[j, i] = np.add.reduce(centred[i] * centred[j])
+    cov /= samples - 1
     temperature = spread = None
     if temps is not None:
         known = temps[k0:k1 + 1][~np.isnan(temps[k0:k1 + 1])]

@@ -3,11 +3,10 @@
 Sensor temperature registers update slowly and are quantised: readings are checked, low-pass
 filtered (first order, tau 0.5 s of header time; a real warm-up moves < 0.1 degC/s, so the lag is
 under 0.05 degC) and held until the next one; older than `timeout_s` they are stale and not used.
-The live node feeds it message by message, replay a whole recording: same numbers either way.
+Readings come in batches (a recording whole, or the node's as they arrive): in any batching, the same
+numbers to rounding (a scan over the batch: < 1e-12 degC).
 """
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -17,37 +16,17 @@ PLAUSIBLE_DEGC = (-60.0, 150.0)
 
 
 class TemperatureFilter:
-    def __init__(self, timeout_s: float = 5.0):
+    def __init__(self, timeout_s: float = 5.0) -> None:
         self.timeout_ns = int(timeout_s * 1e9)
         self.value: float | None = None
         self.stamp_ns = -1
         self.rejected = 0
 
-    def update(self, stamp_ns: int, degc: float) -> bool:
-        """Take one reading; False (and counted) when it is not a plausible temperature."""
-        if not (math.isfinite(degc) and PLAUSIBLE_DEGC[0] < degc < PLAUSIBLE_DEGC[1]):
-            self.rejected += 1
-            return False
-        if self.value is None or self.stamp_ns < 0:
-            self.value = degc
-        else:
-            dt = max(0.0, (stamp_ns - self.stamp_ns) * 1e-9)
-            self.value += dt / (TAU_S + dt) * (degc - self.value)
-        self.stamp_ns = stamp_ns
-        return True
-
-    def at(self, t_ns: int) -> float | None:
-        """The filtered temperature for a sample at t_ns, or None when missing or stale."""
-        if self.value is None or t_ns - self.stamp_ns > self.timeout_ns:
-            return None
-        return self.value
-
     def series(self, stamps_ns: ArrayLike, degc: ArrayLike, sample_t_ns: ArrayLike) -> tuple[np.ndarray, int]:
         """For a recording (or the next part of one): the held filtered temperature at each sample stamp
-        (NaN when missing or stale, as `at` says) and how many samples were stale. Readings are taken in
-        stamp order after those already taken (the value held from them serves samples before the first
-        new one), with the same results as `update` one by one (to rounding, < 1e-12 degC) and the same
-        state left behind."""
+        (NaN when missing or older than the timeout) and how many samples were stale. Readings are taken
+        in stamp order after those already taken (the value held from them serves samples before the first
+        new one)."""
         return self.held_at(*self.take(stamps_ns, degc), sample_t_ns)
 
     def take(self, stamps_ns: ArrayLike, degc: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -87,12 +66,12 @@ class TemperatureFilter:
         return out, int(np.count_nonzero(have & ~fresh))
 
     def _filter(self, stamps: np.ndarray, readings: np.ndarray) -> np.ndarray:
-        """The filtered value after each (plausible, stamp-ordered) reading, as `update` gives it.
+        """The filtered value after each (plausible, stamp-ordered) reading.
 
-        update() is the affine step v_k = (1 - a_k) v_(k-1) + a_k x_k (a reading after no state, or after
-        one with a negative stamp, starts afresh: factor 0). Steps compose into steps, so all prefixes are
-        found in log2(n) array passes (a Hillis-Steele scan), about the first reading so the terms stay
-        small; factors are products of numbers in [0, 1], so nothing overflows.
+        The filter is the affine step v_k = (1 - a_k) v_(k-1) + a_k x_k, a_k = dt / (TAU_S + dt) (a reading
+        after no state, or after one with a negative stamp, starts afresh: factor 0). Steps compose into
+        steps, so all prefixes are found in log2(n) array passes (a Hillis-Steele scan), about the first
+        reading so the terms stay small; factors are products of numbers in [0, 1], so nothing overflows.
         """
         previous = np.concatenate([[self.stamp_ns], stamps[:-1]])
         dt = np.maximum(0.0, (stamps - previous) * 1e-9)
