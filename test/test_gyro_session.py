@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from accel_calibration.core.motion_recorder import MotionRecorder
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
+from accel_calibration.core.stream.motion_recorder import MotionRecorder
 from msg_tools.synthetic_motion import GyroTruth, simulate_session
 
 OFF_DIAGONAL = ~np.eye(3, dtype=bool)

@@ -22,12 +22,12 @@ from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
 from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
-from .motion_recorder import MotionRecorder
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .settings import BY_NAME, DYNAMIC, Settings
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
+from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem

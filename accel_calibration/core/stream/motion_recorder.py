@@ -23,8 +23,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .gyro_fit import Motion
-from .pose import Pose
+from ..gyro_fit import Motion
+from ..pose import Pose
 
 PAUSED = 1  # collection paused (armed, calibration/pause) at this sample
 BROKEN = 2  # a sample before this one was screened out (not finite, out of range, frozen) or the clock jumped
