@@ -17,14 +17,18 @@ from accel_calibration.cli.fleet import _vehicle, calibrate_recording, find_reco
 from accel_calibration.cli.main import main
 from accel_calibration.core.units import MG
 from accel_calibration.io.history import open_history
-from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 from msg_tools.ulog_writer import sensor_combined_array, write_ulog
 
-WEEK_NS = 7 * 86_400 * 10**9
-START_NS = 1_793_577_600 * 10**9  # 2026-11-02 00:00 UTC
-PX4_UUID = "000200000000353338373138511600380018"  # a Pixhawk 5's sys_uuid, as its logs carry it
-STEP_MG = 6.0  # sensor B's bias z between its two flights: far beyond its sigma, far below any bound
+from helpers.fleet_sessions import (
+    PX4_UUID,
+    START_NS,
+    STEP_MG,
+    WEEK_NS,
+    assert_flags_the_stepped_sensor_only,
+    two_vehicles,
+    write_flight,
+)
 
 
 @pytest.fixture(scope="module")
@@ -34,47 +38,15 @@ def scheduler():
         yield cluster.scheduler_address
 
 
-def _flight(path, errors, seed, start_ns, storage, poses=14):
-    rng = np.random.default_rng(seed)
-    imu = SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=2.0, move_s=0.8, rate_hz=100.0, seed=seed)
-    samples = imu.samples()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if storage == "csv":
-        columns = np.column_stack([samples.accel_raw, samples.gyro_raw, samples.temperature_degc])
-        rows = [f"{start_ns + t},{','.join(repr(float(v)) for v in row)}" for t, row in zip(samples.t_ns, columns)]
-        path.write_text("t_ns,ax,ay,az,gx,gy,gz,temperature\n" + "\n".join(rows) + "\n")
-    elif storage == "ulog":
-        t_us = (start_ns + samples.t_ns) // 1000
-        write_ulog(path, [("sensor_combined", 0, sensor_combined_array(t_us, samples.accel_raw, samples.gyro_raw))],
-                   info={"sys_name": "PX4", "sys_uuid": PX4_UUID})  # as PX4 logs its board
-    else:
-        write_session_bag(path, samples, start_ns=start_ns, storage=storage)
-
-
-def two_vehicles(root):
-    """uav07: sensor A, stable over two flights a week apart; uav08: sensor B, whose bias z steps by
-    STEP_MG between its two flights (mcap and sqlite3 bags). Returns (sensor A, sensor B)."""
-    sensor_a = SensorErrors.mpu6050_like(np.random.default_rng(70), noise_mps2=0.02)
-    sensor_b = SensorErrors.mpu6050_like(np.random.default_rng(80), noise_mps2=0.02)
-    stepped = SensorErrors(bias_mps2=sensor_b.bias_mps2 + [0.0, 0.0, STEP_MG * MG], matrix=sensor_b.matrix,
-                           noise_mps2=sensor_b.noise_mps2, gyro_bias_radps=sensor_b.gyro_bias_radps,
-                           gyro_noise_radps=sensor_b.gyro_noise_radps)
-    _flight(root / "uav07" / "flight1", sensor_a, 1, START_NS, "mcap")
-    _flight(root / "uav07" / "flight2", sensor_a, 2, START_NS + WEEK_NS, "sqlite3")
-    _flight(root / "uav08" / "flight1", sensor_b, 3, START_NS, "sqlite3")
-    _flight(root / "uav08" / "flight2", stepped, 4, START_NS + WEEK_NS, "mcap")
-    return sensor_a, sensor_b
-
-
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
     """Two vehicles (two_vehicles); uav09: a too-short session (refused) and a file that is no recording
     (failed); uav10, uav11: a CSV and a ULog."""
     root = tmp_path_factory.mktemp("fleet")
     sensor_a, sensor_b = two_vehicles(root)
-    _flight(root / "uav09" / "short", sensor_a, 5, START_NS, "mcap", poses=4)
-    _flight(root / "uav10" / "bench.csv", sensor_a, 6, START_NS, "csv")  # every format the replay reads
-    _flight(root / "uav11" / "flight.ulg", sensor_b, 7, START_NS, "ulog")
+    write_flight(root / "uav09" / "short", sensor_a, 5, START_NS, "mcap", poses=4)
+    write_flight(root / "uav10" / "bench.csv", sensor_a, 6, START_NS, "csv")  # every format the replay reads
+    write_flight(root / "uav11" / "flight.ulg", sensor_b, 7, START_NS, "ulog")
     (root / "uav09" / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)  # cut short after the magic
     truth = {"uav07/flight1": (sensor_a,), "uav07/flight2": (sensor_a,), "uav08/flight1": (sensor_b,),
              "uav08/flight2": (sensor_b,), "uav10/bench.csv": (sensor_a,), "uav11/flight.ulg": (sensor_b,)}
@@ -150,23 +122,6 @@ def test_a_rerun_updates_rows_and_a_copied_recording_is_the_same_one(fleet, sche
     assert sorted(r[:2] for r in again) == sorted(r[:2] for r in first)
     moved = [r for r in again if r[4] == str(copy.resolve())]
     assert len(moved) == 1 and moved[0][2:4] == ("uav07", "rule")
-
-
-def assert_flags_the_stepped_sensor_only(history_target: str, capsys) -> None:
-    """`accel-calib history` on a history of two_vehicles: one line for uav08's bias step, measured within
-    1 mg and far beyond its sigmas; uav07 stays quiet."""
-    capsys.readouterr()
-    assert main(["history", "--history", history_target]) == 3
-    flagged = [line.strip() for line in capsys.readouterr().out.splitlines() if " moved " in line]
-    with open_history(history_target) as history:
-        b1, b2 = history.records(vehicle="uav08")
-    change_mg = (b2.bias[2] - b1.bias[2]) / MG
-    sigmas = abs(b2.bias[2] - b1.bias[2]) / math.hypot(b1.bias_sigma[2], b2.bias_sigma[2])
-    assert abs(change_mg - STEP_MG) < 1.0 and sigmas > 10
-    assert flagged == [f"vehicle uav08 imu_link: bias z moved {abs(change_mg):.3g} mg ({sigmas:.1f} sigma) "
-                       "between 2026-11-02 and 2026-11-09"]
-    assert main(["history", "--history", history_target, "--vehicle", "uav07"]) == 0  # the stable one: quiet
-    assert "no change beyond what the sigmas explain" in capsys.readouterr().out
 
 
 def test_the_drift_flag_fires_on_the_stepped_sensor_only(fleet, scheduler, tmp_path, capsys):

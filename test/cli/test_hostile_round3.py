@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_history_postgres import pg_url, postgres  # noqa: F401 - fixtures: a private PostgreSQL server
 
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import MAX_IDENTIFIER_CHARS, Calibration
 from accel_calibration.core.errors import CalibrationError
 from accel_calibration.io import calibration_file
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
+
+from helpers.one_line import one_error_line
 
 # --- 1. a file the loader refuses is never put in place --------------------------------------------------
 
@@ -65,12 +66,6 @@ def bag(tmp_path_factory):
     return path
 
 
-def _one_error_line(capsys):
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("accel-calib: error: "), err
-    return err[0]
-
-
 def _leftovers(directory):
     return sorted(p.name for p in directory.iterdir() if p.name.startswith("."))
 
@@ -79,11 +74,11 @@ def test_replay_refuses_an_unwritable_output_before_replacing_another(bag, tmp_p
     cal = tmp_path / "cal.yaml"
     cal.write_text("old\n")
     assert main(["replay", str(bag), "-o", str(cal), "--report", str(tmp_path / "missing" / "r.png")]) == 1
-    assert "does not exist" in _one_error_line(capsys)
+    assert "does not exist" in one_error_line(capsys)
     existing = tmp_path / "existing"
     existing.mkdir()
     assert main(["replay", str(bag), "-o", str(cal), "--corrected", str(existing)]) == 1
-    assert "already exists" in _one_error_line(capsys)
+    assert "already exists" in one_error_line(capsys)
     assert cal.read_text() == "old\n" and list(existing.iterdir()) == []
 
 
@@ -98,7 +93,7 @@ def test_a_corrected_copy_that_fails_leaves_every_output_as_it_was(bag, tmp_path
     cal.write_text("old\n")
     assert main(["replay", str(bag), "-o", str(cal), "--corrected", str(tmp_path / "out"),
                  "--report", str(tmp_path / "r.png")]) == 1
-    assert "recorded definition" in _one_error_line(capsys)
+    assert "recorded definition" in one_error_line(capsys)
     assert cal.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml"]
 
 
@@ -117,7 +112,7 @@ def test_the_loser_of_two_replays_on_one_corrected_directory_keeps_the_winners_b
 
     monkeypatch.setattr(corrected_copy, "write_corrected_bag", winner_finishes_meanwhile)
     assert main(["replay", str(bag), "--corrected", str(out)]) == 1
-    assert "out" in _one_error_line(capsys)
+    assert "out" in one_error_line(capsys)
     assert (out / "out_0.mcap").read_bytes() == b"the winner's bag" and len(list(out.iterdir())) == 1
     assert _leftovers(tmp_path) == []
 
@@ -158,9 +153,9 @@ def finishes_within(seconds, function, *args, **kwargs):
 # --- 3, 4, 10. the history's rows: whole-content identity, true counts, each row alone ------------------
 
 def test_recordings_that_differ_only_in_the_middle_are_two_rows(tmp_path):
-    from test_history import record
-
     from accel_calibration.io.history import open_history, recording_identity
+
+    from helpers.history_records import record
 
     head, tail = os.urandom(1 << 17), os.urandom(1 << 17)
     for name, middle in (("a.mcap", b"A"), ("b.mcap", b"B")):
@@ -185,9 +180,9 @@ def test_a_fifo_is_not_opened_for_its_identity(tmp_path):
 
 
 def test_history_text_is_the_same_on_every_backend(tmp_path):
-    from test_history import record
-
     from accel_calibration.io.history import open_history
+
+    from helpers.history_records import record
 
     with open_history(tmp_path / "h.sqlite") as history:
         history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
@@ -198,9 +193,9 @@ def test_history_text_is_the_same_on_every_backend(tmp_path):
 
 
 def test_history_rows_are_sanitised_alike_on_postgresql(pg_url):  # noqa: F811 - the imported fixture
-    from test_history import record
-
     from accel_calibration.io.history import open_history
+
+    from helpers.history_records import record
 
     with open_history(pg_url) as history:
         history.write([record(1, recording_id="long", vehicle="v" * 300, sensor="imu\x00link", frame_id="f\x00" * 200,
@@ -267,15 +262,15 @@ def test_another_applications_sqlite_file_is_refused_untouched(tmp_path, capsys)
                  ["fleet", str(tmp_path / "none.csv"), "--history", str(other), "--workers", "1"]):
         (tmp_path / "none.csv").write_text("t,ax,ay,az\n")
         assert main(argv) == 1
-        assert "not a calibration history" in _one_error_line(capsys)
+        assert "not a calibration history" in one_error_line(capsys)
         (tmp_path / "none.csv").unlink()
         assert _state(other) == before
 
 
 def test_reading_a_history_changes_nothing_in_it(tmp_path, capsys):
-    from test_history import record
-
     from accel_calibration.io.history import open_history
+
+    from helpers.history_records import record
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
@@ -300,7 +295,7 @@ def test_reading_a_history_changes_nothing_in_it(tmp_path, capsys):
 def test_a_password_in_a_url_is_never_printed(url, tmp_path, capsys):
     for argv in (["history", "--history", url], ["report", "--history", url, "-o", str(tmp_path / "r.png")]):
         assert main(argv) == 1
-        line = _one_error_line(capsys)
+        line = one_error_line(capsys)
         assert "SECRET" not in line and "***" in line
 
 
@@ -316,9 +311,9 @@ def test_the_fleet_prints_its_history_url_masked(scheduler, tmp_path, capsys, pg
 # --- 17. off-schema rows and broken URLs are one line ------------------------------------------------------
 
 def test_history_rows_written_off_the_schema_are_left_out_in_one_line(tmp_path, capsys):
-    from test_history import record
-
     from accel_calibration.io.history import open_history
+
+    from helpers.history_records import record
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
@@ -338,7 +333,7 @@ def test_history_rows_written_off_the_schema_are_left_out_in_one_line(tmp_path, 
 @pytest.mark.parametrize("url", ["postgresql://u@host:abc/db", "postgresql://u@host:99999999/db"])
 def test_a_url_with_a_broken_port_is_one_line(url, capsys):
     assert main(["history", "--history", url]) == 1
-    assert "accel-calib: error:" in _one_error_line(capsys)
+    assert "accel-calib: error:" in one_error_line(capsys)
 
 
 # --- 9. the dashboard of a local cluster listens on the loopback only --------------------------------------
@@ -408,7 +403,7 @@ def test_a_scheduler_address_where_no_dask_answers_is_one_line_in_time(listener,
     code = finishes_within(30, main, ["fleet", str(tmp_path / "x.csv"), "--scheduler", address,
                                       "--history", str(tmp_path / "h.sqlite")])
     assert code == 1 and time.monotonic() - started < 15
-    assert "scheduler" in _one_error_line(capsys)
+    assert "scheduler" in one_error_line(capsys)
 
 
 @pytest.mark.parametrize("address", ["tls://127.0.0.1:1", "ucx://127.0.0.1:1", "inproc://x"])
@@ -416,7 +411,7 @@ def test_a_scheduler_of_another_scheme_is_one_line(address, tmp_path, capsys):
     (tmp_path / "x.csv").write_text("t,ax,ay,az\n0,0,0,9.8\n")
     assert main(["fleet", str(tmp_path / "x.csv"), "--scheduler", address, "--history",
                  str(tmp_path / "h.sqlite")]) == 1
-    assert "tcp://HOST:PORT" in _one_error_line(capsys)
+    assert "tcp://HOST:PORT" in one_error_line(capsys)
 
 
 # --- 16. a --vehicle rule that backtracks without end -------------------------------------------------------
@@ -437,7 +432,7 @@ def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp
     started = time.monotonic()
     code = finishes_within(20, main, ["fleet", str(recording), "--vehicle", "(a|aa)+$", "--workers", "1",
                                       "--history", str(tmp_path / "h.sqlite")])
-    assert code == 1 and "took longer than" in _one_error_line(capsys)
+    assert code == 1 and "took longer than" in one_error_line(capsys)
     outcome = finishes_within(20, calibrate_recording, str(recording), None, "(a|aa)+$")
     assert outcome.status == "failed" and "took longer than" in outcome.reason
     assert time.monotonic() - started < 15
@@ -474,7 +469,7 @@ def test_a_db3_whose_messages_is_a_view_is_refused_at_once(tmp_path, capsys, vie
         with pytest.raises(ReplayError, match="view messages.*not a rosbag2"):
             finishes_within(20, replay_bag, path)
     assert finishes_within(20, main, ["replay", str(db3)]) == 1
-    assert "not a rosbag2 sqlite3 storage file" in _one_error_line(capsys)
+    assert "not a rosbag2 sqlite3 storage file" in one_error_line(capsys)
 
 
 @pytest.mark.parametrize("topic", ["/imu/data_raw", "/other"])
@@ -502,7 +497,7 @@ def test_a_huge_recorded_definition_is_refused_before_parsing(tmp_path, capsys, 
     started = time.monotonic()
     assert finishes_within(60, main, ["replay", str(directory), "-o", str(cal),
                                       "--corrected", str(tmp_path / "out")]) == 1
-    assert "KiB" in _one_error_line(capsys) and time.monotonic() - started < 10
+    assert "KiB" in one_error_line(capsys) and time.monotonic() - started < 10
     assert cal.read_text() == "old\n" and not (tmp_path / "out").exists()  # item 2: nothing replaced
 
 
@@ -514,12 +509,12 @@ def test_a_pose_table_of_a_million_columns_is_refused_at_once(tmp_path, capsys):
     path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
     started = time.monotonic()
     assert finishes_within(60, main, ["fit", str(path), "-o", str(tmp_path / "cal.yaml")]) == 1
-    assert "1000003 columns" in _one_error_line(capsys) and time.monotonic() - started < 10
+    assert "1000003 columns" in one_error_line(capsys) and time.monotonic() - started < 10
     # Below the limit the duplicate check is linear: 1000 columns, one repeated, found at once.
     header = ["ax", "ay", "az", *(f"c{i}" for i in range(996)), "c5"]
     path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
     assert main(["fit", str(path), "-o", str(tmp_path / "cal.yaml")]) == 1
-    assert "column c5 appears more than once" in _one_error_line(capsys)
+    assert "column c5 appears more than once" in one_error_line(capsys)
 
 
 def test_a_sample_stream_of_a_million_columns_says_so(tmp_path, capsys):
@@ -527,7 +522,7 @@ def test_a_sample_stream_of_a_million_columns_says_so(tmp_path, capsys):
     path = tmp_path / "samples.csv"
     path.write_text(",".join(header) + "\n" + ",".join(["0"] * len(header)) + "\n")
     assert finishes_within(60, main, ["replay", str(path)]) == 1
-    line = _one_error_line(capsys)
+    line = one_error_line(capsys)
     assert "header row is longer than 64 KiB" in line and "10952" not in line
 
 
@@ -546,7 +541,7 @@ def test_ulog_stamps_that_would_wrap_as_nanoseconds_are_refused(tmp_path, capsys
     path = tmp_path / "log.ulg"
     _ulog(path, np.uint64(start_us) + np.arange(200, dtype=np.uint64) * np.uint64(1000))
     assert main(["replay", str(path), "--corrected", str(tmp_path / "out.csv")]) == 1
-    assert "a nanosecond stamp holds" in _one_error_line(capsys)
+    assert "a nanosecond stamp holds" in one_error_line(capsys)
     assert not (tmp_path / "out.csv").exists()
 
 
@@ -568,7 +563,7 @@ def test_a_ulog_with_a_broken_format_says_so(tmp_path, capsys, good, bad, says):
     _ulog(path, np.arange(200, dtype=np.uint64) * np.uint64(1000) + np.uint64(10**6))
     path.write_bytes(path.read_bytes().replace(good, bad))
     assert main(["replay", str(path)]) == 1
-    line = _one_error_line(capsys)
+    line = one_error_line(capsys)
     assert says in line and "corrupt ULog" in line and "no sensor topics" not in line
 
 
@@ -651,12 +646,12 @@ def test_replay_applies_a_star_block_as_the_node_does(bag, tmp_path, capsys):
         params = tmp_path / "params.yaml"
         params.write_text(f'"{key}":\n  ros__parameters:\n    min_poses: 40\n')
         assert main(["replay", str(bag), "--params-file", str(params)]) == 1
-        assert "min_poses=40" in _one_error_line(capsys)
+        assert "min_poses=40" in one_error_line(capsys)
     params.write_text('"/uav1/accel_calibration":\n  ros__parameters:\n    min_poses: 40\n')
     assert main(["replay", str(bag), "--params-file", str(params)]) == 1
-    assert "no block for node /accel_calibration" in _one_error_line(capsys)
+    assert "no block for node /accel_calibration" in one_error_line(capsys)
     assert main(["replay", str(bag), "--params-file", str(params), "--node", "/uav1/accel_calibration"]) == 1
-    assert "min_poses=40" in _one_error_line(capsys)
+    assert "min_poses=40" in one_error_line(capsys)
 
 
 def test_a_params_file_is_checked_before_any_parser_sees_it(tmp_path):
@@ -695,7 +690,7 @@ def test_a_metadata_message_count_that_is_no_count_is_named(tmp_path, capsys, th
         line = str(caught.value)
     else:
         assert main(["replay", str(copy)]) == 1
-        line = _one_error_line(capsys)
+        line = one_error_line(capsys)
     assert "message_count 'abc' is not a count" in line and "TypeError" not in line
 
 
@@ -703,16 +698,16 @@ def test_a_time_beyond_any_stamp_is_printed_as_a_number(tmp_path, capsys):
     path = tmp_path / "s.csv"
     path.write_text("t,ax,ay,az\n0,0,0,9.8\n1e30,0,0,9.8\n")
     assert main(["replay", str(path)]) == 1
-    line = _one_error_line(capsys)
+    line = one_error_line(capsys)
     assert "time 1e+30 s is out of range" in line and "np.float64" not in line
 
 
 def test_a_wal_history_on_read_only_media_is_listed(tmp_path, capsys, monkeypatch):
     """Read-only media, as SQLite meets them (its -shm cannot be made: 'unable to open database file'
     for a WAL file unless opened immutable), stood in for by the driver (the tests run as root)."""
-    from test_history import record
-
     from accel_calibration.io.history import open_history
+
+    from helpers.history_records import record
 
     db = tmp_path / "h.sqlite"
     with open_history(db) as history:
@@ -730,12 +725,12 @@ def test_a_wal_history_on_read_only_media_is_listed(tmp_path, capsys, monkeypatc
 
 
 def test_a_read_only_postgresql_history_reads_and_cannot_write(pg_url, capsys):  # noqa: F811
-    from test_history import record
-
     from accel_calibration.io.history import HistoryError, open_history
 
+    from helpers.history_records import record
+
     assert main(["history", "--history", pg_url]) == 1  # an empty database: nothing made in it
-    assert "not a calibration history" in _one_error_line(capsys)
+    assert "not a calibration history" in one_error_line(capsys)
     with open_history(pg_url) as history:
         history.write([record(1), record(2)])
     assert main(["history", "--history", pg_url]) == 0 and "flight2" in capsys.readouterr().out

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_static_detector import assert_same_poses, streams
-from test_stream_faults import stream_with_breaks
 
 from accel_calibration.core.static_detector import StaticDetector
+
+from helpers.detector_streams import assert_same_poses, stream_with_breaks, streams
 
 FAST = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

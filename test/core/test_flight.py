@@ -17,9 +17,6 @@ import time
 
 import numpy as np
 import pytest
-import session_doors as doors
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from accel_calibration import MG
@@ -28,6 +25,9 @@ from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from msg_tools.synthetic_flight import FlightProfile, ground_flight_ground, simulate_flight
 from msg_tools.synthetic_imu import SensorErrors, spread_orientations
+
+from helpers import session_doors as doors
+from helpers.imu_bags import write_imu_bag
 
 G = 9.80665
 FLIGHT_S = 2460.0  # motors start to motors stopped: 41 minutes
@@ -162,41 +162,6 @@ def test_the_armed_input_keeps_the_flight_out_by_itself(mission, detector):
     assert while_motors_driven(live_poses, mission) == []
     ground, _ = whole_recording(mission.without_flight())
     assert difference_mg(calibration_of(live), calibration_of(ground), errors) <= 0.1
-
-
-def write_imu_bag(path, t_ns, accel, gyro, storage, frame_id="imu_link", topic="/imu/data_raw"):
-    """A rosbag2 of sensor_msgs/Imu written by rosbags: one message serialised by rosbags, the others
-    the same bytes with stamp, gyro and accel put in place (~4 s for 250k messages instead of ~8)."""
-    store = get_typestore(Stores.ROS2_JAZZY)
-    types = store.types
-    vector = types["geometry_msgs/msg/Vector3"]
-    marks = [1.0625 + k / 8 for k in range(6)]  # distinct doubles (none 1.0: orientation.w) locating the fields
-    stamp = types["builtin_interfaces/msg/Time"](sec=0x01020304, nanosec=0x05060708)
-    template = types["sensor_msgs/msg/Imu"](
-        header=types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id),
-        orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-        orientation_covariance=np.r_[-1.0, np.zeros(8)],
-        angular_velocity=vector(x=marks[0], y=marks[1], z=marks[2]), angular_velocity_covariance=np.zeros(9),
-        linear_acceleration=vector(x=marks[3], y=marks[4], z=marks[5]), linear_acceleration_covariance=np.zeros(9))
-    raw = bytes(store.serialize_cdr(template, "sensor_msgs/msg/Imu"))
-
-    def offset(value, dtype):
-        found = raw.find(np.array(value, dtype).tobytes())
-        assert found > 0
-        return found
-
-    n = len(t_ns)
-    rows = np.tile(np.frombuffer(raw, np.uint8), (n, 1))
-    sec, nanosec = np.divmod(np.asarray(t_ns, np.int64), 1_000_000_000)
-    for value, dtype, data, width in ((0x01020304, "<i4", sec, 4), (0x05060708, "<u4", nanosec, 4),
-                                      (marks[0], "<f8", gyro, 24), (marks[3], "<f8", accel, 24)):
-        at = offset(value, dtype)
-        rows[:, at:at + width] = np.ascontiguousarray(data, dtype).view(np.uint8).reshape(n, width)
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=9, storage_plugin=plugin) as writer:
-        connection = writer.add_connection(topic, "sensor_msgs/msg/Imu", typestore=store)
-        for log_time, row in zip(np.asarray(t_ns, np.int64).tolist(), rows):
-            writer.write(connection, log_time, row.tobytes())
 
 
 def test_replay_of_a_bag_of_the_mission_gives_the_same(mission, tmp_path):

@@ -6,7 +6,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from gyro_sessions import poses_and_motions
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
@@ -19,6 +18,8 @@ from accel_calibration.core.rotation_integration import IntervalSet, prefix_prod
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from msg_tools.synthetic_motion import GyroTruth, simulate_session
+
+from helpers.gyro_sessions import poses_and_motions
 
 OFF_DIAGONAL = ~np.eye(3, dtype=bool)
 

@@ -91,7 +91,7 @@ def test_noise_refuses_a_recording_too_short_saying_how_long(tmp_path, capsys):
 
 
 def test_an_mcap_bag_and_a_csv_of_the_same_samples_give_the_same_figures(tmp_path, capsys):
-    from test_flight import write_imu_bag
+    from helpers.imu_bags import write_imu_bag
 
     rate = 100.0
     rng = np.random.default_rng(11)

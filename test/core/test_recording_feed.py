@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from session_doors import per_message
-from test_session import hostile, stream, temperature_readings
 
 from accel_calibration.core.session import CalibrationSession, RecordingFeed
+
+from helpers.session_doors import per_message
+from helpers.session_streams import hostile, stream, temperature_readings
 
 FAST = settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])

@@ -8,7 +8,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
-from session_doors import per_message
 
 from accel_calibration import MG, Calibration, Pose, fit
 from accel_calibration.core.correction import Correction, rep145_covariance
@@ -17,40 +16,15 @@ from accel_calibration.core.session import CalibrationSession, RecordingFeed
 from accel_calibration.core.settings import PARAMETERS, Settings
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
+from helpers.session_doors import per_message
+from helpers.session_streams import hostile, stream, temperature_readings
+
 G = 9.80665
-
-
-def stream(seed=1, poses=16, dwell_s=2.5, rate_hz=200.0, temperature_degc=25.0):
-    rng = np.random.default_rng(seed)
-    errors = SensorErrors.mpu6050_like(rng, noise_mps2=0.02)
-    imu = SyntheticImu(errors, spread_orientations(poses, rng), dwell_s=dwell_s, move_s=1.0, rate_hz=rate_hz,
-                       seed=seed, temperature_degc=temperature_degc)
-    return errors, imu.samples()
-
-
-def temperature_readings(samples, period_s=0.1):
-    """(stamps, values) at ~10 Hz, as a Temperature topic gives."""
-    step = max(1, int(round(period_s / (samples.t_ns[1] - samples.t_ns[0]) * 1e9)))
-    index = np.arange(0, len(samples.t_ns), step)
-    return samples.t_ns[index], samples.temperature_degc[index]
 
 
 def per_sample(session, t_ns, accel, gyro, temperatures=None):
     """What the node does: temperature and IMU messages in arrival order, poses into the store."""
     return per_message(session, t_ns, accel, gyro, temperatures)
-
-
-def hostile(samples):
-    """The session's stream with the faults seen in the field spliced in: NaN, a 2e154 gyro, a stamp
-    going backwards, a 1e300 accel, and a frozen sensor (the same sample 400 times)."""
-    t, accel, gyro = samples.t_ns.copy(), samples.accel_raw.copy(), samples.gyro_raw.copy()
-    accel[1000] = np.nan
-    gyro[2000, 1] = 2e154
-    t[3000] = t[2990]
-    accel[4000, 2] = 1e300
-    frozen = slice(5000, 5400)
-    accel[frozen], gyro[frozen] = accel[5000], gyro[5000]
-    return t, accel, gyro
 
 
 @pytest.mark.parametrize("part_rows", [None, 777], ids=["one part", "parts of 777"])

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import session_doors as doors
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -21,8 +20,11 @@ from accel_calibration.core.pose_store import AGREEMENT_CHI2, PoseStore, means_a
 from accel_calibration.core.screening import Counters
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
-from accel_calibration.core.static_detector import DISCARD, RESTART, StaticDetector
+from accel_calibration.core.static_detector import StaticDetector
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+from helpers import session_doors as doors
+from helpers.detector_streams import stream_with_breaks
 
 G = 9.80665
 DAY_NS = 86_400 * 10**9
@@ -275,24 +277,6 @@ def test_repeated_samples_never_feed_the_floor():
     # The 5 % quantile of windows of 100 samples: close to (and not far below) the noise's variance.
     assert 0.5 * 0.02**2 < detector.noise_floor_accel_var < 1.2 * 0.02**2
     assert detector.quietest_floors[0] > 0.5 * 3 * 0.02**2
-
-
-def stream_with_breaks(data):
-    """Six poses at 100 Hz with 1-5 restarts (the clock starting over anywhere) and discards drawn by
-    hypothesis: (samples, stamps, breaks)."""
-    rng = np.random.default_rng(data.draw(st.integers(0, 1000)))
-    errors = SensorErrors(noise_mps2=0.02, gyro_noise_radps=0.002)
-    s = SyntheticImu(errors, spread_orientations(6, rng), dwell_s=3.0, move_s=1.0, rate_hz=100.0,
-                     seed=data.draw(st.integers(0, 1000))).samples()
-    t = s.t_ns.copy()
-    breaks = np.zeros(len(t), dtype=np.int64)
-    for _ in range(data.draw(st.integers(1, 5))):
-        i = data.draw(st.integers(0, len(t) - 1))
-        kind = data.draw(st.sampled_from([RESTART, DISCARD]))
-        breaks[i] = kind
-        if kind == RESTART:  # a clock that starts over, anywhere
-            t[i:] += data.draw(st.integers(-2 * DAY_NS, 2 * DAY_NS))
-    return s, t, breaks
 
 
 @FAST

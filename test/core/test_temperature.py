@@ -7,19 +7,10 @@ from scipy.spatial.transform import Rotation
 from accel_calibration import MG, CalibrationError, fit, load_calibration, save_calibration
 from accel_calibration.cli.main import main
 from accel_calibration.core.temperature_models import TemperatureOptions
-from msg_tools.synthetic_imu import SensorErrors
+
+from helpers.sensors import DRIFTING
 
 G = 9.80665
-# ~1 mg/degC of bias drift with curvature, ~1e-4/degC of scale drift (per axis, about T_ref = 25 degC).
-DRIFTING = SensorErrors(
-    bias_mps2=np.array([0.31, -0.42, 0.27]),
-    matrix=np.array([[1.021, 0.0, 0.0], [0.011, 0.984, 0.0], [-0.008, 0.013, 1.017]]),
-    bias_drift=np.array([[1.1, -1.2, 1.0], [0.02, 0.025, -0.015]]) * MG,
-    scale_drift=np.array([[1.0e-4, -1.0e-4, 0.8e-4]]),
-    t_ref_degc=25.0,
-)
-
-
 def poses(rng, temperatures, noise_mg=0.2):
     true = G * Rotation.random(len(temperatures), random_state=rng).apply([0.0, 0.0, 1.0])
     raw = DRIFTING.raw_from_true(true, temperatures) + rng.normal(0.0, noise_mg * MG, true.shape)

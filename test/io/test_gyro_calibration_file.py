@@ -3,13 +3,14 @@ gyro_quality block; round trips, files without them as before, implausible value
 import numpy as np
 import pytest
 import yaml
-from gyro_sessions import poses_and_motions
 
 from accel_calibration import Calibration, CalibrationError, fit, load_calibration, save_calibration
 from accel_calibration.core.calibration import GyroQuality
 from accel_calibration.core.gyro_fit import fit_gyro
 from accel_calibration.core.plausibility import plausibility_problem
 from msg_tools.synthetic_motion import simulate_session
+
+from helpers.gyro_sessions import poses_and_motions
 
 
 @pytest.fixture(scope="module")

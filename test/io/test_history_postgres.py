@@ -5,7 +5,6 @@ lock order of concurrent writers, a server whose default isolation is serializab
 from __future__ import annotations
 
 import datetime
-import itertools
 import math
 import os
 import struct
@@ -17,10 +16,7 @@ import psycopg
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from postgres_server import PostgresServer, PostgresUnavailable
 from sqlalchemy.engine import make_url
-from test_fleet import START_NS, WEEK_NS, assert_flags_the_stepped_sensor_only, two_vehicles
-from test_history import WRITERS, assert_round_trip, record
 
 from accel_calibration.bag.replay import replay_bag
 from accel_calibration.cli.dask_cluster import local_cluster
@@ -28,28 +24,10 @@ from accel_calibration.cli.main import main
 from accel_calibration.core.units import MG
 from accel_calibration.io.history import HistoryError, HistoryRecord, open_history
 
-_names = itertools.count()
+from helpers.fleet_sessions import WEEK_NS, assert_flags_the_stepped_sensor_only, two_vehicles
+from helpers.history_records import START_NS, WRITERS, assert_round_trip, record
+
 DAY_NS = 86_400 * 10**9
-
-
-@pytest.fixture(scope="session")
-def postgres():
-    """One throwaway server for the session. Skipped where the server binaries are missing; under CI
-    (CI=true) that is a failure instead: the CI machine must have them (.ci/run installs them)."""
-    try:
-        server = PostgresServer()
-    except PostgresUnavailable as missing:
-        if os.environ.get("CI", "").lower() == "true":
-            pytest.fail(f"{missing} (CI=true: PostgreSQL must be here)")
-        pytest.skip(str(missing))
-    with server:
-        yield server
-
-
-@pytest.fixture
-def pg_url(postgres):
-    """A fresh database of its own for a test."""
-    return postgres.create_database(f"history{next(_names)}")
 
 
 def _raw(postgres, url):

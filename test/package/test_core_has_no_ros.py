@@ -3,7 +3,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "accel_calibration"
+PACKAGE = Path(__file__).resolve().parents[2] / "accel_calibration"
 CORE_MODULES = [f"accel_calibration.core.{p.stem}" for p in sorted((PACKAGE / "core").glob("*.py"))
                 if p.stem != "__init__"] + [
     "accel_calibration",

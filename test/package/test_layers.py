@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "accel_calibration"
 
 # What each layer may import (DESIGN.md): core imports nothing of ours; io the core; bag, ros and cli

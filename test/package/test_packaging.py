@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PACKAGE = "accel_calibration"
 LAUNCH_FILE = REPO / "launch" / "calibration.launch.py"
 CONFIG_FILE = REPO / "config" / "accel_calibration.yaml"

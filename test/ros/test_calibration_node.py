@@ -148,7 +148,7 @@ def test_node_learns_temperature_drift_while_the_sensor_warms(tmp_path, tester):
     """A vehicle turned through poses while it warms from 5 to 55 degC (10x faster than a real warm-up,
     to keep the test short): the node keeps poses at new temperatures, fits the polynomial model, and
     corrects fresh orientations at fixed temperatures using the temperature topic."""
-    from test_temperature import DRIFTING
+    from helpers.sensors import DRIFTING
 
     cal_file = tmp_path / "cal.yaml"
     node = NodeProcess(cal_file)

@@ -17,7 +17,7 @@ from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientati
 
 pytestmark = pytest.mark.ros
 START_NS = 1_700_000_000 * 10**9
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def good_session(seed=11, poses=16):

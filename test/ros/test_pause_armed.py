@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from session_doors import per_message
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 
 from accel_calibration.core.session import CalibrationSession
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, SyntheticSamples, spread_orientations
+
+from helpers.session_doors import per_message
 
 pytestmark = pytest.mark.ros
 START_NS = 1_700_000_000 * 10**9
