@@ -36,7 +36,7 @@ def assert_at_most_one_line(code: int, err: str) -> None:
     assert err.count("\n") <= 1 and "Traceback" not in err, err
 
 
-def refused_in_one_line(capsys, args, *needles: str) -> str:
+def refused(capsys, args, *needles: str) -> str:
     """main(args) in-process refuses in one error line holding every needle (stderr read from capsys).
     Returns stderr."""
     code = main([str(a) for a in args])

@@ -19,6 +19,8 @@ from accel_calibration.core.plausibility import plausibility_problem
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import calibration_from_yaml, calibration_to_dict, save_calibration
 
+from helpers.one_line import refused
+
 G = 9.80665
 MG = G * 1e-3
 
@@ -39,15 +41,6 @@ def write_body(path, **changes):
     body.update(changes)
     path.write_text(yaml.safe_dump({"accel_calibration": body}, sort_keys=False))
     return path
-
-
-def one_line_error(capsys, args, message):
-    code = main([str(a) for a in args])
-    err = capsys.readouterr().err
-    assert code == 1, err
-    assert err.count("\n") == 1 and err.startswith("accel-calib: error:") and "Traceback" not in err, err
-    assert message in err, err
-    return err
 
 
 # ---------------------------------------------------------------------------------------------- plausibility
@@ -80,8 +73,8 @@ def test_implausible_files_are_never_put_in_force_by_apply_or_report(tmp_path, c
     before = cal.read_bytes()
     (tmp_path / "in.csv").write_text("ax,ay,az,temperature\n0.2,-0.3,9.9,25\n")
     (tmp_path / "poses.csv").write_text("ax,ay,az\n" + "0,0,9.8\n0,9.8,0\n9.8,0,0\n")
-    one_line_error(capsys, ["apply", "-c", cal, tmp_path / "in.csv", tmp_path / "out.csv"], message)
-    one_line_error(capsys, ["report", cal, "--poses", tmp_path / "poses.csv", "-o", tmp_path / "r.png"], message)
+    refused(capsys, ["apply", "-c", cal, tmp_path / "in.csv", tmp_path / "out.csv"], message)
+    refused(capsys, ["report", cal, "--poses", tmp_path / "poses.csv", "-o", tmp_path / "r.png"], message)
     assert not (tmp_path / "out.csv").exists() and not (tmp_path / "r.png").exists()
     assert cal.read_bytes() == before
 
@@ -162,10 +155,10 @@ def test_a_fifo_device_or_directory_is_refused_before_it_is_opened(tmp_path, cap
     try:
         (tmp_path / "in.csv").write_text("ax,ay,az\n0,0,9.8\n")
         save_calibration(Calibration.identity(), tmp_path / "x.yaml")
-        one_line_error(capsys, ["apply", "-c", fifo, tmp_path / "in.csv", tmp_path / "out.csv"], "is a FIFO")
-        one_line_error(capsys, ["fit", fifo, "-o", tmp_path / "y.yaml"], "is a FIFO")
-        one_line_error(capsys, ["apply", "-c", tmp_path / "x.yaml", fifo, tmp_path / "out.csv"], "is a FIFO")
-        one_line_error(capsys, ["replay", tmp_path, "--params-file", fifo], "is a FIFO")
+        refused(capsys, ["apply", "-c", fifo, tmp_path / "in.csv", tmp_path / "out.csv"], "is a FIFO")
+        refused(capsys, ["fit", fifo, "-o", tmp_path / "y.yaml"], "is a FIFO")
+        refused(capsys, ["apply", "-c", tmp_path / "x.yaml", fifo, tmp_path / "out.csv"], "is a FIFO")
+        refused(capsys, ["replay", tmp_path, "--params-file", fifo], "is a FIFO")
         assert opener.is_alive()  # nobody opened it
     finally:
         _release(opener, fifo)
@@ -224,7 +217,7 @@ def test_yaml_bombs_are_refused_quickly_without_memory_growth(tmp_path, text, me
 def test_absurd_numbers_are_one_line(tmp_path, capsys, change, message):
     cal = write_body(tmp_path / "cal.yaml", **change)
     (tmp_path / "in.csv").write_text("ax,ay,az\n0,0,9.8\n")
-    one_line_error(capsys, ["apply", "-c", cal, tmp_path / "in.csv", tmp_path / "out.csv"], message)
+    refused(capsys, ["apply", "-c", cal, tmp_path / "in.csv", tmp_path / "out.csv"], message)
 
 
 def test_a_date_that_is_not_a_date_is_one_line():
@@ -253,7 +246,7 @@ def write_csv(path, rows, header="ax,ay,az"):
 def test_data_scaled_far_out_of_range_is_one_line_without_warnings(tmp_path, capsys, scale):
     raw, _ = sphere_poses()
     poses = write_csv(tmp_path / "p.csv", raw * scale)
-    one_line_error(capsys, ["fit", poses, "-o", tmp_path / "cal.yaml"],
+    refused(capsys, ["fit", poses, "-o", tmp_path / "cal.yaml"],
                    "fit failed" if scale < 1 else "a corrupt value or the wrong units")
     assert not (tmp_path / "cal.yaml").exists()
 
@@ -263,12 +256,12 @@ def test_1e308_in_csv_is_one_line_without_warnings(tmp_path, capsys):
     raw, _ = sphere_poses()
     raw[5, 1] = 1e308
     poses = write_csv(tmp_path / "p.csv", raw)
-    one_line_error(capsys, ["fit", poses, "-o", tmp_path / "cal.yaml"], "row 7, column ay: 1e+308 is outside")
+    refused(capsys, ["fit", poses, "-o", tmp_path / "cal.yaml"], "row 7, column ay: 1e+308 is outside")
     save_calibration(Calibration.identity(), tmp_path / "cal.yaml")
-    one_line_error(capsys, ["apply", "-c", tmp_path / "cal.yaml", poses, tmp_path / "out.csv"], "row 7, column ay")
+    refused(capsys, ["apply", "-c", tmp_path / "cal.yaml", poses, tmp_path / "out.csv"], "row 7, column ay")
     temps = write_csv(tmp_path / "t.csv", np.column_stack([raw[:5], [1e308, 0, 0, 0, 0]]),
                       header="ax,ay,az,temperature")
-    one_line_error(capsys, ["apply", "-c", tmp_path / "cal.yaml", temps, tmp_path / "out.csv"],
+    refused(capsys, ["apply", "-c", tmp_path / "cal.yaml", temps, tmp_path / "out.csv"],
                    "column temperature: 1e+308 is outside")
 
 
@@ -283,16 +276,16 @@ def test_overflowing_options_are_one_line(tmp_path, capsys, option, value, messa
     raw, _ = sphere_poses()
     poses = write_csv(tmp_path / "p.csv", np.column_stack([raw, np.linspace(0, 40, len(raw))]),
                       header="ax,ay,az,temperature")
-    one_line_error(capsys, ["fit", poses, "--temperature-model", "polynomial", option, value,
+    refused(capsys, ["fit", poses, "--temperature-model", "polynomial", option, value,
                             "-o", tmp_path / "cal.yaml"], message)
 
 
 def test_a_duplicated_column_is_refused_naming_it(tmp_path, capsys):
     (tmp_path / "p.csv").write_text("ax,ay,az,AY\n1,2,3,4\n")
-    one_line_error(capsys, ["fit", tmp_path / "p.csv", "-o", tmp_path / "cal.yaml"], "column ay appears more than once")
+    refused(capsys, ["fit", tmp_path / "p.csv", "-o", tmp_path / "cal.yaml"], "column ay appears more than once")
     (tmp_path / "q.csv").write_text("t,ax,ay,az,t\n1,2,3,4,5\n")
     save_calibration(Calibration.identity(), tmp_path / "cal.yaml")
-    one_line_error(capsys, ["apply", "-c", tmp_path / "cal.yaml", tmp_path / "q.csv", tmp_path / "out.csv"],
+    refused(capsys, ["apply", "-c", tmp_path / "cal.yaml", tmp_path / "q.csv", tmp_path / "out.csv"],
                    "column t appears more than once")
 
 

@@ -15,6 +15,8 @@ from accel_calibration.io.output_paths import OutputPathError, check_outputs, wr
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
+from helpers.one_line import refused
+
 G = 9.80665
 START_NS = 1_700_000_000 * 10**9
 
@@ -50,14 +52,6 @@ def files(tmp_path):
 
 def snapshot(*paths):
     return {p: p.read_bytes() for p in paths}
-
-
-def refused(capsys, args, message):
-    assert main([str(a) for a in args]) == 1
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("accel-calib: error:") and "Traceback" not in err, err
-    assert message in err, err
-    return err
 
 
 def test_an_output_that_is_an_input_is_refused_and_nothing_changes(tmp_path, files, capsys):
