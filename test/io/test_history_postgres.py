@@ -1,5 +1,5 @@
 """The calibration history on a real PostgreSQL server (a private one per test session, unix socket only,
-see postgres_server.py): the same properties test_history.py shows on SQLite, and where the two differ
+see helpers/postgres_server.py): the same properties test_history.py shows on SQLite, and where the two differ
 (integer widths, float round trips, row order under a server collation, concurrent schema creation,
 lock order of concurrent writers, a server whose default isolation is serializable)."""
 from __future__ import annotations
