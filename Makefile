@@ -18,8 +18,8 @@ $(STAMP): requirements.txt requirements-ros.txt setup.py setup.cfg package.xml
 # copy, live and replay) run again under both OpenBLAS kernel families: FMA kernels (Haswell, most users'
 # CPUs) round differently at different matrix sizes, so a claim resting on BLAS fails here too, not only
 # on someone else's machine.
-EQUALITY_TESTS := test/test_replay_stream.py test/test_one_correction.py test/test_session.py \
-	test/test_recording_feed.py test/test_detector_parts.py
+EQUALITY_TESTS := test/bag/test_replay_stream.py test/ros/test_one_correction.py test/core/test_session.py \
+	test/core/test_recording_feed.py test/core/test_detector_parts.py
 
 test: $(STAMP) lint
 	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q test
@@ -49,7 +49,7 @@ clean:
 # colcon build, then colcon test (the whole suite, ~5 min), as in a ROS 2 workspace: a fresh one in
 # build/colcon-ws from this checkout's files, colcon and ament_package from PyPI in their own virtualenv
 # (.venv-colcon: requirements.txt + requirements-colcon.txt). COLCON_BUILD_ARGS=--symlink-install for
-# that build; COLCON_TEST_ARGS="--pytest-args test/test_cli.py" for a part of the suite.
+# that build; COLCON_TEST_ARGS="--pytest-args test/cli/test_cli.py" for a part of the suite.
 COLCON_VENV ?= .venv-colcon
 COLCON_WS ?= build/colcon-ws
 COLCON_STAMP := $(COLCON_VENV)/.installed

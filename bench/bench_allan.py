@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / "test" / "core"),
+                str(Path(__file__).resolve().parents[1] / "test")]
 from test_noise import simulate  # noqa: E402
 
 from accel_calibration.core.allan import fit_noise, overlapping_adev  # noqa: E402

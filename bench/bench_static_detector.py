@@ -42,7 +42,7 @@ def bench_batch() -> None:
     if not IMU_TK.exists():
         print(f"bench_static_detector: {IMU_TK} not found (../shared beside the clone); batch part skipped")
         return
-    # As test/test_static_detector.py loads it: Xsens MTi, 100 Hz, raw counts.
+    # As test/core/test_static_detector.py loads it: Xsens MTi, 100 Hz, raw counts.
     accel = np.loadtxt(gzip.open(IMU_TK / "xsens_acc.txt.gz"))
     gyro = np.loadtxt(gzip.open(IMU_TK / "xsens_gyro.txt.gz"))
     t, a, g = (accel[:, 0] * 1e9).astype(np.int64), accel[:, 1:], gyro[:, 1:]

@@ -14,13 +14,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / "test" / "core"),
+                str(Path(__file__).resolve().parents[1] / "test")]
 
 from test_segmented import FACES, SET_POINTS, TWELVE, ChamberSensor, chamber_poses  # noqa: E402
-from test_temperature import DRIFTING  # noqa: E402
 
 from accel_calibration import MG, fit  # noqa: E402
 from accel_calibration.core.temperature_models import TemperatureOptions  # noqa: E402
+
+from helpers.sensors import DRIFTING  # noqa: E402
 
 G = 9.80665
 MODELS = [

@@ -1,6 +1,9 @@
-"""Test-session isolation and access to ../shared reference data."""
+"""Test-session isolation, access to ../shared reference data, and the fixtures tests of several layers share.
+The one conftest: the layer folders (core, io, bag, ros, cli, package) have none; shared helpers that are
+not fixtures live in test/helpers/."""
 from __future__ import annotations
 
+import itertools
 import os
 from pathlib import Path
 
@@ -68,3 +71,29 @@ def node_process():
     yield start
     for node in started:
         node.stop()
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """One throwaway PostgreSQL server for the session (helpers/postgres_server.py). Skipped where the server
+    binaries are missing; under CI (CI=true) that is a failure instead: the CI machine must have them
+    (.ci/run installs them)."""
+    from helpers.postgres_server import PostgresServer, PostgresUnavailable
+
+    try:
+        server = PostgresServer()
+    except PostgresUnavailable as missing:
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"{missing} (CI=true: PostgreSQL must be here)")
+        pytest.skip(str(missing))
+    with server:
+        yield server
+
+
+_database_names = itertools.count()
+
+
+@pytest.fixture
+def pg_url(postgres):
+    """A fresh database of its own for a test."""
+    return postgres.create_database(f"history{next(_database_names)}")

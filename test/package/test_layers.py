@@ -1,0 +1,144 @@
+"""The package's import graph, read from the source (no import runs): no module imports another that
+imports it back, directly or around a circle, whether at the top or inside a function (a lazy import
+hides a circle, it does not remove it); and the layers point one way, core <- io <- bag, ros, cli.
+Imports under `if TYPE_CHECKING:` are for annotations only and are left out of the circles."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGE = ROOT / "accel_calibration"
+
+# What each layer may import (DESIGN.md): core imports nothing of ours; io the core; bag, ros and cli
+# io and the core; cli also bag (replay). ros does not read recordings.
+ALLOWED = {"core": {"core"}, "io": {"core", "io"}, "bag": {"core", "io", "bag"}, "ros": {"core", "io", "ros"},
+           "cli": {"core", "io", "bag", "cli"}}
+
+# Circles still there, each in files being rewritten elsewhere. When one goes, remove it here: the test
+# says so. (None left: the stream side's detector no longer reaches into its batch module and back.)
+KNOWN_CYCLES: set[frozenset[str]] = set()
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+MODULES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    test = node.test
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def imports_of(name: str, *, annotations: bool) -> set[str]:
+    """The package's modules `name` imports anywhere in its body (functions included); with
+    `annotations`, also those under `if TYPE_CHECKING:`."""
+    path = MODULES[name]
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and _is_type_checking(node) and not annotations:
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            for alias in node.names:  # `from . import replay` imports the submodule
+                found.add(f"{module}.{alias.name}" if f"{module}.{alias.name}" in MODULES else module)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(ast.parse(path.read_text(encoding="utf-8")))
+    return {m for m in found if m in MODULES and m not in (name, "accel_calibration")}
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[set[str]]:
+    """The strongly connected components of more than one module (Tarjan), each a set of modules
+    that reach one another through imports."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[set[str]] = []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(component)
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return cycles
+
+
+def test_the_cycle_finder_finds_a_circle_and_only_circles():
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+    assert import_cycles({"a": {"b"}, "b": set(), "c": {"a", "b"}}) == []
+
+
+def test_a_lazy_import_counts_and_an_annotation_only_one_does_not():
+    # cli/fleet.py imports io.history under TYPE_CHECKING and inside functions
+    assert "accel_calibration.io.history" in imports_of("accel_calibration.cli.fleet", annotations=False)
+    assert "accel_calibration.bag.replay" in imports_of("accel_calibration.cli.options", annotations=False)
+
+
+def test_no_module_imports_itself_around_a_circle():
+    graph = {name: imports_of(name, annotations=False) for name in MODULES}
+    found = {frozenset(cycle) for cycle in import_cycles(graph)}
+    new = found - KNOWN_CYCLES
+    assert not new, "import circles: " + "; ".join(
+        " <-> ".join(sorted(m.removeprefix("accel_calibration.") for m in cycle)) for cycle in new)
+    gone = KNOWN_CYCLES - found
+    assert not gone, f"no longer a circle, remove from KNOWN_CYCLES: {[sorted(c) for c in gone]}"
+
+
+@pytest.mark.parametrize("layer", sorted(ALLOWED))
+def test_imports_point_from_the_outer_layers_to_the_core(layer):
+    wrong = {}
+    for name in MODULES:
+        if name.split(".")[1:2] != [layer]:
+            continue
+        layers = {m.split(".")[1] for m in imports_of(name, annotations=True) if m.count(".") >= 1}
+        if layers - ALLOWED[layer]:
+            wrong[name] = sorted(layers - ALLOWED[layer])
+    assert not wrong, f"{layer}/ imports layers it must not: {wrong}"
+
+
+def test_msg_tools_import_nothing_of_the_package():
+    for path in sorted((ROOT / "msg_tools").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0
+                     else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            assert not any(n.split(".")[0] == "accel_calibration" for n in names), f"{path.name}: {names}"
