@@ -1,0 +1,354 @@
+"""What the README and docs/ say is what the code does (issue 20: every promise is still a test).
+
+- Every `accel-calib` command and flag the README's command reference lists exists, with the choices it
+  lists; every option a command has is in the reference.
+- Every code path the docs name (`core/fit_outliers.critical_ratio`, `accel_calibration.io.history`,
+  `bag/corrected_copy.py`, `test/test_x.py::test_y`, a bare `units.py`) exists as written.
+- Every `--flag` the docs give an `accel-calib` command exists.
+- The README's node section: topics, their types, the services and their types as the node creates them;
+  the parameter defaults it quotes as the node declares them; the launch arguments it names.
+- The defaults the README quotes for the command line, and the Python API it shows.
+docs/promises.md maps the README's other promises to the tests that assert them; its references are
+checked here like any other.
+
+Test references are resolved by file name anywhere under test/ (files may move into test/<layer>/)."""
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib
+import re
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+DOCS = sorted((REPO / "docs").glob("*.md"))
+LAYERS = ("core", "io", "bag", "ros", "cli")
+README_MAX_BYTES = 15_500  # "a user's document of at most about 15 KB" (issue 20)
+
+
+def _text(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    from accel_calibration.cli.main import _parser
+
+    (action,) = [a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(action.choices)
+
+
+def _options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+    return {flag: action for action in parser._actions for flag in action.option_strings
+            if action.dest != "help"}
+
+
+# --- the README's command reference --------------------------------------------------------------------
+
+def _reference_block() -> dict[str, str]:
+    """{command: its lines in the README's command-reference code block}."""
+    section = _text(README).split("## Command reference", 1)[1].split("\n## ", 1)[0]
+    block = section.split("```", 2)[1]
+    commands: dict[str, str] = {}
+    current = None
+    for line in block.splitlines():
+        match = re.match(r"accel-calib (\w+)", line)
+        if match:
+            current = match.group(1)
+            commands[current] = commands.get(current, "") + line
+        elif current:
+            commands[current] += " " + line
+    return commands
+
+
+def test_the_readme_is_a_users_document_of_about_15_kb():
+    assert len(README.read_bytes()) <= README_MAX_BYTES
+
+
+def test_the_command_reference_lists_every_command_with_every_flag_and_choice_it_has():
+    reference = _reference_block()
+    parsers = _subparsers()
+    assert sorted(reference) == sorted(parsers), "commands in the README's reference != accel-calib's"
+    for command, line in reference.items():
+        options = _options(parsers[command])
+        listed = set(re.findall(r"(?<![\w-])(--?[a-zA-Z][\w-]*)", line))
+        assert sorted(listed - set(options)) == [], f"{command}: the README lists flags it does not have"
+        for action in {id(a): a for a in options.values()}.values():
+            assert set(action.option_strings) & listed, f"{command}: {action.option_strings} missing from README"
+        for flag, choices in re.findall(r"(--[\w-]+) ([\w-]+(?:\|[\w-]+)+)", line):
+            assert set(choices.split("|")) == set(options[flag].choices or ()), f"{command} {flag}: choices"
+
+
+def test_every_command_answers_help_in_one_process(capsys):
+    from accel_calibration.cli.main import main
+
+    for command in _subparsers():
+        with pytest.raises(SystemExit) as stop:
+            main([command, "--help"])
+        assert stop.value.code == 0
+        assert f"accel-calib {command}" in capsys.readouterr().out
+
+
+# The defaults the README's prose quotes: (command, flag, the README's words, the parser's default).
+README_DEFAULTS = [
+    ("replay", "--armed-margin-s", "`--armed-margin-s` (2 s)", 2.0),
+    ("fleet", "--history", "(default `calibrations.sqlite`)", "calibrations.sqlite"),
+    ("history", "--k-sigma", "(`--k-sigma`,\n5)", 5.0),
+    ("history", "--max-bias-change", "beyond 50 mg of bias", 50.0),
+    ("history", "--max-scale-change", "1 % of scale", 0.01),
+    ("export", "--max-loss-mg", "`--max-loss-mg`, 2 mg at 1 g", 2.0),
+    ("fit", "--model", "`sphere9`\n  (default;", "sphere9"),
+]
+
+
+@pytest.mark.parametrize("command, flag, words, default", README_DEFAULTS, ids=[f"{c} {f}" for c, f, *_ in README_DEFAULTS])
+def test_the_defaults_the_readme_quotes_are_the_parsers(command, flag, words, default):
+    assert words in _text(README)
+    assert _options(_subparsers()[command])[flag].default == default
+
+
+def test_the_python_api_the_readme_shows_imports():
+    import accel_calibration
+
+    line = re.search(r"From Python: `(from accel_calibration import [^`]+)`", _text(README)).group(1)
+    for name in line.split(" import ", 1)[1].split(","):
+        assert callable(getattr(accel_calibration, name.strip())), name
+
+
+# --- code named in the docs ----------------------------------------------------------------------------
+
+# Names in backticks that look like code but are something else: YAML keys, attributes of results,
+# parameters, files of other projects, example file names.
+NOT_CODE = re.compile(
+    r"^(calibration\.(bias|matrix|poses|residual_rms_mg)|result\.\w+|static\.\w+|temperature\.\w+|"
+    r"vehicle_\w+\.\w+|scipy\.\w+(\.\w+)?|numpy\.\w+|rclpy\.\w+|dividing_head\.\w+|imu\.yaml|"
+    r"\w+\.(yaml|ulg|csv|sqlite|BIN|bin|png|mcap|db3|txt|xml|cpp|h|launch\.py)|.*/(test\.BIN|calibration\.cpp)|"
+    r"include/.*|src/.*)$")
+SEARCH_DIRS = ("accel_calibration", "test", "bench", "msg_tools", "launch")
+
+
+def _defines(path: Path, name: str) -> bool:
+    tree = ast.parse(_text(path))
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.name == name:
+            return True
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+                return True
+    return False
+
+
+def _files_named(name: str) -> list[Path]:
+    return [p for folder in SEARCH_DIRS for p in (REPO / folder).rglob(name) if ".venv" not in p.parts]
+
+
+def _resolve_module_attribute(module: str, attributes: list[str]) -> str | None:
+    """None when `module` imports and holds the attribute chain, else why not."""
+    try:
+        target = importlib.import_module(module)
+    except ImportError as error:
+        return f"cannot import {module}: {error}"
+    for index, attribute in enumerate(attributes):
+        if attribute == "*":
+            return None
+        if not hasattr(target, attribute):
+            # `session.live_feed`: a method of the module's class, named as the docs' readers hold it
+            if index == 0 and any(isinstance(value, type) and value.__module__ == module and hasattr(value, attribute)
+                                  for value in vars(target).values()):
+                return None
+            return f"{module} has no {'.'.join(attributes)}"
+        target = getattr(target, attribute)
+    return None
+
+
+def _problem(reference: str) -> str | None:
+    """Why `reference` (the text of one backticked span) names no code that exists, or None."""
+    if NOT_CODE.match(reference):
+        return None
+    # test/test_x.py::test_y, bench/bench_x.py, msg_tools/x.py: a file under those folders (any depth)
+    match = re.fullmatch(r"(test|bench|msg_tools|launch|config)/([\w/]*?)(\w+\.(?:py|yaml))(?:::(\w+))?", reference)
+    if match:
+        found = _files_named(match.group(3)) if match.group(1) == "test" else \
+            [REPO / match.group(1) / match.group(2) / match.group(3)]
+        found = [p for p in found if p.exists()]
+        if not found:
+            return f"no file {reference}"
+        if match.group(4) and not any(_defines(p, match.group(4)) for p in found):
+            return f"{match.group(3)} defines no {match.group(4)}"
+        return None
+    # test_x.Name: a helper of a test module
+    match = re.fullmatch(r"(test_\w+)\.(?!py$)(\w+)", reference)
+    if match:
+        found = _files_named(match.group(1) + ".py")
+        return None if any(_defines(p, match.group(2)) for p in found) else f"no {reference} under test/"
+    # core/fit.py, cli/replay.*, io/history.History.write, accel_calibration.io.history
+    match = re.fullmatch(r"(?:accel_calibration[./])?(core|io|bag|ros|cli)[./](\w+)(\.py)?((?:\.(?:\w+|\*))*)",
+                         reference)
+    if match:
+        module = f"accel_calibration.{match.group(1)}.{match.group(2)}"
+        if not (REPO / "accel_calibration" / match.group(1) / f"{match.group(2)}.py").exists():
+            return f"no module {module}"
+        attributes = [a for a in match.group(4).split(".") if a]
+        return _resolve_module_attribute(module, attributes) if attributes else None
+    # units.py, gauss_newton.py: a file of the package (or of the test helpers, benchmarks)
+    match = re.fullmatch(r"(\w+)\.py", reference)
+    if match:
+        return None if _files_named(reference) else f"no file {reference} in {SEARCH_DIRS}"
+    # fit_outliers.critical_ratio, bag_io.JAZZY_DEFINITIONS: a module of the package by its file name
+    match = re.fullmatch(r"(\w+)\.(\w+(?:\.\w+)*)", reference)
+    if match:
+        modules = [p for p in (REPO / "accel_calibration").rglob(f"{match.group(1)}.py")]
+        if not modules:
+            return None  # not a module of ours: an attribute or key of something else
+        problems = [_resolve_module_attribute(
+            "accel_calibration." + ".".join(p.relative_to(REPO / "accel_calibration").with_suffix("").parts),
+            match.group(2).split(".")) for p in modules]
+        return None if None in problems else problems[0]
+    return None
+
+
+def _code_references() -> list[tuple[str, str]]:
+    references = []
+    for path in [README, *DOCS]:
+        for span in re.findall(r"`([^`\n]+)`", _text(path)):
+            for word in re.split(r"[\s,()]+", span):
+                word = word.strip(".:;")
+                if re.search(r"[./]", word) and re.fullmatch(r"[\w./:*]+", word) and not word.startswith("/"):
+                    references.append((path.name, word))
+    return sorted(set(references))
+
+
+def test_every_code_path_the_docs_name_exists():
+    problems = [f"{name}: `{reference}`: {problem}" for name, reference in _code_references()
+                if (problem := _problem(reference))]
+    assert problems == []
+
+
+def test_the_reference_resolver_refuses_what_does_not_exist():
+    assert _problem("cli/main._replay_one") is not None
+    assert _problem("bag/bag_io.write_corrected") is not None
+    assert _problem("test/test_cli.py::no_such_test") is not None
+    assert _problem("no_such_module.py") is not None
+    assert _problem("bag/corrected_bag.write_corrected") is None
+    assert _problem("test/test_docs_promises.py::test_every_code_path_the_docs_name_exists") is None
+
+
+# Flags of other tools the docs quote (ros2, colcon, pytest, make).
+OTHER_TOOLS_FLAGS = {"--ros-args", "--params-file", "--symlink-install", "--packages-select", "--pytest-args",
+                     "--from-paths", "--ignore-src", "--system-site-packages", "--verbose", "--collect-only"}
+
+
+def test_every_accel_calib_flag_the_docs_give_exists():
+    """A `--flag` written in an `accel-calib CMD ...` example exists for CMD."""
+    parsers = _subparsers()
+    problems = []
+    for path in [README, *DOCS]:
+        for line in _text(path).splitlines():
+            for command, rest in re.findall(r"accel-calib (\w+)((?: +[^`|]*)?)", line):
+                if command not in parsers:
+                    if command not in ("CMD", "error", "interrupted"):
+                        problems.append(f"{path.name}: no command {command}: {line.strip()}")
+                    continue
+                for flag in re.findall(r"(?<![\w-])(--[a-zA-Z][\w-]*)", rest):
+                    if flag not in _options(parsers[command]) and flag not in OTHER_TOOLS_FLAGS:
+                        problems.append(f"{path.name}: accel-calib {command} has no {flag}")
+    assert problems == []
+
+
+# --- the README's node section -------------------------------------------------------------------------
+
+def _node_section() -> str:
+    return _text(README).split("## The live node", 1)[1].split("\n## ", 1)[0]
+
+
+def _readme_interface_table() -> list[tuple[str, list[str], str]]:
+    """(in/out/service, [names], type) per row of the README's node table."""
+    rows = []
+    for line in _node_section().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0] in ("in", "out", "service"):
+            names = re.findall(r"`([\w/]+)`", cells[1])
+            if cells[0] == "service":
+                kind = re.search(r"\((\w+)\)", cells[1]).group(1)
+            else:
+                kind = re.match(r"([\w/]+)", cells[2]).group(1) if "/" in cells[2].split(" ")[0] else ""
+            rows.append((cells[0], names, kind))
+    return rows
+
+
+RCLPY_SERVICES = re.compile(r"/(describe_parameters|get_parameters|get_parameter_types|list_parameters|"
+                            r"set_parameters|set_parameters_atomically|get_type_description)$")
+
+
+@pytest.mark.ros
+def test_the_readme_node_table_is_what_the_node_creates(ros, tmp_path):
+    """Topics, types and services as the node creates them (in this process, no DDS discovery)."""
+    from rclpy.parameter import Parameter
+
+    from accel_calibration.ros.node import CalibrationNode
+
+    node = CalibrationNode(parameter_overrides=[Parameter("calibration_file", value=str(tmp_path / "c.yaml"))])
+    try:
+        def type_name(cls) -> str:
+            module = cls.__module__.split(".")
+            return f"{module[0]}/{cls.__name__}"
+
+        created = {"in": {s.topic_name.lstrip("/"): type_name(s.msg_type) for s in node.subscriptions},
+                   "out": {p.topic_name.lstrip("/"): type_name(p.msg_type) for p in node.publishers
+                           if p.topic_name not in ("/rosout", "/parameter_events")},
+                   "service": {s.srv_name.lstrip("/"): s.srv_type.__name__ for s in node.services
+                               if not RCLPY_SERVICES.search(s.srv_name)}}
+        listed: dict[str, dict[str, str]] = {"in": {}, "out": {}, "service": {}}
+        for kind, names, type_ in _readme_interface_table():
+            for name in names:
+                listed[kind][name.lstrip("/")] = type_
+        assert listed["service"] == created["service"]
+        assert set(listed["in"]) == set(created["in"]) and set(listed["out"]) == set(created["out"])
+        for kind in ("in", "out"):
+            for name, type_ in listed[kind].items():
+                assert created[kind][name] == type_.replace("/msg/", "/"), name
+        (imu,) = [s for s in node.subscriptions if s.topic_name == "/imu/data_raw"]
+        assert "best effort, depth 50" in _node_section()
+        assert imu.qos_profile.reliability.name == "BEST_EFFORT" and imu.qos_profile.depth == 50
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_the_parameter_defaults_the_readme_quotes_are_the_declared_ones():
+    from accel_calibration.core.settings import PARAMETERS
+    from accel_calibration.ros.parameters import NODE_PARAMETERS
+
+    declared = {p.name: p for p in PARAMETERS + NODE_PARAMETERS}
+    paragraph = _node_section().split("Parameters:", 1)[1].split("\n\n", 1)[0]
+    quoted = re.findall(r"`([\w.]+)` \(((?:[^()]|\([^()]*\))*)\)", paragraph)
+    assert len(quoted) >= 6, paragraph
+    for name, words in quoted:
+        parameter = declared[name]
+        if name == "calibration_file":
+            assert parameter.default == "" and "~/.ros/accel_calibration/<namespace>/<node" in parameter.description
+            assert words == "default\n`~/.ros/accel_calibration/<namespace>/<node>.yaml`".replace("\n", "\n")\
+                or "~/.ros/accel_calibration/<namespace>/<node>.yaml" in words
+            continue
+        values = re.findall(r"`([^`]+)`", words)
+        if " or " in words:  # `sphere9` or `six`: the default first, then the other choices
+            assert values[0] == parameter.default and set(values) == set(parameter.choices), name
+            continue
+        first = (values[0] if values else words).split()[0]
+        value = {"false": False, "true": True}.get(first, first)
+        if isinstance(parameter.default, (int, float)) and not isinstance(parameter.default, bool):
+            value = float(value)
+        assert value == parameter.default, name
+    assert f"`min_poses`), holding" in _text(README) and declared["min_poses"].default == 12  # "at least 12"
+
+
+def test_the_launch_arguments_the_readme_names_exist():
+    source = _text(REPO / "launch" / "calibration.launch.py")
+    declared = set(re.findall(r'DeclareLaunchArgument\(\s*"(\w+)"', source))
+    section = _node_section()
+    named = set(re.findall(r"(\w+):=", section.split("Launch:", 1)[1].split("\n\n", 1)[0]))
+    named |= set(re.findall(r"`(\w+)`", section.split("(also", 1)[1].split(")", 1)[0]))
+    assert named and named <= declared, named - declared
