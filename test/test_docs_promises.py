@@ -179,6 +179,15 @@ def _problem(reference: str) -> str | None:
         if match.group(4) and not any(_defines(p, match.group(4)) for p in found):
             return f"{match.group(3)} defines no {match.group(4)}"
         return None
+    # test_x.py::test_y (the way the docs cite a test: by file and test name, wherever the file lives)
+    match = re.fullmatch(r"((?:test|conftest|session_doors)\w*\.py)(?:::(\w+))?", reference)
+    if match:
+        found = _files_named(match.group(1))
+        if not found:
+            return f"no file {match.group(1)} under test/"
+        if match.group(2) and not any(_defines(p, match.group(2)) for p in found):
+            return f"{match.group(1)} defines no {match.group(2)}"
+        return None
     # test_x.Name: a helper of a test module
     match = re.fullmatch(r"(test_\w+)\.(?!py$)(\w+)", reference)
     if match:
@@ -231,6 +240,9 @@ def test_the_reference_resolver_refuses_what_does_not_exist():
     assert _problem("cli/main._replay_one") is not None
     assert _problem("bag/bag_io.write_corrected") is not None
     assert _problem("test/test_cli.py::no_such_test") is not None
+    assert _problem("test_cli.py::no_such_test") is not None
+    assert _problem("test_no_such_file.py") is not None
+    assert _problem("test_cli.py::test_fit_then_apply_as_a_user_would") is None
     assert _problem("no_such_module.py") is not None
     assert _problem("bag/corrected_bag.write_corrected") is None
     assert _problem("test/test_docs_promises.py::test_every_code_path_the_docs_name_exists") is None
