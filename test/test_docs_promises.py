@@ -277,9 +277,13 @@ def _node_section() -> str:
 
 
 def _readme_interface_table() -> list[tuple[str, list[str], str]]:
-    """(in/out/service, [names], type) per row of the README's node table."""
+    return _interface_table(_node_section())
+
+
+def _interface_table(text: str) -> list[tuple[str, list[str], str]]:
+    """(in/out/service, [names], type) per row of a node table."""
     rows = []
-    for line in _node_section().splitlines():
+    for line in text.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) == 3 and cells[0] in ("in", "out", "service"):
             names = re.findall(r"`([\w/]+)`", cells[1])
@@ -364,3 +368,54 @@ def test_the_launch_arguments_the_readme_names_exist():
     named = set(re.findall(r"(\w+):=", section.split("Launch:", 1)[1].split("\n\n", 1)[0]))
     named |= set(re.findall(r"`(\w+)`", section.split("(also", 1)[1].split(")", 1)[0]))
     assert named and named <= declared, named - declared
+
+
+def _declared_parameters() -> dict:
+    from accel_calibration.core.settings import PARAMETERS
+    from accel_calibration.ros.parameters import NODE_PARAMETERS
+
+    return {p.name: p for p in PARAMETERS + NODE_PARAMETERS}
+
+
+def test_every_parameter_default_the_docs_quote_is_the_declared_one():
+    """`name` (default, ...) or `a`, `b` (default a, default b), anywhere in the README and docs/."""
+    declared = _declared_parameters()
+    quoted = []
+    for path in [README, *DOCS]:
+        for match in re.finditer(r"`([\w.]+)`(?:, `([\w.]+)`)?\s+\((-?[\d.]+)(?:, (-?[\d.]+))?(?! =)",
+                                 _text(path)):
+            names, values = [match.group(1), match.group(2)], [match.group(3), match.group(4)]
+            for name, value in zip(names, values):
+                if name in declared and value is not None:
+                    quoted.append((path.name, name, float(value.rstrip("."))))
+    assert len(quoted) >= 12, quoted
+    wrong = [(doc, name, value, declared[name].default) for doc, name, value in quoted
+             if value != pytest.approx(float(declared[name].default))]
+    assert wrong == []
+
+
+def test_the_node_docs_name_every_parameter_and_which_change_at_run_time():
+    declared = _declared_parameters()
+    node_doc = _text(REPO / "docs" / "node.md")
+    paragraph = node_doc.split("\nParameters (", 1)[1].split("\n\n", 1)[0]
+    named = set(re.findall(r"`([\w.*]+)`", paragraph))
+    covered = {name for name in declared
+               if name in named or any(n.endswith(".*") and name.startswith(n[:-1]) for n in named)}
+    assert sorted(set(declared) - covered) == [], "parameters docs/node.md does not name"
+    mirrors = {n for n in named if n.startswith("calibration.")}
+    from accel_calibration.ros.parameters import MIRROR_PREFIX, MIRRORS
+
+    assert mirrors == {MIRROR_PREFIX + m[0] for m in MIRRORS}
+    unknown = {n for n in named - mirrors if not n.endswith(".*") and n not in declared and "/" not in n}
+    assert sorted(unknown) == [], "docs/node.md names parameters the node does not have"
+    gates = paragraph.split("the gates (", 1)[1].split("; the only\nones changeable at run time", 1)[0]
+    dynamic = {name for name, p in declared.items() if getattr(p, "dynamic", False)}
+    assert set(re.findall(r"`([\w.]+)`", gates)) | {"auto_calibrate"} == dynamic
+
+
+def test_the_node_docs_interface_table_is_the_readmes():
+    """docs/node.md repeats the README's table with more words: the same names and types."""
+    readme = sorted((kind, tuple(names), type_) for kind, names, type_ in _readme_interface_table())
+    rows = _interface_table(_text(REPO / "docs" / "node.md").split("## Running it", 1)[1].split("\n## ", 1)[0])
+    flat = sorted((kind, name, type_) for kind, names, type_ in rows for name in names)
+    assert flat == sorted((kind, name, type_) for kind, names, type_ in readme for name in names)
