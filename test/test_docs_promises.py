@@ -419,3 +419,33 @@ def test_the_node_docs_interface_table_is_the_readmes():
     rows = _interface_table(_text(REPO / "docs" / "node.md").split("## Running it", 1)[1].split("\n## ", 1)[0])
     flat = sorted((kind, name, type_) for kind, names, type_ in rows for name in names)
     assert flat == sorted((kind, name, type_) for kind, names, type_ in readme for name in names)
+
+
+# The constants docs/architecture.md quotes: (module, name, value, the doc's words).
+ARCHITECTURE_CONSTANTS = [
+    ("accel_calibration.ros.node", "FEED_PERIOD_S", 0.05, "every `FEED_PERIOD_S` (0.05 s)"),
+    ("accel_calibration.ros.node", "MAX_BUFFERED", 2**18, "(`MAX_BUFFERED`, 2^18 samples;"),
+    ("accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384, "parts of PART_ROWS = 16,384"),
+    ("accel_calibration.core.session", "RecordingFeed.LIVE_TEMPERATURE_WAIT_NS", 10**9,
+     "`LIVE_TEMPERATURE_WAIT_NS` (1 s)"),
+    ("accel_calibration.core.correction", "TEMPERATURE_DECIMALS", 3, "(`TEMPERATURE_DECIMALS` = 3)"),
+    ("accel_calibration.core.correction", "TEMPERATURE_STEP_DEGC", 0.05, "`TEMPERATURE_STEP_DEGC` (0.05 degC)"),
+]
+
+
+@pytest.mark.parametrize("module, name, value, words", ARCHITECTURE_CONSTANTS, ids=[c[1] for c in ARCHITECTURE_CONSTANTS])
+def test_the_constants_architecture_md_quotes_are_the_codes(module, name, value, words):
+    doc = re.sub(r"\s+", " ", _text(REPO / "docs" / "architecture.md"))
+    assert words in doc
+    target = importlib.import_module(module)
+    for part in name.split("."):
+        target = getattr(target, part)
+    assert target == value
+
+
+def test_the_equality_tests_the_docs_list_are_the_makefiles():
+    makefile = _text(REPO / "Makefile")
+    listed = re.search(r"EQUALITY_TESTS :=((?:.*\\\n)*.*)", makefile).group(1)
+    in_makefile = {Path(p).name for p in re.findall(r"test/[\w/]+\.py", listed)}
+    section = _text(REPO / "docs" / "architecture.md").split("`EQUALITY_TESTS`", 1)[1].split(")", 1)[0]
+    assert {Path(p).name for p in re.findall(r"test/[\w/]+\.py", section)} == in_makefile
