@@ -253,20 +253,53 @@ OTHER_TOOLS_FLAGS = {"--ros-args", "--params-file", "--symlink-install", "--pack
                      "--from-paths", "--ignore-src", "--system-site-packages", "--verbose", "--collect-only"}
 
 
+def _command_lines(text: str) -> list[str]:
+    """Each `accel-calib CMD ...` of a text: in a code block the line (and the indented lines of options
+    continuing it), in prose a backticked span, else the command's name alone."""
+    commands: list[str] = []
+    prose: list[str] = []
+    in_block = continuing = False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            in_block, continuing = not in_block, False
+            continue
+        if not in_block:
+            prose.append(line)
+            continue
+        code = line.split(" #", 1)[0]
+        if continuing and code.startswith(" ") and code.lstrip().startswith(("[", "-", "(")):
+            commands[-1] += " " + code
+            continue
+        continuing = "accel-calib " in code
+        if continuing:
+            commands.append(code.split("accel-calib ", 1)[1])
+    for paragraph in "\n".join(prose).split("\n\n"):
+        spans = re.findall(r"`([^`]+)`", paragraph)
+        commands += [" ".join(span.split("accel-calib ", 1)[1].split()) for span in spans if "accel-calib " in span]
+        outside = re.sub(r"`[^`]+`", "", paragraph)
+        commands += re.findall(r"accel-calib (\w+)", outside)
+    return [c for c in commands if c.strip()]
+
+
 def test_every_accel_calib_flag_the_docs_give_exists():
-    """A `--flag` written in an `accel-calib CMD ...` example exists for CMD."""
+    """A `--flag` written in an `accel-calib CMD ...` example exists for CMD, and takes the choices listed."""
     parsers = _subparsers()
     problems = []
     for path in [README, *DOCS]:
-        for line in _text(path).splitlines():
-            for command, rest in re.findall(r"accel-calib (\w+)((?: +[^`|]*)?)", line):
-                if command not in parsers:
-                    if command not in ("CMD", "error", "interrupted"):
-                        problems.append(f"{path.name}: no command {command}: {line.strip()}")
-                    continue
-                for flag in re.findall(r"(?<![\w-])(--[a-zA-Z][\w-]*)", rest):
-                    if flag not in _options(parsers[command]) and flag not in OTHER_TOOLS_FLAGS:
-                        problems.append(f"{path.name}: accel-calib {command} has no {flag}")
+        for line in _command_lines(_text(path)):
+            command = line.split()[0]
+            if command not in parsers:
+                if command not in ("CMD", "error", "interrupted"):
+                    problems.append(f"{path.name}: no command {command}: {line.strip()}")
+                continue
+            options = _options(parsers[command])
+            for flag in re.findall(r"(?<![\w-])(--[a-zA-Z][\w-]*)", line):
+                if flag not in options and flag not in OTHER_TOOLS_FLAGS:
+                    problems.append(f"{path.name}: accel-calib {command} has no {flag}")
+            for flag, choices in re.findall(r"(--[\w-]+) ([\w-]+(?:\|[\w-]+)+)", line):
+                if flag in options and not set(choices.split("|")) <= set(options[flag].choices or ()):
+                    problems.append(f"{path.name}: accel-calib {command} {flag} takes {options[flag].choices}, "
+                                    f"the doc says {choices}")
     assert problems == []
 
 
@@ -421,22 +454,33 @@ def test_the_node_docs_interface_table_is_the_readmes():
     assert flat == sorted((kind, name, type_) for kind, names, type_ in readme for name in names)
 
 
-# The constants docs/architecture.md quotes: (module, name, value, the doc's words).
-ARCHITECTURE_CONSTANTS = [
-    ("accel_calibration.ros.node", "FEED_PERIOD_S", 0.05, "every `FEED_PERIOD_S` (0.05 s)"),
-    ("accel_calibration.ros.node", "MAX_BUFFERED", 2**18, "(`MAX_BUFFERED`, 2^18 samples;"),
-    ("accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384, "parts of PART_ROWS = 16,384"),
-    ("accel_calibration.core.session", "RecordingFeed.LIVE_TEMPERATURE_WAIT_NS", 10**9,
+# The constants the docs quote: (doc, module, name, value, the doc's words).
+DOC_CONSTANTS = [
+    ("architecture.md", "accel_calibration.ros.node", "FEED_PERIOD_S", 0.05, "every `FEED_PERIOD_S` (0.05 s)"),
+    ("architecture.md", "accel_calibration.ros.node", "MAX_BUFFERED", 2**18, "(`MAX_BUFFERED`, 2^18 samples;"),
+    ("architecture.md", "accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384,
+     "parts of PART_ROWS = 16,384"),
+    ("architecture.md", "accel_calibration.core.session", "RecordingFeed.LIVE_TEMPERATURE_WAIT_NS", 10**9,
      "`LIVE_TEMPERATURE_WAIT_NS` (1 s)"),
-    ("accel_calibration.core.correction", "TEMPERATURE_DECIMALS", 3, "(`TEMPERATURE_DECIMALS` = 3)"),
-    ("accel_calibration.core.correction", "TEMPERATURE_STEP_DEGC", 0.05, "`TEMPERATURE_STEP_DEGC` (0.05 degC)"),
+    ("architecture.md", "accel_calibration.core.correction", "TEMPERATURE_DECIMALS", 3, "(`TEMPERATURE_DECIMALS` = 3)"),
+    ("architecture.md", "accel_calibration.core.correction", "TEMPERATURE_STEP_DEGC", 0.05,
+     "`TEMPERATURE_STEP_DEGC` (0.05 degC)"),
+    ("replay.md", "accel_calibration.bag.recording", "STREAM_GROUP_MESSAGES", 16_384, "sqlite3 a fetch of 16,384 rows"),
+    ("replay.md", "accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384, "in parts of 16,384 samples"),
+    ("replay.md", "accel_calibration.bag.corrected_bag", "COPY_GROUP_MESSAGES", 16_384, "written 16,384 IMU messages"),
+    ("replay.md", "accel_calibration.bag.corrected_bag", "COPY_GROUP_BYTES", 64 << 20, "(or 64 MB of any topic)"),
+    ("node.md", "accel_calibration.ros.node", "SERVICE_QOS.depth", 100, "(service queues hold 100)"),
+    ("node.md", "accel_calibration.ros.node", "ARMED_QOS.depth", 10, "std_msgs/Bool (reliable, depth 10)"),
+    ("node.md", "accel_calibration.core.plausibility", "MAX_GYRO_BIAS_RADPS", 1.0, "gyro bias beyond 1 rad/s"),
+    ("node.md", "accel_calibration.core.plausibility", "PLAUSIBLE_TEMPERATURE_DEGC", (-100.0, 200.0),
+     "a range beyond a sensor's (-100..200 degC)"),
 ]
 
 
-@pytest.mark.parametrize("module, name, value, words", ARCHITECTURE_CONSTANTS, ids=[c[1] for c in ARCHITECTURE_CONSTANTS])
-def test_the_constants_architecture_md_quotes_are_the_codes(module, name, value, words):
-    doc = re.sub(r"\s+", " ", _text(REPO / "docs" / "architecture.md"))
-    assert words in doc
+@pytest.mark.parametrize("doc, module, name, value, words", DOC_CONSTANTS,
+                         ids=[f"{c[0]} {c[2]}" for c in DOC_CONSTANTS])
+def test_the_constants_the_docs_quote_are_the_codes(doc, module, name, value, words):
+    assert words in re.sub(r"\s+", " ", _text(REPO / "docs" / doc))
     target = importlib.import_module(module)
     for part in name.split("."):
         target = getattr(target, part)
