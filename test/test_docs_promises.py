@@ -475,6 +475,16 @@ DOC_CONSTANTS = [
     ("node.md", "accel_calibration.core.plausibility", "MAX_GYRO_BIAS_RADPS", 1.0, "gyro bias beyond 1 rad/s"),
     ("node.md", "accel_calibration.core.plausibility", "PLAUSIBLE_TEMPERATURE_DEGC", (-100.0, 200.0),
      "a range beyond a sensor's (-100..200 degC)"),
+    ("gyro.md", "accel_calibration.core.gyro_gates", "GyroGates.min_motions", 8, "`motions` (min 8)"),
+    ("gyro.md", "accel_calibration.core.gyro_gates", "GyroGates.max_residual_rms_mrad", 10.0,
+     "`residual` (rms <= 10 mrad)"),
+    ("gyro.md", "accel_calibration.core.gyro_gates", "GyroGates.max_scale_sigma_ppm", 1000.0, "(scale <= 1000 ppm,"),
+    ("gyro.md", "accel_calibration.core.gyro_gates", "GyroGates.max_misalignment_sigma_mrad", 1.5,
+     "misalignment <= 1.5 mrad,"),
+    ("gyro.md", "accel_calibration.core.gyro_gates", "GyroGates.scale_band", (0.9, 1.1), "`scale` (row gains 0.9..1.1)"),
+    ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.max_motion_s", 30.0, "(default 30 s)"),
+    ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.gap_factor", 5.0, "an interval over 5x the motion's"),
+    ("gyro.md", "accel_calibration.core.plausibility", "GYRO_SCALE_BAND", (0.8, 1.25), "gains 0.8..1.25"),
 ]
 
 
