@@ -485,6 +485,14 @@ DOC_CONSTANTS = [
     ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.max_motion_s", 30.0, "(default 30 s)"),
     ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.gap_factor", 5.0, "an interval over 5x the motion's"),
     ("gyro.md", "accel_calibration.core.plausibility", "GYRO_SCALE_BAND", (0.8, 1.25), "gains 0.8..1.25"),
+    ("exports.md", "accel_calibration.core.axis_calibration", "FIT_DIRECTIONS", 600, "over 600 orientations x 21"),
+    ("exports.md", "accel_calibration.core.axis_calibration", "TEMPERATURE_STEPS", 21, "x 21 temperatures"),
+    ("exports.md", "accel_calibration.core.axis_calibration", "EVALUATION_DIRECTIONS", 2000, "over 2000 orientations"),
+    ("exports.md", "accel_calibration.io.autopilot_params", "ARDUPILOT_OFFSET_RANGE_MPS2", (-3.5, 3.5),
+     "offsets -3.5..3.5 m/s^2"),
+    ("exports.md", "accel_calibration.io.autopilot_params", "ARDUPILOT_SCALE_RANGE", (0.8, 1.2), "scales 0.8..1.2"),
+    ("exports.md", "accel_calibration.io.autopilot_params", "ARDUPILOT_TEMPERATURE_RANGE_DEGC", (-70.0, 80.0),
+     "TMIN/TMAX -70..80"),
 ]
 
 
@@ -531,3 +539,16 @@ def test_the_python_examples_of_models_md_run_and_calibrate(tmp_path, monkeypatc
     verdict = namespace["verdict"]
     assert verdict.success, verdict.message
     assert np.abs(verdict.calibration.apply(errors.raw_from_true(truth)) - truth).max() < 2e-3 * 9.80665
+
+
+def test_an_identity_calibration_is_327_mg_from_the_ardupilot_logs_first_imu(tmp_path, capsys, shared):
+    """docs/exports.md: `compare` of an identity calibration against test.BIN's own (was written 335 mg)."""
+    from accel_calibration.cli.main import main
+    from accel_calibration.core.calibration import Calibration
+    from accel_calibration.io.calibration_file import save_calibration
+
+    save_calibration(Calibration.identity(), tmp_path / "cal.yaml")
+    assert main(["compare", str(tmp_path / "cal.yaml"), str(shared("real/ardupilot/test.BIN"))]) == 0
+    worst, rms = re.search(r"worst ([\d.]+) mg \(rms ([\d.]+) mg\)", capsys.readouterr().out).groups()
+    assert (float(worst), float(rms)) == pytest.approx((327.6, 237.5), abs=0.05)
+    assert "327.6 mg away at worst (rms 237.5 mg" in re.sub(r"\s+", " ", _text(REPO / "docs" / "exports.md"))
