@@ -485,6 +485,8 @@ DOC_CONSTANTS = [
     ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.max_motion_s", 30.0, "(default 30 s)"),
     ("gyro.md", "accel_calibration.core.gyro_fit", "GyroFitOptions.gap_factor", 5.0, "an interval over 5x the motion's"),
     ("gyro.md", "accel_calibration.core.plausibility", "GYRO_SCALE_BAND", (0.8, 1.25), "gains 0.8..1.25"),
+    ("noise.md", "accel_calibration.cli.noise", "MIN_STILL_S", 20.0, "a still stretch under 20 s"),
+    ("noise.md", "accel_calibration.core.allan", "MIN_CLUSTERS", 9, "(up to N/9 samples per cluster)"),
     ("exports.md", "accel_calibration.core.axis_calibration", "FIT_DIRECTIONS", 600, "over 600 orientations x 21"),
     ("exports.md", "accel_calibration.core.axis_calibration", "TEMPERATURE_STEPS", 21, "x 21 temperatures"),
     ("exports.md", "accel_calibration.core.axis_calibration", "EVALUATION_DIRECTIONS", 2000, "over 2000 orientations"),
