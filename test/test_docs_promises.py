@@ -554,3 +554,52 @@ def test_an_identity_calibration_is_327_mg_from_the_ardupilot_logs_first_imu(tmp
     worst, rms = re.search(r"worst ([\d.]+) mg \(rms ([\d.]+) mg\)", capsys.readouterr().out).groups()
     assert (float(worst), float(rms)) == pytest.approx((327.6, 237.5), abs=0.05)
     assert "327.6 mg away at worst (rms 237.5 mg" in re.sub(r"\s+", " ", _text(REPO / "docs" / "exports.md"))
+
+
+def _declare_first_chunk_size(data: bytearray, factor: float) -> None:
+    """Rewrite the uncompressed size the first MCAP chunk declares, in its Chunk record (0x06; its CRC set
+    to 0: not checked, as the spec allows) and in the summary's Chunk Index (0x08), which readers use."""
+    import struct
+
+    offset, first = 8, None  # after the magic; records: opcode u8, length u64, body
+    while offset < len(data) - 8:
+        opcode, length = data[offset], struct.unpack_from("<Q", data, offset + 1)[0]
+        body = offset + 9
+        if opcode == 0x06 and first is None:  # start u64, end u64, uncompressed_size u64, crc u32, ...
+            first = offset
+            (size,) = struct.unpack_from("<Q", data, body + 16)
+            struct.pack_into("<QI", data, body + 16, int(size * factor), 0)
+        elif opcode == 0x08 and struct.unpack_from("<Q", data, body + 16)[0] == first:
+            at = body + 32  # start, end, chunk offset, chunk length; then the message index map (u32 bytes)
+            at += 4 + struct.unpack_from("<I", data, at)[0] + 8  # and its length u64
+            at += 4 + struct.unpack_from("<I", data, at)[0] + 8  # compression string, compressed size
+            (size,) = struct.unpack_from("<Q", data, at)
+            struct.pack_into("<Q", data, at, int(size * factor))
+            return
+        offset = body + length
+    raise AssertionError("no chunk index for the first chunk")
+
+
+@pytest.mark.parametrize("compression, factor", [("zstd", 0.5), ("lz4", 2.0)])
+def test_an_mcap_chunk_that_decompresses_to_other_than_its_declared_size_is_one_line(tmp_path, capsys, compression,
+                                                                                     factor):
+    """docs/failures.md: a chunk that decompresses to other than its declared size is one line naming the
+    bag, and nothing is written."""
+    from accel_calibration.cli.main import main
+    from msg_tools.bag_writer import write_session_bag
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+    rng = np.random.default_rng(7)
+    samples = SyntheticImu(SensorErrors.mpu6050_like(rng), spread_orientations(6, rng), dwell_s=1.0, move_s=0.5,
+                           rate_hz=100.0, seed=7).samples()
+    bag = tmp_path / "bag"
+    write_session_bag(bag, samples, start_ns=1_700_000_000 * 10**9, storage="mcap", chunk_compression=compression)
+    (mcap,) = bag.glob("*.mcap")
+    data = bytearray(mcap.read_bytes())
+    _declare_first_chunk_size(data, factor)
+    mcap.write_bytes(bytes(data))
+    code = main(["replay", str(bag), "-o", str(tmp_path / "cal.yaml")])
+    err = capsys.readouterr().err
+    assert code == 1 and len(err.strip().splitlines()) == 1 and err.startswith(f"accel-calib: error: {bag}: "), err
+    assert "size" in err and not (tmp_path / "cal.yaml").exists(), err
+    assert mcap.read_bytes() == bytes(data)
