@@ -96,22 +96,28 @@ def test_every_command_answers_help_in_one_process(capsys):
         assert f"accel-calib {command}" in capsys.readouterr().out
 
 
-# The defaults the README's prose quotes: (command, flag, the README's words, the parser's default).
-README_DEFAULTS = [
-    ("replay", "--armed-margin-s", "`--armed-margin-s` (2 s)", 2.0),
-    ("fleet", "--history", "(default `calibrations.sqlite`)", "calibrations.sqlite"),
-    ("history", "--k-sigma", "(`--k-sigma`,\n5)", 5.0),
-    ("history", "--max-bias-change", "beyond 50 mg of bias", 50.0),
-    ("history", "--max-scale-change", "1 % of scale", 0.01),
-    ("export", "--max-loss-mg", "`--max-loss-mg`, 2 mg at 1 g", 2.0),
-    ("fit", "--model", "`sphere9`\n  (default;", "sphere9"),
+# The command-line defaults the README's and docs' prose quote: (doc, command, flag, its words, the default).
+CLI_DEFAULTS = [
+    ("README.md", "replay", "--armed-margin-s", "`--armed-margin-s` (2 s)", 2.0),
+    ("README.md", "fleet", "--history", "(default `calibrations.sqlite`)", "calibrations.sqlite"),
+    ("README.md", "history", "--k-sigma", "(`--k-sigma`, 5)", 5.0),
+    ("README.md", "history", "--max-bias-change", "beyond 50 mg of bias", 50.0),
+    ("README.md", "history", "--max-scale-change", "1 % of scale", 0.01),
+    ("README.md", "export", "--max-loss-mg", "`--max-loss-mg`, 2 mg at 1 g", 2.0),
+    ("README.md", "fit", "--model", "`sphere9` (default;", "sphere9"),
+    ("docs/replay.md", "replay", "--armed-margin-s", "`--armed-margin-s` (default 2 s", 2.0),
+    ("docs/exports.md", "export", "--max-loss-mg", "`--max-loss-mg` (default 2)", 2.0),
+    ("docs/fleet.md", "history", "--k-sigma", "k = 5 by default (`--k-sigma`)", 5.0),
+    ("docs/fleet.md", "history", "--max-bias-change", "50 mg of bias (`--max-bias-change`)", 50.0),
+    ("docs/fleet.md", "history", "--max-scale-change", "1 % of scale (`--max-scale-change`)", 0.01),
+    ("docs/fleet.md", "report", "--k-sigma", "k = 5 by default (`--k-sigma`)", 5.0),
 ]
 
 
-@pytest.mark.parametrize("command, flag, words, default", README_DEFAULTS,
-                         ids=[f"{c} {f}" for c, f, *_ in README_DEFAULTS])
-def test_the_defaults_the_readme_quotes_are_the_parsers(command, flag, words, default):
-    assert words in _text(README)
+@pytest.mark.parametrize("doc, command, flag, words, default", CLI_DEFAULTS,
+                         ids=[f"{d} {c} {f}" for d, c, f, *_ in CLI_DEFAULTS])
+def test_the_command_line_defaults_the_docs_quote_are_the_parsers(doc, command, flag, words, default):
+    assert words in re.sub(r"\s+", " ", _text(REPO / doc))
     assert _options(_subparsers()[command])[flag].default == default
 
 
