@@ -634,3 +634,33 @@ def test_building_the_parser_imports_what_startup_md_says_and_no_more():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "['accel_calibration.io.history']", done.stdout
     assert "building the parser imports `io.history`" in re.sub(r"\s+", " ", _text(REPO / "docs" / "startup.md"))
+
+
+def test_the_calibration_file_the_readme_shows_is_what_save_calibration_writes(tmp_path):
+    """The README's `## Calibration file` block: its keys (and its quality and uncertainty keys) are the
+    file's; every other key of a file is one of the optional blocks it names."""
+    import yaml
+
+    from accel_calibration.core.fit import fit
+    from accel_calibration.io.calibration_file import save_calibration
+
+    section = _text(README).split("## Calibration file", 1)[1].split("\n## ", 1)[0]
+    shown = section.split("```yaml", 1)[1].split("```", 1)[0]
+    top = set(re.findall(r"^  (\w+):", shown, re.M))
+    top |= set(re.findall(r"^  created: \.\.\., (\w+): \.\.\., (\w+):", shown, re.M)[0])
+    nested = {key: set(re.findall(r"(\w+): ", re.search(rf"^  {key}: \{{(.*)\}}", shown, re.M).group(1)))
+              for key in ("quality", "uncertainty")}
+    optional = set(re.findall(r"`(\w+):?`", section.split("Optional blocks:", 1)[1].split("A\nfile from", 1)[0]))
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(14, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    raw = 9.80665 * directions @ np.diag([1.01, 0.99, 1.02]) + [0.1, -0.2, 0.05] + rng.normal(0, 1e-3, (14, 3))
+    result = fit(raw)
+    assert result.success, result.message
+    save_calibration(result.calibration, tmp_path / "cal.yaml")
+    written = yaml.safe_load((tmp_path / "cal.yaml").read_text())["accel_calibration"]
+    assert top <= set(written), top - set(written)
+    assert set(written) <= top | optional, set(written) - top - optional
+    for key, keys in nested.items():
+        assert keys == set(written[key]), (key, keys, set(written[key]))
+    assert {"temperature", "gyro_bias_radps", "gyro_matrix", "gyro_quality", "dividing_head"} <= optional
