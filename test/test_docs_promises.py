@@ -7,7 +7,8 @@
 - Every `--flag` the docs give an `accel-calib` command exists.
 - The README's node section: topics, their types, the services and their types as the node creates them;
   the parameter defaults it quotes as the node declares them; the launch arguments it names.
-- The defaults the README quotes for the command line, and the Python API it shows.
+- The command-line defaults the README and docs quote, the Python API the README shows, and its calibration
+  file's keys as `save_calibration` writes them.
 - docs/node.md: every parameter named, which change at run time, its table the README's; every parameter
   default any doc quotes (`name` (value)); the constants the docs quote (buffer sizes, QoS depths, gates).
 - docs/models.md's Python examples run as written and calibrate.
