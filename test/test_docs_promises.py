@@ -407,13 +407,16 @@ def test_the_parameter_defaults_the_readme_quotes_are_the_declared_ones():
     assert "at least 12 different orientations (`min_poses`)" in calibrating and declared["min_poses"].default == 12
 
 
-def test_the_launch_arguments_the_readme_names_exist():
+def test_the_launch_arguments_the_readme_and_node_md_name_exist():
     source = _text(REPO / "launch" / "calibration.launch.py")
     declared = set(re.findall(r'DeclareLaunchArgument\(\s*"(\w+)"', source))
     section = _node_section()
     named = set(re.findall(r"(\w+):=", section.split("Launch:", 1)[1].split("\n\n", 1)[0]))
     named |= set(re.findall(r"`(\w+)`", section.split("(also", 1)[1].split(")", 1)[0]))
     assert named and named <= declared, named - declared
+    node_doc = re.sub(r"\s+", " ", _text(REPO / "docs" / "node.md"))
+    arguments = node_doc.split("Arguments: ", 1)[1].split(". ", 1)[0]
+    assert set(re.findall(r"`(\w+)`", arguments)) == declared, "docs/node.md's launch arguments"
 
 
 def _declared_parameters() -> dict:
