@@ -668,3 +668,15 @@ def test_the_calibration_file_the_readme_shows_is_what_save_calibration_writes(t
     for key, keys in nested.items():
         assert keys == set(written[key]), (key, keys, set(written[key]))
     assert {"temperature", "gyro_bias_radps", "gyro_matrix", "gyro_quality", "dividing_head"} <= optional
+
+
+def test_every_bare_test_name_the_docs_give_exists():
+    """`test_core_imports_no_ros` without its file: some test file under test/ defines it."""
+    defined = set()
+    for path in (REPO / "test").rglob("*.py"):
+        defined |= {node.name for node in ast.walk(ast.parse(_text(path)))
+                    if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))}
+    named = {(path.name, name) for path in [README, *DOCS]
+             for name in re.findall(r"`(test_\w+)`", _text(path))}
+    assert named, "the docs name no test"
+    assert sorted((doc, name) for doc, name in named if name not in defined) == []
