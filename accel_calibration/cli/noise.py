@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..bag.recording import FORMATS
 from ..core.errors import CalibrationError
 
 if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
@@ -30,7 +31,7 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
                     "instability (the minimum / 0.664), each with its 95 %% interval.")
     parser.add_argument("recording", metavar="RECORDING",
                         help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples")
-    parser.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "csv"), default=None)
+    parser.add_argument("--format", choices=FORMATS, default=None)
     parser.add_argument("--imu-topic", default=None, help="bags: sensor_msgs/Imu topic (default: the only one)")
     parser.add_argument("--instance", type=int, default=None, metavar="N", help="ULog: sensor_accel instance N")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None, help="CSV: time column unit")

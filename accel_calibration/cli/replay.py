@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..bag.recording import FORMATS
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.units import MG
 from .dask_cluster import map_on_local_cluster
@@ -26,7 +27,7 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("bags", nargs="+", metavar="RECORDING",
                         help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
                              "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
-    parser.add_argument("--format", choices=("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv"),
+    parser.add_argument("--format", choices=FORMATS,
                         default=None,
                         help="the recordings' format (default: found from the path and content)")
     parser.add_argument("--instance", type=int, default=None, metavar="N",
@@ -84,7 +85,10 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
              replay.result.summary(), *gyro_lines(replay), *notes]
-    bad = {k: v for k, v in replay.counts.items() if v}
+    from ..core.stream.screening import Counters
+
+    informational = Counters.INFORMATIONAL  # counts of what was read, not of what was skipped
+    bad = {k: v for k, v in replay.counts.items() if v and k not in informational}
     if bad:
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     copy = None
