@@ -11,7 +11,7 @@ from ..core.units import STANDARD_GRAVITY
 from .options import UNIT_SCALE
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     defaults = TemperatureOptions()  # the temperature fit's defaults, as the node's settings take them
     parser = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
     parser.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "

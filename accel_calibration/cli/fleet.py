@@ -267,7 +267,7 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
 
 # --- the command -----------------------------------------------------------------------------------------
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "fleet", help="recalibrate many recordings on a Dask cluster into the calibration history",
         description="Replay every recording (rosbag2 directories; .mcap, .db3, .ulg, .csv files; directories "

@@ -35,7 +35,7 @@ def add_drift_options(parser: argparse.ArgumentParser) -> None:
                              f"(default {defaults.max_scale_change:g})")
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "history", help="bias and scale of each sensor over time, and where they moved",
         description="Per sensor, the calibrations of the history database in time order (bias and scale with "

@@ -22,7 +22,7 @@ DENSITY_UNITS = {"accelerometer": "m/s^2/sqrt(Hz)", "gyroscope": "rad/s/sqrt(Hz)
 WALK_UNITS = {"accelerometer": "m/s^3/sqrt(Hz)", "gyroscope": "rad/s^2/sqrt(Hz)"}
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "noise", help="noise density, random walk and bias instability from a still recording (Allan deviation)",
         description="Overlapping Allan deviation per axis of the longest still stretch of the recording; white "

@@ -19,7 +19,7 @@ from .options import PROG, add_settings_options, replay_settings
 from .report import render_report
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
                        "DataFlash .bin, CSV stream")

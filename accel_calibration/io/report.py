@@ -3,16 +3,20 @@
 calibration has a temperature model. matplotlib with the Agg backend: no display needed."""
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
 from ..core.units import MG
 
 
-def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "") -> None:
+def write_report(calibration: Calibration, accel_mps2: npt.ArrayLike, temperature_degc: Sequence[float | None] | None,
+                 path: str | os.PathLike[str], title: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
