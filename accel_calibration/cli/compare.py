@@ -5,7 +5,7 @@ autopilot's own formula (io/autopilot_params.py)."""
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS

@@ -29,7 +29,8 @@ DEFAULT_NODE = "/accel_calibration"
 _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*|\*|\*\*")
 
 
-def read_params_file(path: str | os.PathLike[str], what: str = "--params-file", error: type[Exception] = SettingsError) -> Any:
+def read_params_file(path: str | os.PathLike[str], what: str = "--params-file",
+                     error: type[Exception] = SettingsError) -> Any:
     """The parsed YAML document of a parameters file, or one `error` line naming it (see the module)."""
     raw = read_regular_file(path, MAX_PARAMS_FILE_BYTES, f"{what} (a ROS 2 parameters YAML)", error=error)
     try:
