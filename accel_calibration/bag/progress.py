@@ -6,3 +6,7 @@ from typing import Protocol
 
 class ProgressBar(Protocol):
     def update(self, n: int = 1) -> object: ...
+
+
+class ClosableProgressBar(ProgressBar, Protocol):
+    def close(self) -> object: ...
