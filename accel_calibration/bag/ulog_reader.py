@@ -27,6 +27,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from .bag_io import BagError, read_head
+
 if TYPE_CHECKING:
     from .progress import ProgressBar
 
@@ -34,7 +36,6 @@ if TYPE_CHECKING:
 # {field name: array}.
 _Fields = Mapping[str, np.ndarray]
 
-from .bag_io import BagError, read_head
 
 MAGIC = b"ULog\x01\x12\x35"
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: this sensor had no new sample in the message
