@@ -22,7 +22,8 @@ COPY_GROUP_BYTES = 64 << 20
 CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def write_corrected(source: str | os.PathLike[str], destination: str | os.PathLike[str], imu_topic: str, correct: CorrectImu, *,
+def write_corrected(source: str | os.PathLike[str], destination: str | os.PathLike[str], imu_topic: str,
+                    correct: CorrectImu, *,
                     group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
     angular_velocity, linear_acceleration and its covariance, which become what `correct` gives (same

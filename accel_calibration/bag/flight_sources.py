@@ -135,7 +135,8 @@ def _stamp_ns(message: object, recorded_ns: int) -> int:
     return int(recorded_ns)
 
 
-def bag_flight_state(path: str | os.PathLike[str], armed_topic: str | None = None, armed_field: str | None = None) -> FlightState:
+def bag_flight_state(path: str | os.PathLike[str], armed_topic: str | None = None,
+                     armed_field: str | None = None) -> FlightState:
     """The bag's flight state: `armed_topic` (its field as given or the type's default), else every known
     topic present. No such topic: an empty FlightState (replay warns). Errors are one line."""
     from .bag_io import open_reader, recorded_definitions
@@ -181,8 +182,8 @@ def bag_flight_state(path: str | os.PathLike[str], armed_topic: str | None = Non
         reader.close()
 
 
-def _read_states(path: str | os.PathLike[str], reader: Any, connection: Any, test: Callable[[object], bool], expression: str
-                 ) -> tuple[list[int], list[bool]]:
+def _read_states(path: str | os.PathLike[str], reader: Any, connection: Any, test: Callable[[object], bool],
+                 expression: str) -> tuple[list[int], list[bool]]:
     stamps: list[int] = []
     flying: list[bool] = []
     for _, recorded_ns, raw in reader.messages(connections=[connection]):

@@ -18,7 +18,10 @@ import numpy as np
 from .bag_io import IMU, TEMPERATURE, BagError
 
 if TYPE_CHECKING:
+    from ..core.flight_state import FlightState
     from .bag_io import TopicInfo, TopicLike, TopicT
+    from .csv_stream import CsvLayout
+    from .dataflash import AutopilotCalibration
     from .imu_messages import ImuData, Temperatures
     from .mcap_scan import PackedMessages
     from .progress import ClosableProgressBar
@@ -56,9 +59,9 @@ class Recording:
     frame_id: str = ""
     sensor_id: str = ""
     vehicle: str = ""  # the vehicle the recording names (a ULog's sys_uuid), "" when it does not
-    source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
-    flight_state: object = None  # core.flight_state.FlightState a log carries (ULog, DataFlash); None: none read
-    autopilot_calibration: object = None  # dataflash.AutopilotCalibration in force while logging
+    source: CsvLayout | None = None  # what writing a corrected copy needs: a CSV's layout
+    flight_state: FlightState | None = None  # what a log carries (ULog, DataFlash); None: none read
+    autopilot_calibration: AutopilotCalibration | None = None  # in force while logging (DataFlash)
 
     @property
     def unit(self) -> str:

@@ -30,6 +30,7 @@ import numpy.typing as npt
 from .bag_io import BagError, read_head
 
 if TYPE_CHECKING:
+    from ..core.flight_state import FlightState
     from .progress import ProgressBar
 
 # pyulog ships no type information: a ULog and its datasets are Any here; a dataset's `data` is
@@ -58,7 +59,7 @@ class UlogSamples:
     temperature: tuple[np.ndarray, np.ndarray] | None  # (stamps ns, degC)
     temperature_stream: str | None
     sensor_id: str  # "px4 device <id>" when the log says which device
-    flight_state: object = None  # core.flight_state.FlightState: armed or airborne (flight_sources)
+    flight_state: FlightState | None = None  # armed or airborne (flight_sources)
     vehicle: str = ""  # the flight controller the log names (logged_vehicle), "" when it does not
 
 
