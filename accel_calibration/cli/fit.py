@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         temperature_options=options,
         pose_sigma_mps2=table.pose_sigma_mps2,
     )
-    if not result.success:
+    if not result.success or result.calibration is None:
         raise CalibrationError(f"fit failed: {result.message}")
     save_calibration(result.calibration, args.output)
     print(result.summary())

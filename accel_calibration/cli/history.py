@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,7 +81,8 @@ def _date(record: HistoryRecord) -> str:
     return record.start.strftime("%Y-%m-%d %H:%M") if record.start is not None else "-"
 
 
-def _pm(values, sigmas, scale: float, digits: int, width: int) -> str:
+def _pm(values: Sequence[float] | None, sigmas: Sequence[float] | None, scale: float, digits: int, width: int) -> str:
+    assert values is not None, "sensor_series keeps only calibrated rows, which have a bias and a matrix"
     out = []
     for i, v in enumerate(values):
         s = "" if sigmas is None else f"±{sigmas[i] * scale:.{digits}f}"

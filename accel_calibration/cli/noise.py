@@ -82,7 +82,8 @@ def sample_rate_hz(t_ns: np.ndarray) -> float:
     if len(steps) < 2 or np.any(steps <= 0):
         raise CalibrationError("stamps must increase: Allan deviation needs samples in time order")
     median = float(np.median(steps))
-    gaps = int(np.count_nonzero(steps > 2.5 * median))
+    # np.greater, not `>`: numpy's stubs type np.diff of int64 stamps as timedelta64, which `>` a float refuses
+    gaps = int(np.count_nonzero(np.greater(steps, 2.5 * median)))
     if gaps > max(1, len(steps) // 1000):
         raise CalibrationError(f"{gaps} gaps of more than 2.5 sample periods in the still stretch: Allan deviation "
                                "needs an unbroken stream")
