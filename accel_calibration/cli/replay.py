@@ -7,7 +7,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,6 +18,13 @@ from ..core.units import MG
 from .dask_cluster import map_on_local_cluster
 from .options import PROG, add_settings_options, replay_settings
 from .report import render_report
+
+if TYPE_CHECKING:
+    from ..bag.replay import ReplayResult, ReplaySettings
+    from ..core.calibration import Calibration
+
+# What replay_one gives: (summary text, calibration, error), each None where there is none.
+Outcome = tuple["str | None", "Calibration | None", "str | None"]
 
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -56,7 +65,8 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     return parser
 
 
-def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
+def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected_bag: str | None, report: str | None,
+               progress: bool, poses_out: str | None = None) -> Outcome:
     """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
     The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
     All the work (the replay, the calibration's file text, the corrected copy written aside, the report
@@ -116,7 +126,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
     return "\n".join(lines), calibration, None
 
 
-def check_corrected_targets(jobs) -> None:
+def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
     """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
     is written over a directory."""
     for job in jobs:
@@ -129,7 +139,7 @@ def check_corrected_targets(jobs) -> None:
                                       else "and is a directory; give a file name"))
 
 
-def flight_and_autopilot_lines(replay) -> list[str]:
+def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
     lines = []
     if replay.flight_state_line:
@@ -142,7 +152,7 @@ def flight_and_autopilot_lines(replay) -> list[str]:
     return lines
 
 
-def bag_labels(bags) -> list[str]:
+def bag_labels(bags: Sequence[str]) -> list[str]:
     """A distinct name per bag for its outputs and its row: the bag's own name, or, where two bags share
     it (a/flight, b/flight), as many parent directories as tell them apart (a_flight, b_flight)."""
     parts = [Path(os.path.realpath(bag)).parts[::-1] for bag in bags]
@@ -173,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         first_seen[real] = bag
     labels = bag_labels(args.bags) if several else [Path(bag).name for bag in args.bags]
 
-    def target(option, label, suffix):
+    def target(option: str | None, label: str, suffix: str) -> str | None:
         if option is None:
             return None
         if not several:
@@ -217,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
-def comparison_table(bags, outcomes) -> str:
+def comparison_table(bags: Sequence[str], outcomes: Sequence[Outcome]) -> str:
     """How the calibration wanders from bag to bag: bias (mg) and scale (diag M) per bag, then the spread."""
     rows = ["", f"{'bag':32s} {'poses':>5s} {'rms mg':>7s} {'b_x mg':>8s} {'b_y mg':>8s} {'b_z mg':>8s} "
                 f"{'M_xx':>9s} {'M_yy':>9s} {'M_zz':>9s}"]
