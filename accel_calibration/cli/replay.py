@@ -79,7 +79,7 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
 
     try:
         replay = replay_bag(bag, settings, progress=progress)
-        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else None
+        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else ""
         if replay.calibration is None and poses_out:
             write_text_atomically(poses_out, poses_text)
     except AccelCalibrationError as error:
@@ -89,6 +89,7 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
         return ("\n".join(notes) or None), None, f"{bag}: {replay.problem}" + (
             f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
+    assert replay.result is not None, "a calibration comes with its fit"
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
@@ -98,12 +99,12 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     copy = None
     try:
-        calibration_text = checked_calibration_text(calibration, output) if output else None
+        calibration_text = checked_calibration_text(calibration, output) if output else ""
         if corrected_bag:
             copy = stage_corrected_copy(replay, calibration, corrected_bag)
         figure = (render_report(calibration, [p.accel_mps2 for p in replay.poses],
                                  [p.temperature_degc for p in replay.poses], title=Path(bag).name)
-                  if report else None)
+                  if report else b"")
         # All the work succeeded: now the outputs, the one that can still be taken by another run first.
         if copy is not None:
             copy.commit()
@@ -190,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
             return option
         return str(Path(option) / (label + suffix))
 
+    jobs: list[tuple[Any, ...]]  # replay_one's arguments, as map_on_local_cluster takes them
     jobs = [(bag, settings, target(args.output, label, ".yaml"), target(args.corrected_bag, label, ""),
              target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
             for bag, label in zip(args.bags, labels)]
@@ -222,8 +224,8 @@ def run(args: argparse.Namespace) -> int:
             print(summary)
     if several:
         print(comparison_table(labels, outcomes))
-    for error in errors:
-        print(f"{PROG}: error: {error}", file=sys.stderr)
+    for message in errors:
+        print(f"{PROG}: error: {message}", file=sys.stderr)
     return 1 if errors else 0
 
 
@@ -237,6 +239,7 @@ def comparison_table(bags: Sequence[str], outcomes: Sequence[Outcome]) -> str:
         if calibration is None:
             rows.append(f"{name:32s} {'-':>5s}  no calibration: {error.rsplit(': ', 1)[-1][:60] if error else ''}")
             continue
+        assert calibration.quality is not None, "a fitted calibration has its quality"
         b = calibration.bias / MG
         m = np.diag(calibration.matrix)
         biases.append(b)
