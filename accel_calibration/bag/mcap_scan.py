@@ -267,7 +267,7 @@ class PackedMessages(Sequence[bytes]):
     def __getitem__(self, i: int) -> bytes: ...
 
     @overload
-    def __getitem__(self, i: slice) -> list[bytes]: ...  # a list, not a Sequence: hence the override
+    def __getitem__(self, i: slice) -> list[bytes]: ...
 
     def __getitem__(self, i: int | slice) -> bytes | list[bytes]:
         if isinstance(i, slice):
