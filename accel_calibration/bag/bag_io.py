@@ -6,12 +6,17 @@ corrected_bag.py.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TypeVar
 
 from ..core.errors import AccelCalibrationError
+
+if TYPE_CHECKING:
+    from .mcap_scan import PackedMessages
+    from .progress import ProgressBar
 
 IMU = "sensor_msgs/msg/Imu"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
@@ -31,7 +36,7 @@ PIP_NAMES = {"backports": "backports.zstd", "yaml": "PyYAML", "sqlalchemy": "SQL
              "dask": "dask[distributed]", "psycopg": "psycopg[binary]"}
 
 
-def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
+def missing_module(error: ModuleNotFoundError, path: str | os.PathLike[str] | None = None) -> BagError | None:
     """What to install, for a third-party module that is not installed (None for one of ours: a bug, not
     an install to fix). Never read as a damaged recording: the recording was not looked at."""
     module = (error.name or "").split(".")[0]
@@ -43,7 +48,7 @@ def missing_module(error: ModuleNotFoundError, path=None) -> BagError | None:
                     "(in a ROS 2 workspace: pip install -r requirements-ros.txt; README)")
 
 
-def open_reader(path):
+def open_reader(path: str | os.PathLike[str]) -> Any:  # rosbags ships no types: its readers are Any here
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -63,7 +68,7 @@ def open_reader(path):
     return reader
 
 
-def storage_of(path) -> str:
+def storage_of(path: str | os.PathLike[str]) -> str:
     if Path(path).is_file():  # a single storage file given directly: its magic bytes say which
         with open(path, "rb") as stream:
             return "mcap" if stream.read(5) == b"\x89MCAP" else "sqlite3"
@@ -94,7 +99,7 @@ def read_head(path: Path, read: Callable[[BinaryIO], bytes], error: type[BagErro
         raise error(f"{path}: cannot read ({failure.strerror})") from None
 
 
-def refuse_large_definitions(path, recorded: dict[str, tuple[str, str, str]] | None) -> None:
+def refuse_large_definitions(path: str | os.PathLike[str], recorded: dict[str, tuple[str, str, str]] | None) -> None:
     """Refuse, before any parser sees it, a recorded message definition beyond MAX_DEFINITION_BYTES."""
     for topic, (msgtype, _encoding, text) in (recorded or {}).items():
         if len(text) > MAX_DEFINITION_BYTES:
@@ -133,7 +138,7 @@ def _refuse_foreign_sqlite_objects(path: Path, file: Path) -> None:
             raise BagError(f"{path}: {file.name}: {table} is not a table: not a rosbag2 sqlite3 storage file")
 
 
-def refuse_special_files(path) -> None:
+def refuse_special_files(path: str | os.PathLike[str]) -> None:
     """A bag's files must be regular files: a FIFO named *.db3 or metadata.yaml would block the reader
     for ever, a device would never end."""
     import os
@@ -157,7 +162,7 @@ def refuse_special_files(path) -> None:
         raise BagError(f"{path}: cannot read ({error.strerror or error})") from None
 
 
-def metadata_topics(path) -> list[TopicInfo] | None:
+def metadata_topics(path: str | os.PathLike[str]) -> list[TopicInfo] | None:
     """Topics from the bag's metadata.yaml, or None when it is missing or unexpected (rosbags then
     reads the bag, or says what is wrong). Unsafe YAML (alias bombs, deep nesting, a FIFO, a huge file)
     is refused at once, in one line."""
@@ -203,7 +208,7 @@ JAZZY_DEFINITIONS = {
 }
 
 
-def jazzy_deserialize(raw, msgtype: str):
+def jazzy_deserialize(raw: bytes, msgtype: str) -> Any:
     """rosbags' ROS 2 Jazzy CDR deserializer, its store imported on first use (the fixed layout decodes
     standard messages without it)."""
     from rosbags.typesys import Stores, get_typestore
@@ -267,7 +272,7 @@ def _parsed_hash(msgtype: str, encoding: str, text: str) -> str | None:
         return None
 
 
-def recorded_definitions(path) -> dict[str, tuple[str, str, str]] | None:
+def recorded_definitions(path: str | os.PathLike[str]) -> dict[str, tuple[str, str, str]] | None:
     """{topic: (message type, definition encoding, definition text)} as the storage files record them
     (not as metadata.yaml says); encoding "" where the storage holds no definition. None when the
     storage cannot be read this way (rosbags then reads it, or says what is wrong)."""
@@ -303,7 +308,8 @@ def recorded_definitions(path) -> dict[str, tuple[str, str, str]] | None:
     return found
 
 
-def check_recorded_types(path, topics, recorded: dict[str, tuple[str, str, str]] | None) -> None:
+def check_recorded_types(path: str | os.PathLike[str], topics: Iterable[TopicInfo | None],
+                         recorded: dict[str, tuple[str, str, str]] | None) -> None:
     """Refuse a bag whose metadata.yaml (or reader) gives a topic another type than its storage records:
     reading it would decode one message type as another."""
     if not recorded:
@@ -317,7 +323,7 @@ def check_recorded_types(path, topics, recorded: dict[str, tuple[str, str, str]]
                            f"{stored[0]} messages on it: the metadata does not belong to this recording")
 
 
-def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | None) -> bool:
+def is_standard_definition(topic: TopicInfo, recorded: dict[str, tuple[str, str, str]] | None) -> bool:
     """True when every record of `topic`'s definition (the metadata's hash, the storage's definition)
     is the ROS 2 Jazzy one, or absent (older bags: the standard is what they were recorded with)."""
     standard = standard_hash(topic.msgtype)
@@ -331,12 +337,26 @@ def is_standard_definition(topic, recorded: dict[str, tuple[str, str, str]] | No
     return True
 
 
-def declares_other_definition(topics) -> bool:
+def declares_other_definition(topics: Iterable[TopicInfo]) -> bool:
     """Whether the metadata declares another definition (type hash) than ROS 2 Jazzy's for any of `topics`."""
     return any(topic.digest and topic.digest != standard_hash(topic.msgtype) for topic in topics)
 
 
-def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path) -> object | None:
+class TopicLike(Protocol):
+    """A TopicInfo or a rosbags connection: what choose_topic looks at."""
+
+    @property
+    def topic(self) -> str: ...
+
+    @property
+    def msgtype(self) -> str: ...
+
+
+TopicT = TypeVar("TopicT", bound=TopicLike)
+
+
+def choose_topic(connections: Sequence[TopicT], msgtype: str, wanted: str | None, label: str,
+                 path: str | os.PathLike[str]) -> TopicT | None:
     """The connection (or TopicInfo) of `msgtype` to use; None when there is none and none was asked for."""
     found = [c for c in connections if c.msgtype == msgtype]
     if wanted is not None:
@@ -351,7 +371,7 @@ def choose_topic(connections, msgtype: str, wanted: str | None, label: str, path
     return found[0] if found else None
 
 
-def reader_is_standard(reader) -> bool:
+def reader_is_standard(reader: Any) -> bool:
     """The reader's typestore (built from the bag's recorded definitions where it has them, checked
     against their hashes) holds the standard Imu: only then do the fixed offsets apply."""
     try:
@@ -360,7 +380,8 @@ def reader_is_standard(reader) -> bool:
         return False
 
 
-def scan_sqlite(path, topics, progress=None) -> dict | None:
+def scan_sqlite(path: str | os.PathLike[str], topics: Sequence[str], progress: ProgressBar | None = None
+                ) -> dict[str, PackedMessages] | None:
     """{topic: PackedMessages} straight from rosbag2's sqlite3 tables (one SELECT of the data column
     per topic and file, in the order rosbag2 readers give, joined into one buffer), or None when the
     layout or the values are not the expected ones (the caller falls back to rosbags)."""
@@ -368,7 +389,7 @@ def scan_sqlite(path, topics, progress=None) -> dict | None:
 
     from .mcap_scan import PackedMessages
 
-    payloads: dict[str, list] = {topic: [] for topic in topics}
+    payloads: dict[str, list[bytes]] = {topic: [] for topic in topics}
     try:
         for file in [Path(path)] if Path(path).is_file() else sorted(Path(path).glob("*.db3")):
             connection = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
@@ -388,7 +409,8 @@ def scan_sqlite(path, topics, progress=None) -> dict | None:
         return None
 
 
-def stream_sqlite(path, topics, progress=None, group_messages: int = 1 << 16):
+def stream_sqlite(path: str | os.PathLike[str], topics: Sequence[str], progress: ProgressBar | None = None,
+                  group_messages: int = 1 << 16) -> Iterator[dict[str, PackedMessages]]:
     """The wanted topics' messages from rosbag2's sqlite3 tables ({topic: PackedMessages} per group),
     in the order rosbag2 readers give (timestamp, id): the first topic (the IMU) fetched a group of rows
     at a time, memory bounded by a group; the others (a temperature topic, ~100 times fewer messages)

@@ -3,8 +3,10 @@ recorded, the IMU messages' angular_velocity, linear_acceleration and their cova
 written a group at a time (memory bounded whatever the bag's size)."""
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +24,8 @@ CorrectImu = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarra
                       tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
-def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
+def write_corrected(source: str | os.PathLike[str], destination: str | os.PathLike[str], imu_topic: str,
+                    correct: CorrectImu, *,
                     group_messages: int = COPY_GROUP_MESSAGES, group_bytes: int = COPY_GROUP_BYTES) -> int:
     """Copy every topic of `source` to a new bag `destination`, unchanged except the IMU topic's
     angular_velocity, linear_acceleration and their covariances, which become what `correct` gives (same
@@ -41,7 +44,7 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
         standard = reader_is_standard(reader)
         with Writer(destination, version=9, storage_plugin=plugin) as writer:
             created = True
-            out = {}
+            out: dict[int, Any] = {}  # connection id: the writer's connection (rosbags ships no types)
             for c in reader.connections:
                 out[c.id] = writer.add_connection(
                     c.topic, c.msgtype, typestore=reader.typestore,
@@ -49,8 +52,9 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
                     msgdef=c.msgdef.data if c.msgdef else None, rihs01=c.digest or None,
                     serialization_format=c.ext.serialization_format, offered_qos_profiles=c.ext.offered_qos_profiles,
                 )
-            pending: list = []  # (connection id, log time, raw; None for an IMU message), in log order
-            imu_raws: list = []
+            pending: list[tuple[int, int, bytes | None]] = []  # (connection id, log time, raw; None for an IMU
+            # message), in log order
+            imu_raws: list[bytes] = []
             held = 0
 
             def flush() -> None:
@@ -86,7 +90,8 @@ def write_corrected(source, destination, imu_topic: str, correct: CorrectImu, *,
     return written
 
 
-def _corrected_imus(raws: list, reader, correct: CorrectImu, path, standard: bool) -> list[bytes]:
+def _corrected_imus(raws: list[bytes], reader: Any, correct: CorrectImu, path: str | os.PathLike[str],
+                    standard: bool) -> list[bytes]:
     """The IMU messages `raws` with angular_velocity, linear_acceleration and their covariances replaced by
     what `correct` gives: the bytes patched in place where the layout is the standard one, else through the
     recorded definition."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,7 +17,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.correction import CorrectedSamples, correct_samples
 from ..core.errors import CalibrationError
-from .recording import BAGS, RecordingError
+from .recording import BAGS, Recording, RecordingError
 
 if TYPE_CHECKING:
     from .replay import ReplayResult
@@ -31,7 +32,8 @@ def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.n
                            angular_covariance=angular_covariance)
 
 
-def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination, **groups) -> int:
+def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destination: str | os.PathLike[str],
+                        **groups: int) -> int:
     """A copy of the replayed bag with the IMU accelerations corrected (at each sample's temperature), read
     and written a group at a time (corrected_bag.write_corrected; `groups`: its group sizes)."""
     from .bag_io import BagError
@@ -58,7 +60,7 @@ class StagedCopy:
     """A corrected copy written aside: commit() puts it in place, discard() drops what is left aside."""
 
     line: str  # what was written, for the summary
-    commit_action: object  # () -> None
+    commit_action: Callable[[], None]
     scratch: Path | None = None
 
     def commit(self) -> None:
@@ -71,7 +73,7 @@ class StagedCopy:
             self.scratch = None
 
 
-def write_corrected_copy(replay, calibration, destination) -> str:
+def write_corrected_copy(replay: ReplayResult, calibration: Calibration, destination: str | os.PathLike[str]) -> str:
     """A corrected copy of the replayed recording in its own format (a ULog: a CSV of corrected samples,
     t_ns,ax,ay,az,gx,gy,gz,temperature in SI units, temperature the filtered value the correction used).
     Returns a line saying what was written."""
@@ -90,7 +92,7 @@ def _scratch_beside(target: Path) -> Path:
         raise RecordingError(f"cannot write {target}: {error.strerror or error}") from None
 
 
-def rename_no_replace(source: Path, target: Path) -> None:
+def rename_no_replace(source: str | os.PathLike[str], target: str | os.PathLike[str], /) -> None:
     """Rename `source` to `target` only if nothing is there: atomic where the kernel has renameat2's
     RENAME_NOREPLACE (Linux), else checked just before. A loser of two concurrent writers fails here."""
     import ctypes
@@ -109,7 +111,8 @@ def rename_no_replace(source: Path, target: Path) -> None:
     os.rename(source, target)
 
 
-def stage_corrected_copy(replay, calibration, destination) -> StagedCopy:
+def stage_corrected_copy(replay: ReplayResult, calibration: Calibration, destination: str | os.PathLike[str]
+                         ) -> StagedCopy:
     """The corrected copy (see write_corrected_copy) written aside, not yet in place."""
     recording = replay.recording
     kind = recording.format if recording is not None else "rosbag2"
@@ -154,12 +157,15 @@ def stage_corrected_copy(replay, calibration, destination) -> StagedCopy:
     from ..io.calibration_file import write_text_atomically
     from .csv_stream import corrected_csv_text, samples_csv_text
 
+    assert isinstance(recording, Recording), "anything but a bag is read whole"
     temperatures = replay.temperatures_at_samples()
+    rates: np.ndarray | None
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
     corrected, rates, _, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)
     if recording.gyro_radps is None:
         rates = None
     if kind == "csv":
+        assert recording.source is not None, "a CSV recording carries its layout"
         text = corrected_csv_text(recording.path, recording.source, corrected, valid, rates)
         line = f"corrected CSV {destination} ({len(corrected)} samples; ax,ay,az corrected, in the file's units)"
     else:

@@ -14,14 +14,19 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.units import STANDARD_GRAVITY, units_problem
 from .bag_io import BagError, read_head
+
+if TYPE_CHECKING:
+    from .progress import ProgressBar
 
 TIME_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 UNITS = ("mps2", "g", "counts")
@@ -56,7 +61,7 @@ class CsvSamples:
     layout: CsvLayout
 
 
-def units_scale(units: str, counts_per_g: float | None, path) -> float:
+def units_scale(units: str, counts_per_g: float | None, path: str | os.PathLike[str]) -> float:
     """m/s^2 per file unit."""
     if units not in UNITS:
         raise CsvStreamError(f"{path}: --units must be one of {', '.join(UNITS)}, got {units!r}")
@@ -94,8 +99,8 @@ def _header(path: Path) -> tuple[list[str], str]:
     return cells, delimiter
 
 
-def read_csv_stream(path, *, time_unit: str | None = None, units: str = "mps2", counts_per_g: float | None = None,
-                    progress=None) -> CsvSamples:
+def read_csv_stream(path: str | os.PathLike[str], *, time_unit: str | None = None, units: str = "mps2",
+                    counts_per_g: float | None = None, progress: ProgressBar | None = None) -> CsvSamples:
     """The samples of a CSV stream (SI units, stamps in ns). `progress`: a tqdm bar counting bytes."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -143,8 +148,9 @@ def read_csv_stream(path, *, time_unit: str | None = None, units: str = "mps2", 
     if table.num_rows == 0:
         raise CsvStreamError(f"{path}: header only, no samples")
 
-    def column(name):
-        return table.column(name).to_numpy(zero_copy_only=False)
+    def column(name: str) -> np.ndarray:
+        values: np.ndarray = table.column(name).to_numpy(zero_copy_only=False)
+        return values
 
     t_ns = _stamps_ns(column(time_column), table.column(time_column).null_count, unit, path, time_column)
     steps = np.diff(t_ns)
@@ -166,24 +172,28 @@ def read_csv_stream(path, *, time_unit: str | None = None, units: str = "mps2", 
         have = ~np.isnan(values)
         if have.any():
             temperature = (t_ns[have], values[have])
-    gyro_index = tuple(names.index(c) for c in GYRO) if gyro is not None else None
-    layout = CsvLayout(delimiter, cells, tuple(names.index(c) for c in ACCEL), 1.0 / scale,  # type: ignore[arg-type]
-                       gyro_index)  # type: ignore[arg-type]
+    gyro_index = _positions(names, GYRO) if gyro is not None else None
+    layout = CsvLayout(delimiter, cells, _positions(names, ACCEL), 1.0 / scale, gyro_index)
     stream = f"{','.join(ACCEL)} ({units}) at {time_column}"
     return CsvSamples(stream, t_ns, accel, gyro, temperature, layout)
+
+
+def _positions(names: list[str], columns: tuple[str, str, str]) -> tuple[int, int, int]:
+    x, y, z = (names.index(column) for column in columns)
+    return x, y, z
 
 
 class _Counting(io.RawIOBase):
     """The file, read in blocks, moving a tqdm bar by the bytes read."""
 
-    def __init__(self, path: Path, progress):
+    def __init__(self, path: Path, progress: ProgressBar | None) -> None:
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close(), pyarrow closes its source)
         self._progress = progress
 
     def readable(self) -> bool:
         return True
 
-    def readinto(self, buffer) -> int:
+    def readinto(self, buffer: Any) -> int:  # a writable buffer (collections.abc.Buffer from Python 3.12)
         count = self._file.readinto(buffer)
         if self._progress is not None and count:
             self._progress.update(count)
@@ -211,7 +221,8 @@ def _stamps_ns(values: np.ndarray, nulls: int, unit: str, path: Path, column: st
         row = int(np.flatnonzero(np.abs(whole) >= limit)[0]) + 1
         raise CsvStreamError(f"{path}: data row {row}, column {column}: time {float(values[row - 1]):g} {unit} "
                              f"is out of range (a stamp in ns holds up to {limit:.3g} {unit})")
-    return whole.astype(np.int64) * factor + np.round((values - whole) * factor).astype(np.int64)
+    stamps_ns: np.ndarray = whole.astype(np.int64) * factor + np.round((values - whole) * factor).astype(np.int64)
+    return stamps_ns
 
 
 def _show(t_ns: int, unit: str) -> str:
@@ -243,7 +254,7 @@ def _units_problem(raw: np.ndarray, accel_mps2: np.ndarray, units: str, counts_p
             f"at rest (expected ~{STANDARD_GRAVITY:.2f}): {hint}")
 
 
-def _locate_problem(path: Path, delimiter: str, column_names: list[str], wanted: list[str], types: dict,
+def _locate_problem(path: Path, delimiter: str, column_names: list[str], wanted: list[str], types: dict[str, Any],
                     error: Exception) -> str:
     """The first cell pyarrow could not convert, found again row by row (only on this error path)."""
     indices = {name: column_names.index(name) for name in wanted}
@@ -271,7 +282,7 @@ def _locate_problem(path: Path, delimiter: str, column_names: list[str], wanted:
 
 
 # ------------------------------------------------------------------------------------------- writing
-def corrected_csv_text(path, layout: CsvLayout, corrected_mps2: np.ndarray, valid: np.ndarray,
+def corrected_csv_text(path: str | os.PathLike[str], layout: CsvLayout, corrected_mps2: np.ndarray, valid: np.ndarray,
                        corrected_radps: np.ndarray | None = None) -> str:
     """The file again with ax,ay,az of each sample row replaced by `corrected_mps2` in the file's units, and
     gx,gy,gz by `corrected_radps` when given (rows where `valid` is False, e.g. non-finite samples, are

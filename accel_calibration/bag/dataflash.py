@@ -15,15 +15,21 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core.flight_state import FlightState
 from .bag_io import BagError, read_head
 from .flight_sources import dataflash_flight_state
+
+if TYPE_CHECKING:
+    from .progress import ProgressBar
 
 HEAD = b"\xa3\x95"
 FMT_ID = 0x80
@@ -71,7 +77,7 @@ def _parameter_names(instance: int) -> tuple[str, str, str]:
     return f"{prefix}OFFS_", f"{prefix}SCAL_", f"INS_ACC{instance + 1}_CALTEMP"
 
 
-def autopilot_calibration(params: dict, instance: int) -> AutopilotCalibration | None:
+def autopilot_calibration(params: Mapping[str, float], instance: int) -> AutopilotCalibration | None:
     offsets_name, scale_name, caltemp_name = _parameter_names(instance)
     try:
         offsets = np.array([float(params[offsets_name + axis]) for axis in "XYZ"])
@@ -85,7 +91,8 @@ def autopilot_calibration(params: dict, instance: int) -> AutopilotCalibration |
     return AutopilotCalibration(instance, offsets, scale, caltemp)
 
 
-def read_dataflash(path, instance: int | None = None, progress=None) -> DataflashSamples:
+def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
+                   ) -> DataflashSamples:
     """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read."""
     from pymavlink import DFReader
 
@@ -95,7 +102,7 @@ def read_dataflash(path, instance: int | None = None, progress=None) -> Dataflas
         raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
     wanted = 0 if instance is None else instance
     chatter = io.StringIO()
-    rows: list[tuple] = []
+    rows: list[tuple[Any, ...]] = []  # pymavlink's message fields (it ships no types)
     instances: set[int] = set()
     arm: list[tuple[int, int]] = []
     events: list[tuple[int, int]] = []

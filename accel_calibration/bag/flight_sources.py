@@ -13,8 +13,10 @@ it was recorded at (px4_msgs carry the autopilot's boot time in `timestamp`, not
 from __future__ import annotations
 
 import operator
+import os
 import re
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -45,14 +47,15 @@ class FlightStateError(BagError):
 
 
 # ------------------------------------------------------------------------------------------------- ULog
-def ulog_flight_state(log) -> FlightState:
+def ulog_flight_state(log: Any) -> FlightState:  # pyulog ships no types: a ULog is Any here
     """From a pyulog ULog read with ULOG_TOPICS among its topics: armed (vehicle_status, actuator_armed)
     or airborne (vehicle_land_detected), each reading held until the next."""
-    found = []
-    for name, field, flying_of in (
-            ("vehicle_status", "arming_state", lambda v: v == PX4_ARMING_STATE_ARMED),
-            ("vehicle_land_detected", "landed", lambda v: v == 0),
-            ("actuator_armed", "armed", lambda v: v != 0)):
+    found: list[FlightState] = []
+    readings: tuple[tuple[str, str, Callable[[np.ndarray], np.ndarray]], ...] = (
+        ("vehicle_status", "arming_state", lambda v: v == PX4_ARMING_STATE_ARMED),
+        ("vehicle_land_detected", "landed", lambda v: v == 0),
+        ("actuator_armed", "armed", lambda v: v != 0))
+    for name, field, flying_of in readings:
         datasets = [d for d in log.data_list if d.name == name and field in d.data and len(d.data["timestamp"])]
         if not datasets:
             continue
@@ -84,7 +87,7 @@ def dataflash_flight_state(arm: tuple[np.ndarray, np.ndarray] | None,
 
 
 # ------------------------------------------------------------------------------------------------- bags
-_COMPARISONS: dict[str, Callable[[object, object], object]] = {
+_COMPARISONS: dict[str, Callable[[Any, Any], object]] = {
     "==": operator.eq, "!=": operator.ne, "<=": operator.le, ">=": operator.ge, "<": operator.lt, ">": operator.gt}
 _EXPRESSION = re.compile(r"^\s*(not\s+)?([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)\s*(?:(==|!=|<=|>=|<|>)\s*(\S+))?\s*$")
 
@@ -132,7 +135,8 @@ def _stamp_ns(message: object, recorded_ns: int) -> int:
     return int(recorded_ns)
 
 
-def bag_flight_state(path, armed_topic: str | None = None, armed_field: str | None = None) -> FlightState:
+def bag_flight_state(path: str | os.PathLike[str], armed_topic: str | None = None,
+                     armed_field: str | None = None) -> FlightState:
     """The bag's flight state: `armed_topic` (its field as given or the type's default), else every known
     topic present. No such topic: an empty FlightState (replay warns). Errors are one line."""
     from .bag_io import open_reader, recorded_definitions
@@ -178,8 +182,8 @@ def bag_flight_state(path, armed_topic: str | None = None, armed_field: str | No
         reader.close()
 
 
-def _read_states(path, reader, connection, test: Callable[[object], bool], expression: str
-                 ) -> tuple[list[int], list[bool]]:
+def _read_states(path: str | os.PathLike[str], reader: Any, connection: Any, test: Callable[[object], bool],
+                 expression: str) -> tuple[list[int], list[bool]]:
     stamps: list[int] = []
     flying: list[bool] = []
     for _, recorded_ns, raw in reader.messages(connections=[connection]):

@@ -10,8 +10,10 @@ field name, or refused; and a metadata.yaml whose types disagree with the storag
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +33,13 @@ from .bag_io import (
     storage_of,
 )
 
+if TYPE_CHECKING:
+    from .progress import ProgressBar
+
+# (raw CDR bytes, message type) -> the decoded message (rosbags' objects: untyped, so Any)
+Deserialize = Callable[[bytes, str], Any]
+Temperatures = tuple[np.ndarray, np.ndarray]  # (stamps ns, degC)
+
 
 @dataclass
 class ImuData:
@@ -41,7 +50,8 @@ class ImuData:
     frame_id: str
 
 
-def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, progress=None):
+def read_fast(path: str | os.PathLike[str], imu_topic: TopicInfo, temperature_topic: TopicInfo | None,
+              progress: ProgressBar | None = None) -> tuple[ImuData, Temperatures | None] | None:
     """Both topics straight from the storage files (no rosbags reader), or None to fall back."""
     refuse_special_files(path)
     wanted = [imu_topic] + ([temperature_topic] if temperature_topic else [])
@@ -70,12 +80,14 @@ def read_fast(path, imu_topic: TopicInfo, temperature_topic: TopicInfo | None, p
 
 
 
-def read_imu_and_temperature(reader, imu_connection, temperature_connection, path, progress=None):
+def read_imu_and_temperature(reader: Any, imu_connection: Any, temperature_connection: Any,
+                             path: str | os.PathLike[str], progress: ProgressBar | None = None
+                             ) -> tuple[ImuData, Temperatures | None]:
     """Through rosbags, one pass for both topics (a second pass would decompress every mcap chunk
     again), in rosbags' message order.
     Returns (ImuData, (temperature stamps, values) or None)."""
-    raws = []
-    temperature_raws = []
+    raws: list[bytes] = []
+    temperature_raws: list[bytes] = []
     connections = [imu_connection] + ([temperature_connection] if temperature_connection is not None else [])
     check_recorded_types(path, [TopicInfo(c.topic, c.msgtype, 0) for c in connections], recorded_definitions(path))
     imu_id = imu_connection.id
@@ -101,7 +113,7 @@ def read_imu_and_temperature(reader, imu_connection, temperature_connection, pat
 
 
 
-def _fixed_temperatures(raws) -> tuple[np.ndarray, np.ndarray] | None:
+def _fixed_temperatures(raws: Sequence[bytes]) -> Temperatures | None:
     """(stamps ns, degC) of standard little-endian sensor_msgs/Temperature messages read at their fixed
     offsets, as decode_imus does; None when any message is otherwise (decode_temperatures then says which)."""
     from .mcap_scan import PackedMessages
@@ -127,7 +139,8 @@ def _fixed_temperatures(raws) -> tuple[np.ndarray, np.ndarray] | None:
     return stamps, values
 
 
-def decode_temperatures(raws: Sequence, path, deserialize) -> tuple[np.ndarray, np.ndarray]:
+def decode_temperatures(raws: Sequence[bytes], path: str | os.PathLike[str], deserialize: Deserialize
+                        ) -> Temperatures:
     """(stamps ns, degC) of sensor_msgs/Temperature messages: read at their fixed offsets where they are
     packed standard ones (_fixed_temperatures), else one by one; a message that does not decode is one
     BagError naming it."""
@@ -148,7 +161,7 @@ def decode_temperatures(raws: Sequence, path, deserialize) -> tuple[np.ndarray, 
 
 
 
-def _layout(frame_id_length: int) -> dict:
+def _layout(frame_id_length: int) -> dict[str, int]:
     """Byte offsets in a little-endian CDR Imu whose frame_id has this many bytes (with its NUL)."""
     end_of_string = 4 + 8 + 4 + frame_id_length  # encapsulation, stamp, length, chars
     body = end_of_string - 4
@@ -158,7 +171,8 @@ def _layout(frame_id_length: int) -> dict:
     return {"gyro": gyro, "accel": accel, "size": accel + 24 + 72}
 
 
-def _imu_by_name(raw, index: int, path, deserialize) -> tuple[int, tuple, tuple, str]:
+def _imu_by_name(raw: bytes, index: int, path: str | os.PathLike[str], deserialize: Deserialize
+                 ) -> tuple[int, tuple[float, float, float], tuple[float, float, float], str]:
     """(stamp ns, accel, gyro, frame_id) of one message through `deserialize` (the recording's own
     definition), by field name; a missing field or damaged bytes is one BagError naming the message."""
     try:
@@ -178,8 +192,10 @@ def _imu_by_name(raw, index: int, path, deserialize) -> tuple[int, tuple, tuple,
     return stamp, accel, gyro, frame_id
 
 
-def decode_imus(raws: Sequence, path, deserialize, fixed_layout: bool = True
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict, np.ndarray, np.ndarray]:
+def decode_imus(raws: Sequence[bytes], path: str | os.PathLike[str], deserialize: Deserialize,
+                fixed_layout: bool = True
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, dict[int, tuple[np.ndarray, dict[str, int]]],
+                           np.ndarray, np.ndarray]:
     """`fixed_layout`: the messages are the standard sensor_msgs/msg/Imu, so fields sit at known offsets
     (the bulk path); False reads every message through `deserialize` by field name."""
     from .mcap_scan import PackedMessages  # payload matrices straight from the storage: no join
@@ -193,7 +209,7 @@ def decode_imus(raws: Sequence, path, deserialize, fixed_layout: bool = True
     gyro = np.empty((len(raws), 3))
     group_of = np.empty(len(raws), dtype=np.int64)
     row_of = np.empty(len(raws), dtype=np.int64)
-    groups = {}
+    groups: dict[int, tuple[np.ndarray, dict[str, int]]] = {}
     frame_id = ""
     for length in np.unique(lengths):
         index = np.flatnonzero(lengths == length)

@@ -14,52 +14,65 @@ A hostile or damaged file never gets more than its chunks declare: decompression
 stated size (no decompression bomb), and a chunk that does not decompress to it returns None."""
 from __future__ import annotations
 
+import os
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import Any, TypedDict, overload
 
 import numpy as np
+
+from .progress import ProgressBar
 
 MAGIC = b"\x89MCAP0\r\n"
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 MAX_CHUNK_BYTES = 1 << 30  # rosbag2 writes chunks of ~1-4 MiB; a larger declared size is damage
 
 
+_Buffer = bytes | memoryview
+_Schemas = dict[str, tuple[str, str, str]]  # {topic: (message type, encoding, definition text)}
+
+
+class _Meta(TypedDict):
+    schemas: dict[int, tuple[str, str, str]]  # schema id: (name, encoding, definition text)
+    channel_schema: dict[int, int]  # channel id: schema id
+
+
 class _ChunkError(Exception):
     """A chunk that does not decompress to its declared size."""
 
 
-def _decompressor(name: str):
+def _decompressor(name: str) -> Callable[[_Buffer, int], _Buffer] | None:
     """f(data, size) -> exactly `size` bytes, never more (raises _ChunkError otherwise); None if unknown."""
     if name == "":
-        def plain(data, size):
+        def plain(data: _Buffer, size: int) -> _Buffer:
             if len(data) != size:
                 raise _ChunkError(f"chunk holds {len(data)} bytes, declares {size}")
             return data
         return plain
     if name == "zstd":
         try:
-            from compression import zstd  # type: ignore[import-not-found]
+            from compression import zstd
         except ImportError:
             from backports import zstd
 
-        def unzstd(data, size):
+        def unzstd(data: _Buffer, size: int) -> _Buffer:
             return _bounded(zstd.ZstdDecompressor(), data, size)
         return unzstd
     if name == "lz4":
         from lz4.frame import LZ4FrameDecompressor
 
-        def unlz4(data, size):
+        def unlz4(data: _Buffer, size: int) -> _Buffer:
             return _bounded(LZ4FrameDecompressor(), data, size)
         return unlz4
     return None
 
 
-def _bounded(decompressor, data, size: int) -> bytes:
+def _bounded(decompressor: Any, data: _Buffer, size: int) -> bytes:
     if size > MAX_CHUNK_BYTES:
         raise _ChunkError(f"chunk declares {size} bytes")
     try:
-        raw = decompressor.decompress(bytes(data), max_length=size + 1)
+        raw: bytes = decompressor.decompress(bytes(data), max_length=size + 1)
     except Exception as error:  # noqa: BLE001 - zstd and lz4 raise their own types for damaged data
         raise _ChunkError(str(error)) from None
     if len(raw) != size:
@@ -67,7 +80,7 @@ def _bounded(decompressor, data, size: int) -> bytes:
     return raw
 
 
-def _string(buf, at) -> tuple[str, int]:
+def _string(buf: _Buffer, at: int) -> tuple[str, int]:
     """A u32-prefixed UTF-8 string at `at`; (text, offset after it)."""
     length = _U32.unpack_from(buf, at)[0]
     if at + 4 + length > len(buf):
@@ -75,7 +88,7 @@ def _string(buf, at) -> tuple[str, int]:
     return bytes(buf[at + 4:at + 4 + length]).decode("utf-8"), at + 4 + length
 
 
-def _channel(buf, body, channels, meta=None):
+def _channel(buf: _Buffer, body: int, channels: dict[int, str], meta: _Meta | None = None) -> None:
     channel_id = _U16.unpack_from(buf, body)[0]
     topic, _ = _string(buf, body + 4)
     channels[channel_id] = topic
@@ -83,7 +96,7 @@ def _channel(buf, body, channels, meta=None):
         meta["channel_schema"][channel_id] = _U16.unpack_from(buf, body + 2)[0]
 
 
-def _schema(buf, body, meta) -> None:
+def _schema(buf: _Buffer, body: int, meta: _Meta) -> None:
     schema_id = _U16.unpack_from(buf, body)[0]
     name, at = _string(buf, body + 2)
     encoding, at = _string(buf, at)
@@ -91,17 +104,19 @@ def _schema(buf, body, meta) -> None:
     meta["schemas"][schema_id] = (name, encoding, bytes(buf[at + 4:at + 4 + length]).decode("utf-8", "replace"))
 
 
-def _recorded(channels, meta) -> dict[str, tuple[str, str, str]]:
+def _recorded(channels: dict[int, str], meta: _Meta) -> _Schemas:
     """{topic: (schema name = message type, encoding, definition text)} of the channels seen."""
     found = {}
     for channel_id, topic in channels.items():
-        schema = meta["schemas"].get(meta["channel_schema"].get(channel_id))
+        schema_id = meta["channel_schema"].get(channel_id)
+        schema = None if schema_id is None else meta["schemas"].get(schema_id)
         if schema is not None:
             found[topic] = schema
     return found
 
 
-def scan_topics(path, topics, progress=None, schemas: dict | None = None) -> dict[str, PackedMessages] | None:
+def scan_topics(path: str | os.PathLike[str], topics: Iterable[str], progress: ProgressBar | None = None,
+                schemas: _Schemas | None = None) -> dict[str, PackedMessages] | None:
     """{topic: [message data, ...]} for the wanted topics, or None when this file needs rosbags (or is
     damaged: rosbags then says how). `schemas`, when given, is filled with {topic: (message type,
     encoding, definition)} as recorded in the file's Schema and Channel records. The whole bag, in
@@ -124,7 +139,9 @@ class NotStreamable(Exception):
     chunks, damage, an unknown compression): the caller reads it whole instead."""
 
 
-def stream_topics(path, topics, progress=None, group_messages: int = 1 << 16, schemas: dict | None = None):
+def stream_topics(path: str | os.PathLike[str], topics: Iterable[str], progress: ProgressBar | None = None,
+                  group_messages: int = 1 << 16, schemas: _Schemas | None = None
+                  ) -> Iterator[dict[str, PackedMessages]]:
     """The wanted topics' messages as scan_topics gives them, in groups of about `group_messages`
     ({topic: PackedMessages} per group, each in log_time order), reading one chunk at a time: memory is
     bounded by a group, not the file. `schemas` is kept filled with {topic: (message type, encoding,
@@ -142,14 +159,16 @@ def stream_topics(path, topics, progress=None, group_messages: int = 1 << 16, sc
         yield {topic: PackedMessages(runs[topic], log_times[topic]) for topic in wanted}
 
 
-def _chunk_runs(path, wanted: set, progress, group_messages: int | None, schemas: dict | None):
+def _chunk_runs(path: str | os.PathLike[str], wanted: set[str], progress: ProgressBar | None,
+                group_messages: int | None, schemas: _Schemas | None
+                ) -> Iterator[tuple[dict[str, list[np.ndarray]], dict[str, list[np.ndarray]]]]:
     """The one walk over a bag's .mcap files, a record at a time from the file (chunks decompressed one
     at a time): yields ({topic: payload runs}, {topic: log_time runs}) of the wanted topics in file order,
     about `group_messages` messages at a time (None: the whole file at once). `schemas` is kept filled as
     scan_topics says. Raises NotStreamable on anything this reader does not know (an unknown compression,
     a malformed or cut-short record)."""
     files = sorted(Path(path).glob("*.mcap")) if Path(path).is_dir() else [Path(path)]
-    meta: dict = {"schemas": {}, "channel_schema": {}}
+    meta: _Meta = {"schemas": {}, "channel_schema": {}}
     try:
         for file in files:
             with open(file, "rb") as stream:
@@ -210,12 +229,12 @@ def _chunk_runs(path, wanted: set, progress, group_messages: int | None, schemas
         raise NotStreamable(str(error)) from None
 
 
-class PackedMessages(Sequence):
+class PackedMessages(Sequence[bytes]):
     """Message payloads of one topic, kept as the uint8 matrices of runs of equal-length records (no
     per-message objects), in file order, then stably sorted by log_time when the file was not. A
     Sequence of bytes for callers that want one message at a time; decode_imus takes `block()`."""
 
-    def __init__(self, runs: list[np.ndarray], log_times: list[np.ndarray]):
+    def __init__(self, runs: list[np.ndarray], log_times: list[np.ndarray]) -> None:
         self._runs = runs
         counts = np.array([run.shape[0] for run in runs], dtype=np.int64)
         widths = np.array([run.shape[1] for run in runs], dtype=np.int64)
@@ -229,7 +248,7 @@ class PackedMessages(Sequence):
         self._by_width: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     @classmethod
-    def from_payloads(cls, payloads: list) -> PackedMessages:
+    def from_payloads(cls, payloads: list[bytes]) -> PackedMessages:
         """From a list of bytes already in order (one SELECT of a sqlite3 table): one joined buffer per
         run of equal lengths (one run for a usual recording)."""
         lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=len(payloads))
@@ -244,7 +263,13 @@ class PackedMessages(Sequence):
     def _file_index(self, i: int) -> int:
         return int(self._order[i]) if self._order is not None else i
 
-    def __getitem__(self, i):  # type: ignore[override]
+    @overload
+    def __getitem__(self, i: int) -> bytes: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[bytes]: ...
+
+    def __getitem__(self, i: int | slice) -> bytes | list[bytes]:
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self)))]
         if i < 0:
@@ -253,9 +278,10 @@ class PackedMessages(Sequence):
             raise IndexError(i)
         f = self._file_index(i)
         run = int(np.searchsorted(self._starts, f, side="right")) - 1
-        return self._runs[run][f - int(self._starts[run])].tobytes()
+        row: np.ndarray = self._runs[run][f - int(self._starts[run])]
+        return row.tobytes()
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[bytes]:
         if self._order is None:
             for run in self._runs:
                 for row in run:
@@ -281,13 +307,15 @@ class PackedMessages(Sequence):
         rows = row_in_matrix[file_index]
         if len(rows) == len(matrix) and np.array_equal(rows, np.arange(len(matrix))):
             return matrix
-        return matrix[rows]
+        picked: np.ndarray = matrix[rows]
+        return picked
 
 
 _RUN_PROBE_MAX = 1 << 14  # records compared at once when looking for the end of a run
 
 
-def _scan_records(buf, channels, wanted, out, times, meta=None) -> int:
+def _scan_records(buf: _Buffer, channels: dict[int, str], wanted: set[str], out: dict[str, list[np.ndarray]],
+                  times: dict[str, list[np.ndarray]], meta: _Meta | None = None) -> int:
     """Collect message data of wanted topics from a run of records; returns messages seen. Records
     come in runs (same opcode, length and channel: a topic's messages between other topics'), so each
     run is found with numpy on a strided view and its payloads copied as one matrix. A record that
@@ -347,10 +375,11 @@ def _gather(data: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
     """(len(starts), width) copy of data[start:start + width] for each start (all inside data)."""
     if width == 0:
         return np.zeros((len(starts), 0), dtype=np.uint8)
-    return np.lib.stride_tricks.sliding_window_view(data, width)[starts]
+    gathered: np.ndarray = np.lib.stride_tricks.sliding_window_view(data, width)[starts]
+    return gathered
 
 
-def recorded_types(file) -> dict[str, tuple[str, str, str]] | None:
+def recorded_types(file: str | os.PathLike[str]) -> _Schemas | None:
     """{topic: (message type, encoding, definition)} as one .mcap file records them: from its summary
     section (a few records at the end) when it has one, else from a scan of the whole file; None when
     the file cannot be parsed (damage: the caller's reader will say how)."""
@@ -370,7 +399,7 @@ def recorded_types(file) -> dict[str, tuple[str, str, str]] | None:
                 stream.seek(summary_start)
                 summary = memoryview(stream.read(size - 37 - summary_start))
                 channels: dict[int, str] = {}
-                meta: dict = {"schemas": {}, "channel_schema": {}}
+                meta: _Meta = {"schemas": {}, "channel_schema": {}}
                 pos = 0
                 while pos + 9 <= len(summary):
                     op = summary[pos]
@@ -391,7 +420,7 @@ def recorded_types(file) -> dict[str, tuple[str, str, str]] | None:
     return found if scan_topics(file, [], schemas=found) is not None else None
 
 
-def summary_topics(file) -> list[tuple[str, str, int]] | None:
+def summary_topics(file: str | os.PathLike[str]) -> list[tuple[str, str, int]] | None:
     """[(topic, message type, message count)] of one .mcap file from its summary section's Schema, Channel
     and Statistics records (a few records at the end: no rosbags reader, whose import and open cost
     ~0.3 s); None when the summary lacks any of them or a topic has two channels (rosbags then reads it)."""
@@ -411,7 +440,7 @@ def summary_topics(file) -> list[tuple[str, str, int]] | None:
             stream.seek(summary_start)
             summary = memoryview(stream.read(size - 37 - summary_start))
         channels: dict[int, str] = {}
-        meta: dict = {"schemas": {}, "channel_schema": {}}
+        meta: _Meta = {"schemas": {}, "channel_schema": {}}
         counts: dict[int, int] | None = None
         pos = 0
         while pos + 9 <= len(summary):
@@ -433,7 +462,8 @@ def summary_topics(file) -> list[tuple[str, str, int]] | None:
         return None
     if counts is None or not channels or len(set(channels.values())) != len(channels):
         return None
-    types = {channel_id: meta["schemas"].get(schema_id) for channel_id, schema_id in meta["channel_schema"].items()}
-    if any(types.get(channel_id) is None for channel_id in channels):
+    types = {channel_id: schema[0] for channel_id, schema_id in meta["channel_schema"].items()
+             if (schema := meta["schemas"].get(schema_id)) is not None}
+    if any(channel_id not in types for channel_id in channels):
         return None
-    return [(topic, types[channel_id][0], int(counts.get(channel_id, 0))) for channel_id, topic in channels.items()]
+    return [(topic, types[channel_id], int(counts.get(channel_id, 0))) for channel_id, topic in channels.items()]

@@ -8,12 +8,25 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .bag_io import IMU, TEMPERATURE, BagError
+
+if TYPE_CHECKING:
+    from ..core.flight_state import FlightState
+    from .bag_io import TopicInfo, TopicLike, TopicT
+    from .csv_stream import CsvLayout
+    from .dataflash import AutopilotCalibration
+    from .imu_messages import ImuData, Temperatures
+    from .mcap_scan import PackedMessages
+    from .progress import ClosableProgressBar
+
+    Groups = Iterator[dict[str, PackedMessages]]
 
 FORMATS = ("rosbag2", "mcap", "sqlite3", "ulog", "dataflash", "csv")
 KNOWN = ("rosbag2 (a bag directory), mcap (a .mcap file), sqlite3 (a .db3 file), ulog (a PX4 .ulg log), "
@@ -46,9 +59,9 @@ class Recording:
     frame_id: str = ""
     sensor_id: str = ""
     vehicle: str = ""  # the vehicle the recording names (a ULog's sys_uuid), "" when it does not
-    source: object = None  # what writing a corrected copy needs: a CSV's layout (csv_stream.CsvLayout)
-    flight_state: object = None  # core.flight_state.FlightState a log carries (ULog, DataFlash); None: none read
-    autopilot_calibration: object = None  # dataflash.AutopilotCalibration in force while logging
+    source: CsvLayout | None = None  # what writing a corrected copy needs: a CSV's layout
+    flight_state: FlightState | None = None  # what a log carries (ULog, DataFlash); None: none read
+    autopilot_calibration: AutopilotCalibration | None = None  # in force while logging (DataFlash)
 
     @property
     def unit(self) -> str:
@@ -56,7 +69,7 @@ class Recording:
         return "messages" if self.format in BAGS else "samples"
 
 
-def detect_format(path) -> str:
+def detect_format(path: str | os.PathLike[str]) -> str:
     """The format of `path` from its content (magic bytes), else its suffix, else text that looks like CSV."""
     path = Path(path)
     if not path.exists():
@@ -96,7 +109,7 @@ def _regular_file(path: Path) -> None:
                              "recording of this format")
 
 
-def open_recording(path, format: str | None = None, *, imu_topic: str | None = None,
+def open_recording(path: str | os.PathLike[str], format: str | None = None, *, imu_topic: str | None = None,
                    temperature_topic: str | None = None, instance: int | None = None, time_unit: str | None = None,
                    units: str | None = None, counts_per_g: float | None = None, progress: bool = False,
                    through_rosbags: bool = False) -> Recording:
@@ -138,15 +151,15 @@ class BagStream:
     stream: str  # the Imu topic
     temperature_stream: str | None
     expected_messages: int  # the IMU count the topic list declares
-    groups: object  # iterator of {topic: PackedMessages}
-    recorded: dict  # {topic: (type, encoding, definition)} as the storage records them (filled as read)
+    groups: Groups  # iterator of {topic: PackedMessages}
+    recorded: dict[str, tuple[str, str, str]]  # {topic: (type, encoding, definition)} as the storage records them
     frame_id: str = ""
     messages: int = 0
     unit: str = "messages"
     sensor_id: str = ""
     vehicle: str = ""  # a bag names its vehicle in its metadata (cli/fleet.py reads it), not in its messages
 
-    def pieces(self):
+    def pieces(self) -> Iterator[tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, Temperatures | None]]:
         from .bag_io import TopicInfo, check_recorded_types, is_standard_definition, jazzy_deserialize
         from .imu_messages import decode_imus, decode_temperatures
         from .mcap_scan import NotStreamable
@@ -155,7 +168,7 @@ class BagStream:
         wanted = [TopicInfo(self.stream, IMU, self.expected_messages)]
         if self.temperature_stream:
             wanted.append(TopicInfo(self.temperature_stream, TEMPERATURE, 0))
-        for group in self.groups:  # type: ignore[attr-defined]
+        for group in self.groups:
             check_recorded_types(self.path, wanted, self.recorded)
             if not all(is_standard_definition(topic, self.recorded) for topic in wanted):
                 raise NotStreamable("another message definition: read through it")
@@ -175,8 +188,8 @@ class BagStream:
             raise NotStreamable(f"{self.messages} IMU messages, the bag declares {self.expected_messages}")
 
 
-def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
-               temperature_topic: str | None = None, progress: bool = False, **other) -> BagStream | None:
+def stream_bag(path: str | os.PathLike[str], format: str | None = None, *, imu_topic: str | None = None,
+               temperature_topic: str | None = None, progress: bool = False, **other: object) -> BagStream | None:
     """A bag (rosbag2 directory, .mcap or .db3 file) to stream, when its storage can be read directly
     with standard definitions; None for anything else (open_recording reads it whole, or says what is
     wrong, in one line)."""
@@ -203,7 +216,7 @@ def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
         return None
     topics = [topic.topic for topic in wanted]
     bar = _bar(path, imu.msgcount + (temperature.msgcount if temperature else 0), "msg", progress)
-    recorded: dict = {}
+    recorded: dict[str, tuple[str, str, str]] = {}
     if storage_of(path) == "mcap":
         groups = stream_topics(path, topics, bar, STREAM_GROUP_MESSAGES, schemas=recorded)
     else:
@@ -215,7 +228,7 @@ def stream_bag(path, format: str | None = None, *, imu_topic: str | None = None,
                      _closing(groups, bar), recorded)
 
 
-def _closing(groups, bar):
+def _closing(groups: Groups, bar: ClosableProgressBar | None) -> Groups:
     """The groups, then the progress bar closed (also when the reader stops early)."""
     try:
         yield from groups
@@ -232,15 +245,18 @@ def _where(flag: str) -> str:
     return "CSV streams"
 
 
-def _bar(path, total, unit: str, progress: bool):
+def _bar(path: str | os.PathLike[str], total: int | None, unit: str, progress: bool) -> ClosableProgressBar | None:
     if not progress or not sys.stderr.isatty():  # tqdm would draw nothing (disable=None); not imported
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, unit=unit, unit_scale=unit == "B", desc=Path(path).name, leave=False, disable=None)
+    bar: ClosableProgressBar = tqdm(total=total, unit=unit, unit_scale=unit == "B", desc=Path(path).name,
+                                    leave=False, disable=None)
+    return bar
 
 
-def _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags) -> Recording:
+def _read_bag(path: str | os.PathLike[str], kind: str, imu_topic: str | None, temperature_topic: str | None,
+              progress: bool, through_rosbags: bool) -> Recording:
     from .bag_io import metadata_topics
 
     if kind == "rosbag2" and not Path(path).is_dir():
@@ -258,12 +274,12 @@ def _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbag
                      frame_id=imu.frame_id)
 
 
-def _no_imu(path, connections) -> RecordingError:
+def _no_imu(path: str | os.PathLike[str], connections: Iterable[TopicLike]) -> RecordingError:
     have = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in connections})) or "no topics"
     return RecordingError(f"{path}: no sensor_msgs/msg/Imu topic; the bag has {have}")
 
 
-def _file_topics(path):
+def _file_topics(path: str | os.PathLike[str]) -> list[TopicInfo]:
     from .bag_io import TopicInfo, open_reader, storage_of
     from .mcap_scan import summary_topics
 
@@ -278,7 +294,8 @@ def _file_topics(path):
         reader.close()
 
 
-def _chosen_topics(path, topics, imu_name: str | None, temperature_name: str | None):
+def _chosen_topics(path: str | os.PathLike[str], topics: Sequence[TopicT], imu_name: str | None,
+                   temperature_name: str | None) -> tuple[TopicT, TopicT | None]:
     """(the Imu topic, the Temperature topic or None) among a bag's `topics` (TopicInfo or rosbags
     connections), as asked or the only one of its type; no Imu topic is one line naming what the bag has."""
     from .bag_io import choose_topic
@@ -289,7 +306,8 @@ def _chosen_topics(path, topics, imu_name: str | None, temperature_name: str | N
     return imu, choose_topic(topics, TEMPERATURE, temperature_name, "temperature", path)
 
 
-def _read_fast(path, infos, imu_name, temperature_name, progress):
+def _read_fast(path: str | os.PathLike[str], infos: Sequence[TopicInfo], imu_name: str | None,
+               temperature_name: str | None, progress: bool) -> tuple[ImuData, Temperatures | None, str | None] | None:
     """Messages straight from the storage; None when that cannot be trusted (rosbags then)."""
     from .imu_messages import read_fast
 
@@ -305,7 +323,8 @@ def _read_fast(path, infos, imu_name, temperature_name, progress):
     return read[0], read[1], temperature_topic.topic if temperature_topic else None
 
 
-def _read_with_rosbags(path, imu_name, temperature_name, progress):
+def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, temperature_name: str | None,
+                       progress: bool) -> tuple[ImuData, Temperatures | None, str | None]:
     from .bag_io import open_reader
     from .imu_messages import read_imu_and_temperature
 
@@ -324,7 +343,7 @@ def _read_with_rosbags(path, imu_name, temperature_name, progress):
     return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
-def _read_ulog(path, instance, progress) -> Recording:
+def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
     from .ulog_reader import read_ulog
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
@@ -340,7 +359,7 @@ def _read_ulog(path, instance, progress) -> Recording:
                      flight_state=log.flight_state)
 
 
-def _read_dataflash(path, instance, progress) -> Recording:
+def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
     from .dataflash import read_dataflash
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
@@ -356,7 +375,8 @@ def _read_dataflash(path, instance, progress) -> Recording:
                      autopilot_calibration=log.autopilot_calibration)
 
 
-def _read_csv(path, time_unit, units, counts_per_g, progress) -> Recording:
+def _read_csv(path: str | os.PathLike[str], time_unit: str | None, units: str, counts_per_g: float | None,
+              progress: bool) -> Recording:
     from .csv_stream import read_csv_stream
 
     bar = _bar(path, _size(path), "B", progress)
@@ -370,7 +390,7 @@ def _read_csv(path, time_unit, units, counts_per_g, progress) -> Recording:
                      samples.temperature, temperature_stream, source=samples.layout)
 
 
-def _size(path) -> int | None:
+def _size(path: str | os.PathLike[str]) -> int | None:
     try:
         return os.path.getsize(path)
     except OSError:

@@ -5,8 +5,10 @@ way. An adapter: bag I/O lives in bag_io, the other readers beside it."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +19,12 @@ from ..core.session import CalibrationSession
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
 from .bag_io import BagError, missing_module
+
+if TYPE_CHECKING:
+    from ..core.flight_state import FlightState
+    from ..core.gyro_fit import GyroFitResult
+    from .dataflash import AutopilotCalibration
+    from .recording import BagStream, Recording
 
 
 @dataclass(frozen=True)
@@ -38,7 +46,7 @@ class ReplaySettings:
     armed_margin_s: float = 2.0
     ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
 
-    def reader_options(self) -> dict:
+    def reader_options(self) -> dict[str, Any]:
         return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
                 "instance": self.instance, "time_unit": self.time_unit, "units": self.units,
                 "counts_per_g": self.counts_per_g}
@@ -54,11 +62,11 @@ class ReplayResult:
     poses: list[Pose]
     result: FitResult | None
     problem: str | None  # why no calibration (None when `calibration` is usable)
-    counts: dict
+    counts: dict[str, int]
     elapsed_s: float
     frame_id: str = ""
     temperature_at_samples: np.ndarray | None = None
-    recording: object = None  # recording.Recording read whole, or recording.BagStream streamed
+    recording: Recording | BagStream | None = None  # read whole, or streamed
     # The temperature topic's readings (stamps ns, degC) as read, for correcting a copy at each sample's
     # temperature; None without a temperature topic.
     temperature_readings: tuple[np.ndarray, np.ndarray] | None = None
@@ -75,8 +83,8 @@ class ReplayResult:
     # recording carries none (flight_state_found False); None where it was not looked for.
     flight_state_line: str | None = None
     flight_state_found: bool = False
-    autopilot_calibration: object = None  # dataflash.AutopilotCalibration logged with the recording
-    gyro: object = None  # core.gyro_fit.GyroFitResult: the gyro fit tried from the motions (None: none ran)
+    autopilot_calibration: AutopilotCalibration | None = None  # logged with the recording (DataFlash)
+    gyro: GyroFitResult | None = None  # the gyro fit tried from the motions (None: none ran)
     gyro_refusal: str | None = None  # why it was not applied (None: it was, or none ran)
     autopilot_difference_mg: float | None = None  # how far ours moves the autopilot's output, worst at 1 g
 
@@ -88,6 +96,9 @@ class ReplayResult:
         """The filtered temperature held at each sample of a recording read whole (NaN where none or stale),
         as the correction uses it; worked out on first use (a CSV may carry a reading on every row)."""
         if self.temperature_at_samples is None:
+            from .recording import Recording
+
+            assert isinstance(self.recording, Recording), "only a recording read whole has its samples at hand"
             self.temperature_at_samples = self.temperatures_at(self.recording.t_ns)
         return self.temperature_at_samples
 
@@ -118,7 +129,7 @@ class ReplayError(BagError):
     """One line: the bag and what was (not) found in it."""
 
 
-def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = False,
+def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = None, progress: bool = False,
                through_rosbags: bool = False) -> ReplayResult:
     """Any recording (recording.open_recording: a bag directory, a .mcap/.db3 file, a ULog, a CSV stream)
     through the session. A bag whose storage can be read directly is streamed (memory bounded by a part,
@@ -151,7 +162,7 @@ def replay_bag(path, settings: ReplaySettings | None = None, progress: bool = Fa
     return replay_recording(recording, s, started)
 
 
-def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
+def _replay_stream(bag: BagStream, s: ReplaySettings, started: float) -> ReplayResult:
     """A streamed bag (recording.BagStream) through a fresh session, piece by piece."""
     flight = flight_state_of(bag.path, bag.format, None, s)
     session = CalibrationSession(s.session)
@@ -181,7 +192,8 @@ def _replay_stream(bag, s: ReplaySettings, started: float) -> ReplayResult:
     return _with_flight_state(result, flight, low, high, s)
 
 
-def replay_recording(recording, settings: ReplaySettings | None = None, started: float | None = None) -> ReplayResult:
+def replay_recording(recording: Recording, settings: ReplaySettings | None = None,
+                     started: float | None = None) -> ReplayResult:
     """A recording's sample arrays (recording.Recording) through a fresh session, as the node would take them."""
     s = settings or ReplaySettings()
     started = time.perf_counter() if started is None else started
@@ -205,7 +217,8 @@ def replay_recording(recording, settings: ReplaySettings | None = None, started:
     return _with_flight_state(result, flight, start, int(t.max()) if len(t) else None, s)
 
 
-def flight_state_of(path, recording_format: str, carried, s: ReplaySettings):
+def flight_state_of(path: str | os.PathLike[str], recording_format: str, carried: FlightState | None,
+                    s: ReplaySettings) -> FlightState | None:
     """The flight state to keep out of the poses (core.flight_state.FlightState), or None when it is not
     looked for: --ignore-flight-state, or a CSV stream (it carries none). A bag's comes from its topics,
     a log's (ULog, DataFlash) from the log (`carried`)."""
@@ -225,7 +238,7 @@ def flight_state_of(path, recording_format: str, carried, s: ReplaySettings):
     return carried if carried is not None else FlightState()
 
 
-def _with_flight_state(result: ReplayResult, flight, first_ns: int | None, last_ns: int | None,
+def _with_flight_state(result: ReplayResult, flight: FlightState | None, first_ns: int | None, last_ns: int | None,
                        s: ReplaySettings) -> ReplayResult:
     """The flight-state line, and the autopilot's calibration beside ours, into the result."""
     from ..core.flight_state import report_line
@@ -243,7 +256,8 @@ def _with_flight_state(result: ReplayResult, flight, first_ns: int | None, last_
                                autopilot_calibration=autopilot, autopilot_difference_mg=difference)
 
 
-def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples: int, duration: float,
+def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recording | BagStream, samples: int,
+             duration: float,
              start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool,
              temperature_readings: tuple[np.ndarray, np.ndarray] | None) -> ReplayResult:
     """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
@@ -253,7 +267,7 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
         # The zeros standing in for a missing gyro are no motions to fit.
         session.update_settings(dataclasses.replace(session.settings, gyro_calibrate=False))
-    slots = []  # per pose, its place in the store (None once the store gave that place to a newer pose)
+    slots: list[int | None] = []  # per pose, its place in the store (None once the store gave it to a newer pose)
     for pose in poses:
         event = session.add_pose(pose)
         if event.replaced_oldest:
@@ -273,6 +287,7 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording, samples:
     result = verdict.result
     if verdict.success:
         calibration = verdict.calibration
+        assert calibration is not None and verdict.result is not None, "a calibration that succeeded carries both"
         if not has_gyro:
             calibration = calibration.replace(gyro_bias_radps=None)
         if recording.sensor_id and not calibration.sensor_id:

@@ -16,14 +16,27 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import re
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .bag_io import BagError, read_head
+
+if TYPE_CHECKING:
+    from ..core.flight_state import FlightState
+    from .progress import ProgressBar
+
+# pyulog ships no type information: a ULog and its datasets are Any here; a dataset's `data` is
+# {field name: array}.
+_Fields = Mapping[str, np.ndarray]
+
 
 MAGIC = b"ULog\x01\x12\x35"
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: this sensor had no new sample in the message
@@ -46,11 +59,12 @@ class UlogSamples:
     temperature: tuple[np.ndarray, np.ndarray] | None  # (stamps ns, degC)
     temperature_stream: str | None
     sensor_id: str  # "px4 device <id>" when the log says which device
-    flight_state: object = None  # core.flight_state.FlightState: armed or airborne (flight_sources)
+    flight_state: FlightState | None = None  # armed or airborne (flight_sources)
     vehicle: str = ""  # the flight controller the log names (logged_vehicle), "" when it does not
 
 
-def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
+def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
+              ) -> UlogSamples:
     """`progress`: a tqdm bar counting bytes read."""
     from .flight_sources import ULOG_TOPICS, ulog_flight_state
 
@@ -69,7 +83,7 @@ def read_ulog(path, instance: int | None = None, progress=None) -> UlogSamples:
 END_MARKER = "accel_calibration: end of file"
 
 
-def _load(path: Path, topics: list[str], progress=None):
+def _load(path: Path, topics: list[str], progress: ProgressBar | None = None) -> Any:
     from pyulog import ULog
     from pyulog.exceptions import ULogException
 
@@ -106,7 +120,7 @@ def _load(path: Path, topics: list[str], progress=None):
 class _MarkedFile(io.RawIOBase):
     """The file followed by `marker`, as one seekable stream (moving a tqdm bar by the bytes read)."""
 
-    def __init__(self, path: Path, marker: bytes, progress=None):
+    def __init__(self, path: Path, marker: bytes, progress: ProgressBar | None = None) -> None:
         self._file = open(path, "rb")  # noqa: SIM115 (closed by close(), which pyulog calls)
         self._size = self._file.seek(0, io.SEEK_END)
         self._file.seek(0)
@@ -120,7 +134,7 @@ class _MarkedFile(io.RawIOBase):
     def seekable(self) -> bool:
         return True
 
-    def readinto(self, buffer) -> int:
+    def readinto(self, buffer: Any) -> int:  # a writable buffer (collections.abc.Buffer from Python 3.12)
         view = memoryview(buffer).cast("B")
         if self._pos < self._size:
             count = self._file.readinto(view[:self._size - self._pos])
@@ -252,7 +266,7 @@ def _cut_at(data: bytes) -> tuple[int, int, int] | None:
     return last, pos - last, end - last
 
 
-def logged_vehicle(info: dict) -> str:
+def logged_vehicle(info: Mapping[str, object]) -> str:
     """The vehicle as the log names it: its board's unique id (info message `sys_uuid`, from the MCU's
     serial number), after the system's name (`sys_name`) when logged: "PX4 000200000000353338373138511600380018".
     `sys_name` alone names the firmware (every PX4 log says "PX4"), not a vehicle: "" then."""
@@ -270,7 +284,7 @@ def logged_vehicle(info: dict) -> str:
 MAX_STAMP_US = (2**63 - 1) // 1000 - 2**31
 
 
-def _stamps_us(path: Path, values, what: str) -> np.ndarray:
+def _stamps_us(path: Path, values: npt.ArrayLike, what: str) -> np.ndarray:
     """Logged uint64 microsecond stamps as int64, or one UlogError for stamps that would wrap as ns."""
     raw = np.asarray(values)
     if len(raw) and (raw.astype(np.uint64) > MAX_STAMP_US).any():
@@ -280,21 +294,21 @@ def _stamps_us(path: Path, values, what: str) -> np.ndarray:
     return raw.astype(np.int64)
 
 
-def _datasets(log, name: str) -> list:
+def _datasets(log: Any, name: str) -> list[Any]:
     return [d for d in log.data_list if d.name == name and len(d.data["timestamp"])]
 
 
-def _no_accel(path: Path, log, wanted: str) -> UlogError:
+def _no_accel(path: Path, log: Any, wanted: str) -> UlogError:
     have = [name for name in log.formats_defined if name.startswith(("sensor_", "vehicle_imu"))]
     listed = ", ".join(have[:8]) + (", ..." if len(have) > 8 else "") if have else "no sensor topics"
     return UlogError(f"{path}: no accelerometer data ({wanted}) in this log; it defines {listed}")
 
 
-def _xyz(data: dict, names: tuple[str, str, str]) -> np.ndarray:
+def _xyz(data: _Fields, names: tuple[str, str, str]) -> np.ndarray:
     return np.column_stack([np.asarray(data[n], dtype=float) for n in names])
 
 
-def _from_combined(path: Path, log) -> UlogSamples:
+def _from_combined(path: Path, log: Any) -> UlogSamples:
     found = _datasets(log, COMBINED)
     if not found:
         raise _no_accel(path, log, "sensor_combined; or sensor_accel with --instance N")
@@ -317,7 +331,8 @@ def _from_combined(path: Path, log) -> UlogSamples:
     return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id)
 
 
-def _selected_accel_temperature(path: Path, log):
+def _selected_accel_temperature(path: Path, log: Any
+                                ) -> tuple[tuple[np.ndarray, np.ndarray] | None, str | None, str]:
     """The temperature of the sensor_accel instance sensor_combined is fed from (sensor_selection names
     its device), or of the only instance; None when the log does not say."""
     instances = _datasets(log, ACCEL)
@@ -336,16 +351,16 @@ def _selected_accel_temperature(path: Path, log):
     return (stamps, degc), f"sensor_accel instance {chosen.multi_id} temperature", _device(chosen.data)
 
 
-def _temperature_of(path: Path, data: dict) -> tuple[np.ndarray, np.ndarray]:
+def _temperature_of(path: Path, data: _Fields) -> tuple[np.ndarray, np.ndarray]:
     stamp_us = data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"]
     return _stamps_us(path, stamp_us, "temperature") * 1000, np.asarray(data["temperature"], dtype=float)
 
 
-def _device(data: dict) -> str:
+def _device(data: _Fields) -> str:
     return f"px4 device {int(data['device_id'][0])}" if "device_id" in data else ""
 
 
-def _from_instance(path: Path, log, instance: int) -> UlogSamples:
+def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
     accels = {d.multi_id: d for d in _datasets(log, ACCEL)}
     if not accels:
         raise _no_accel(path, log, f"sensor_accel instance {instance}")

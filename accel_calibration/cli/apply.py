@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 import numpy as np
 
@@ -10,7 +9,7 @@ from ..core.errors import CalibrationError
 from .options import UNIT_SCALE, calibration_in_force
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser("apply", help="correct the ax,ay,az columns of a CSV file")
     parser.add_argument("--calibration", "-c", required=True, help="calibration YAML")
     parser.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az in and out")

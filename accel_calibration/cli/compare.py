@@ -5,7 +5,7 @@ autopilot's own formula (io/autopilot_params.py)."""
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # imported where used: `accel-calib --help` does not pay for 
     from ..io.autopilot_params import ParameterSet
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "compare", help="how far an autopilot's accelerometer calibration is from ours (mg at 1 g)",
         description="Read the autopilot's calibration (PX4 .params or .ulg, ArduPilot .param or DataFlash .bin), "

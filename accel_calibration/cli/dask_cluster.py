@@ -122,7 +122,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             client.close()
 
 
-def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple], label: str = "recordings"
+def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple[Any, ...]], label: str = "recordings"
               ) -> Iterator[tuple[int, Any, str | None]]:
     """Submit `function(*job)` for every job and yield (index, result, None) as each finishes, or
     (index, None, one-line reason) when its task raised or its worker died; a progress bar counts them."""
@@ -144,8 +144,8 @@ def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple], 
                 bar.update(1)
 
 
-def map_on_local_cluster(function: Callable[..., Any], jobs: Sequence[tuple], workers: int,
-                         failed: Callable[[tuple, str], Any]) -> list[Any]:
+def map_on_local_cluster(function: Callable[..., Any], jobs: Sequence[tuple[Any, ...]], workers: int,
+                         failed: Callable[[tuple[Any, ...], str], Any]) -> list[Any]:
     """`function(*job)` for every job on a local cluster of `workers` processes, results in job order
     (`failed(job, reason)` stands in for a task that raised). What `accel-calib replay --jobs` runs."""
     results: list[Any] = [None] * len(jobs)

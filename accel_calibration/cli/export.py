@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,7 +23,7 @@ TARGETS = ("px4", "ardupilot", "kalibr", "openvins")
 DEFAULT_MAX_LOSS_MG = 2.0
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "export", help="write a calibration as PX4/ArduPilot parameters, Kalibr imu.yaml or OpenVINS imu chain",
         description="Write the calibration in the target's own form, units and signs. Where the target holds "

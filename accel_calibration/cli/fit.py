@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
@@ -11,7 +10,7 @@ from ..core.units import STANDARD_GRAVITY
 from .options import UNIT_SCALE
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     defaults = TemperatureOptions()  # the temperature fit's defaults, as the node's settings take them
     parser = commands.add_parser("fit", help="fit a calibration to a CSV table of static pose means")
     parser.add_argument("poses", help="CSV with header ax,ay,az [,temperature] [,ref_x,ref_y,ref_z] [,sigma_mg] "
@@ -85,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         temperature_options=options,
         pose_sigma_mps2=table.pose_sigma_mps2,
     )
-    if not result.success:
+    if not result.success or result.calibration is None:
         raise CalibrationError(f"fit failed: {result.message}")
     save_calibration(result.calibration, args.output)
     print(result.summary())

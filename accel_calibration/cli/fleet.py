@@ -26,6 +26,7 @@ from .dask_cluster import dask_client, default_workers, run_tasks
 from .options import add_settings_options, replay_settings
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..bag.replay import ReplayResult, ReplaySettings
     from ..io.history import HistoryError, HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
@@ -114,7 +115,7 @@ def _peak_rss_mb() -> float | None:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / (1024.0 if sys.platform != "darwin" else 1024.0**2)
 
 
-def _bag_metadata(path: Path) -> dict:
+def _bag_metadata(path: Path) -> dict[str, Any]:
     import yaml
 
     try:
@@ -124,7 +125,7 @@ def _bag_metadata(path: Path) -> dict:
         return {}
 
 
-def _recorded_vehicle(path: Path, replay: Any) -> str | None:
+def _recorded_vehicle(path: Path, replay: ReplayResult) -> str | None:
     """The vehicle as the recording names it: what the reader found (a ULog's sys_uuid), or a rosbag2
     directory's metadata custom_data."""
     recording = replay.recording
@@ -140,7 +141,7 @@ def _recorded_vehicle(path: Path, replay: Any) -> str | None:
     return None
 
 
-def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
+def _vehicle(path: Path, replay: ReplayResult | None, rule: str | None) -> tuple[str, str]:
     from ..io.history import vehicle_from_rule
 
     if rule:
@@ -153,7 +154,7 @@ def _vehicle(path: Path, replay: Any, rule: str | None) -> tuple[str, str]:
     return path.parent.name, "folder"
 
 
-def _start_ns(path: Path, replay: Any) -> int | None:
+def _start_ns(path: Path, replay: ReplayResult) -> int | None:
     """When the recording started: rosbag2's starting_time (receive clock), else the first IMU stamp."""
     if path.is_dir():
         starting = _bag_metadata(path).get("starting_time")
@@ -173,7 +174,7 @@ def _count(value: Any) -> int | None:
         return None
 
 
-def _replay(path: str, settings: Any) -> Any:
+def _replay(path: str, settings: ReplaySettings | None) -> ReplayResult:
     """Replay one recording (the same session as the node) into a ReplayResult."""
     from ..bag.replay import replay_bag
 
@@ -190,7 +191,8 @@ def _line(record: HistoryRecord, name: str) -> str:
             f"bias {bias} mg, scale {scale}")
 
 
-def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | None = None) -> RecordingOutcome:
+def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehicle_rule: str | None = None
+                        ) -> RecordingOutcome:
     """Replay one recording and describe it for the history. Runs on a worker; never raises (the reason
     of any failure is the outcome's, one line), so one bad recording cannot stop a fleet."""
     from ..io.history import HistoryRecord, recording_identity
@@ -198,7 +200,7 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
     started = time.perf_counter()
     where = Path(path)
 
-    def outcome(status, reason, record, summary):
+    def outcome(status: str, reason: str | None, record: HistoryRecord | None, summary: str) -> RecordingOutcome:
         return RecordingOutcome(str(path), status, reason, record, summary, _peak_rss_mb(),
                                 time.perf_counter() - started)
 
@@ -206,9 +208,10 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
         recording_id, size = recording_identity(where)
     except AccelCalibrationError as error:
         return outcome("failed", str(error), None, f"failed     {path}: {error}")
-    identity = {"recording_id": recording_id, "path": str(where), "size_bytes": size,
+    identity: dict[str, Any] = {"recording_id": recording_id, "path": str(where), "size_bytes": size,
                 "package_version": _package_version()}
     replay = None
+    reason: str | None
     try:
         replay = _replay(path, settings)
     except AccelCalibrationError as error:
@@ -267,7 +270,7 @@ def calibrate_recording(path: str, settings: Any = None, vehicle_rule: str | Non
 
 # --- the command -----------------------------------------------------------------------------------------
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "fleet", help="recalibrate many recordings on a Dask cluster into the calibration history",
         description="Replay every recording (rosbag2 directories; .mcap, .db3, .ulg, .csv files; directories "

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ..core.units import MG
 from .fleet import DEFAULT_HISTORY
@@ -35,7 +36,7 @@ def add_drift_options(parser: argparse.ArgumentParser) -> None:
                              f"(default {defaults.max_scale_change:g})")
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "history", help="bias and scale of each sensor over time, and where they moved",
         description="Per sensor, the calibrations of the history database in time order (bias and scale with "
@@ -80,7 +81,8 @@ def _date(record: HistoryRecord) -> str:
     return record.start.strftime("%Y-%m-%d %H:%M") if record.start is not None else "-"
 
 
-def _pm(values, sigmas, scale: float, digits: int, width: int) -> str:
+def _pm(values: Sequence[float] | None, sigmas: Sequence[float] | None, scale: float, digits: int, width: int) -> str:
+    assert values is not None, "sensor_series keeps only calibrated rows, which have a bias and a matrix"
     out = []
     for i, v in enumerate(values):
         s = "" if sigmas is None else f"±{sigmas[i] * scale:.{digits}f}"

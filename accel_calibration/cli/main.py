@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Sequence
+from typing import NoReturn
 
 from ..bag.bag_io import missing_module
 from ..core.errors import AccelCalibrationError, CalibrationError
@@ -33,7 +35,7 @@ COMMANDS = {"fit": fit_command, "replay": replay_command, "report": report_comma
 
 
 class _OneLineParser(argparse.ArgumentParser):
-    def error(self, message):
+    def error(self, message: str) -> NoReturn:
         raise CalibrationError(f"{message} (see '{self.prog} --help')")
 
 
@@ -45,18 +47,19 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_finite(args) -> None:
+def _check_finite(args: argparse.Namespace) -> None:
     """argparse's float() takes 'nan', 'inf' and '1e999': no number option may be one."""
     for name, value in vars(args).items():
         if isinstance(value, float) and not math.isfinite(value):
             raise CalibrationError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = _parser().parse_args(argv)
         _check_finite(args)
-        return COMMANDS[args.command].run(args)
+        status: int = COMMANDS[args.command].run(args)
+        return status
     except AccelCalibrationError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1

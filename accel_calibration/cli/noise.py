@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,7 +23,7 @@ DENSITY_UNITS = {"accelerometer": "m/s^2/sqrt(Hz)", "gyroscope": "rad/s/sqrt(Hz)
 WALK_UNITS = {"accelerometer": "m/s^3/sqrt(Hz)", "gyroscope": "rad/s^2/sqrt(Hz)"}
 
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "noise", help="noise density, random walk and bias instability from a still recording (Allan deviation)",
         description="Overlapping Allan deviation per axis of the longest still stretch of the recording; white "
@@ -83,7 +83,8 @@ def sample_rate_hz(t_ns: np.ndarray) -> float:
     if len(steps) < 2 or np.any(steps <= 0):
         raise CalibrationError("stamps must increase: Allan deviation needs samples in time order")
     median = float(np.median(steps))
-    gaps = int(np.count_nonzero(steps > 2.5 * median))
+    # np.greater, not `>`: numpy's stubs type np.diff of int64 stamps as timedelta64, which `>` a float refuses
+    gaps = int(np.count_nonzero(np.greater(steps, 2.5 * median)))
     if gaps > max(1, len(steps) // 1000):
         raise CalibrationError(f"{gaps} gaps of more than 2.5 sample periods in the still stretch: Allan deviation "
                                "needs an unbroken stream")

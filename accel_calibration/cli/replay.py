@@ -7,8 +7,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,8 +20,15 @@ from .dask_cluster import map_on_local_cluster
 from .options import PROG, add_settings_options, replay_settings
 from .report import render_report
 
+if TYPE_CHECKING:
+    from ..bag.replay import ReplayResult, ReplaySettings
+    from ..core.calibration import Calibration
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+# What replay_one gives: (summary text, calibration, error), each None where there is none.
+Outcome = tuple["str | None", "Calibration | None", "str | None"]
+
+
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "replay", help="recalibrate from recordings: rosbag2 (directory, .mcap or .db3 file), PX4 ULog, ArduPilot "
                        "DataFlash .bin, CSV stream")
@@ -58,7 +66,8 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
     return parser
 
 
-def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out=None):
+def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected_bag: str | None, report: str | None,
+               progress: bool, poses_out: str | None = None) -> Outcome:
     """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
     The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
     All the work (the replay, the calibration's file text, the corrected copy written aside, the report
@@ -71,7 +80,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
 
     try:
         replay = replay_bag(bag, settings, progress=progress)
-        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else None
+        poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else ""
         if replay.calibration is None and poses_out:
             write_text_atomically(poses_out, poses_text)
     except AccelCalibrationError as error:
@@ -81,6 +90,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
         return ("\n".join(notes) or None), None, f"{bag}: {replay.problem}" + (
             f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
+    assert replay.result is not None, "a calibration comes with its fit"
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
@@ -93,12 +103,12 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     copy = None
     try:
-        calibration_text = checked_calibration_text(calibration, output) if output else None
+        calibration_text = checked_calibration_text(calibration, output) if output else ""
         if corrected_bag:
             copy = stage_corrected_copy(replay, calibration, corrected_bag)
         figure = (render_report(calibration, [p.accel_mps2 for p in replay.poses],
                                  [p.temperature_degc for p in replay.poses], title=Path(bag).name, gyro=replay.gyro)
-                  if report else None)
+                  if report else b"")
         # All the work succeeded: now the outputs, the one that can still be taken by another run first.
         if copy is not None:
             copy.commit()
@@ -121,7 +131,7 @@ def replay_one(bag, settings, output, corrected_bag, report, progress, poses_out
     return "\n".join(lines), calibration, None
 
 
-def check_corrected_targets(jobs) -> None:
+def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
     """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
     is written over a directory."""
     for job in jobs:
@@ -134,7 +144,7 @@ def check_corrected_targets(jobs) -> None:
                                       else "and is a directory; give a file name"))
 
 
-def flight_and_autopilot_lines(replay) -> list[str]:
+def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
     lines = []
     if replay.flight_state_line:
@@ -147,7 +157,7 @@ def flight_and_autopilot_lines(replay) -> list[str]:
     return lines
 
 
-def bag_labels(bags) -> list[str]:
+def bag_labels(bags: Sequence[str]) -> list[str]:
     """A distinct name per bag for its outputs and its row: the bag's own name, or, where two bags share
     it (a/flight, b/flight), as many parent directories as tell them apart (a_flight, b_flight)."""
     parts = [Path(os.path.realpath(bag)).parts[::-1] for bag in bags]
@@ -178,13 +188,14 @@ def run(args: argparse.Namespace) -> int:
         first_seen[real] = bag
     labels = bag_labels(args.bags) if several else [Path(bag).name for bag in args.bags]
 
-    def target(option, label, suffix):
+    def target(option: str | None, label: str, suffix: str) -> str | None:
         if option is None:
             return None
         if not several:
             return option
         return str(Path(option) / (label + suffix))
 
+    jobs: list[tuple[Any, ...]]  # replay_one's arguments, as map_on_local_cluster takes them
     jobs = [(bag, settings, target(args.output, label, ".yaml"), target(args.corrected_bag, label, ""),
              target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
             for bag, label in zip(args.bags, labels)]
@@ -217,12 +228,12 @@ def run(args: argparse.Namespace) -> int:
             print(summary)
     if several:
         print(comparison_table(labels, outcomes))
-    for error in errors:
-        print(f"{PROG}: error: {error}", file=sys.stderr)
+    for message in errors:
+        print(f"{PROG}: error: {message}", file=sys.stderr)
     return 1 if errors else 0
 
 
-def comparison_table(bags, outcomes) -> str:
+def comparison_table(bags: Sequence[str], outcomes: Sequence[Outcome]) -> str:
     """How the calibration wanders from bag to bag: bias (mg) and scale (diag M) per bag, then the spread."""
     rows = ["", f"{'bag':32s} {'poses':>5s} {'rms mg':>7s} {'b_x mg':>8s} {'b_y mg':>8s} {'b_z mg':>8s} "
                 f"{'M_xx':>9s} {'M_yy':>9s} {'M_zz':>9s}"]
@@ -232,6 +243,7 @@ def comparison_table(bags, outcomes) -> str:
         if calibration is None:
             rows.append(f"{name:32s} {'-':>5s}  no calibration: {error.rsplit(': ', 1)[-1][:60] if error else ''}")
             continue
+        assert calibration.quality is not None, "a fitted calibration has its quality"
         b = calibration.bias / MG
         m = np.diag(calibration.matrix)
         biases.append(b)
@@ -245,7 +257,7 @@ def comparison_table(bags, outcomes) -> str:
     return "\n".join(rows)
 
 
-def gyro_lines(replay) -> list[str]:
+def gyro_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the gyro: its calibration from the motions, or why it keeps its bias only."""
     gyro, calibration = replay.gyro, replay.calibration
     if gyro is None:

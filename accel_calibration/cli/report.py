@@ -3,15 +3,23 @@ the calibration history (`--history`, cli/history.py)."""
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ..core.errors import CalibrationError
 from . import history as history_command
 from .options import UNIT_SCALE, calibration_in_force
 
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
 
-def add_parser(commands: Any) -> argparse.ArgumentParser:
+    from ..core.calibration import Calibration
+    from ..core.gyro_fit import GyroFitResult
+
+
+def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser("report", help="a figure of a calibration against its poses")
     parser.add_argument("calibration", nargs="?", help="calibration YAML (not with --history)")
     source = parser.add_mutually_exclusive_group(required=True)
@@ -25,7 +33,8 @@ def add_parser(commands: Any) -> argparse.ArgumentParser:
     return parser
 
 
-def render_report(calibration, accel, temperatures, title: str, gyro=None) -> bytes:
+def render_report(calibration: Calibration, accel: npt.ArrayLike, temperatures: Sequence[float | None] | None,
+                  title: str, gyro: GyroFitResult | None = None) -> bytes:
     """The report figure's PNG bytes, rendered aside (written later like every output)."""
     import tempfile
 
@@ -37,7 +46,8 @@ def render_report(calibration, accel, temperatures, title: str, gyro=None) -> by
         return rendered.read_bytes()
 
 
-def write_report(calibration, accel, temperatures, output, title: str, gyro=None) -> None:
+def write_report(calibration: Calibration, accel: npt.ArrayLike, temperatures: Sequence[float | None] | None,
+                 output: str, title: str, gyro: GyroFitResult | None = None) -> None:
     """The report figure, rendered aside and then written like every output (whole, through symlinks,
     keeping the old file's mode)."""
     from ..io.output_paths import write_bytes_atomically
@@ -56,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError("report needs a calibration YAML (or --history DB)")
     check_outputs([("--output", args.output)], [args.calibration, args.bag, args.poses])
     calibration = calibration_in_force(args.calibration)
+    accel: list[np.ndarray] | np.ndarray
+    temps: list[float | None] | None
     if args.bag:
         from ..bag.replay import ReplayError, replay_bag
 

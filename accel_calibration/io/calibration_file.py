@@ -25,7 +25,7 @@ import math
 import os
 import stat
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import yaml
@@ -49,7 +49,7 @@ MAX_NUMBER = 1e12  # beyond any bias or gain, raw counts included: a corrupt or 
 MAX_POSES = 10**9
 
 
-def _first_absurd_number(value, where: str = "") -> str | None:
+def _first_absurd_number(value: object, where: str = "") -> str | None:
     """What is wrong with the first number too large for any calibration ("bias holds 1e+200, ..."),
     walking lists and mappings; also catches integers too large to become floats at all."""
     if isinstance(value, bool):
@@ -77,7 +77,7 @@ def _first_absurd_number(value, where: str = "") -> str | None:
     return None
 
 
-def calibration_to_dict(calibration: Calibration) -> dict:
+def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     c = calibration
     body = {
         "format_version": FORMAT_VERSION,
@@ -138,14 +138,14 @@ def calibration_to_dict(calibration: Calibration) -> dict:
     return {ROOT_KEY: body}
 
 
-def _dividing_head_block(terms: DividingHeadTerms) -> dict:
-    block: dict = {name: list(getattr(terms, name)) for name in (*DividingHeadTerms.VALUES, "tilt_deg")}
+def _dividing_head_block(terms: DividingHeadTerms) -> dict[str, Any]:
+    block: dict[str, Any] = {name: list(getattr(terms, name)) for name in (*DividingHeadTerms.VALUES, "tilt_deg")}
     block["sigma"] = {name: list(values) for name, values in terms.sigma.items()}
     block["residual_sigma_mg"] = terms.residual_sigma_mg
     return block
 
 
-def _dividing_head_terms(block) -> DividingHeadTerms:
+def _dividing_head_terms(block: object) -> DividingHeadTerms:
     """The `dividing_head:` block read back (DividingHeadTerms checks lengths, finiteness and signs)."""
     if not isinstance(block, dict):
         raise CalibrationFileError("dividing_head must be a mapping")
@@ -179,7 +179,7 @@ OLD_SEGMENTED = ("holds the segmented temperature model of before issue 11 (segm
                  "accel-calib fit --temperature-model segmented")
 
 
-def _check_segment_block(block: dict) -> None:
+def _check_segment_block(block: dict[str, Any]) -> None:
     """Refuse the segmented block of the earlier format, and units other than this reader's."""
     if block.get("model") != "segmented":
         return
@@ -192,16 +192,16 @@ def _check_segment_block(block: dict) -> None:
 
 
 def calibration_to_yaml(calibration: Calibration) -> str:
-    return yaml.safe_dump(calibration_to_dict(calibration), sort_keys=False, default_flow_style=None)
+    return str(yaml.safe_dump(calibration_to_dict(calibration), sort_keys=False, default_flow_style=None))
 
 
-def _number(value, name) -> float:
+def _number(value: object, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise CalibrationFileError(f"{name} must be a finite number, got {value!r:.60}")
     return float(value)
 
 
-def _list(value, name: str) -> list:
+def _list(value: object, name: str) -> list[Any]:
     if value is None:
         return []
     if not isinstance(value, list):
@@ -209,7 +209,7 @@ def _list(value, name: str) -> list:
     return value
 
 
-def _require_numbers(value, name: str, source: str) -> None:
+def _require_numbers(value: object, name: str, source: str) -> None:
     """Leaves of a numeric field are numbers: numpy would turn text such as '1e200' or 'inf' (YAML 1.1
     reads 1e200 without a dot as text) or true into a float, and the file would say what it does not."""
     if value is None:
@@ -224,7 +224,7 @@ def _require_numbers(value, name: str, source: str) -> None:
             raise CalibrationFileError(f"{source}: {name} must be numbers, got {item!r:.40}{hint}")
 
 
-def calibration_from_dict(document, source: str = "calibration") -> Calibration:
+def calibration_from_dict(document: object, source: str = "calibration") -> Calibration:
     """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
     if not isinstance(document, dict) or ROOT_KEY not in document:
         raise CalibrationFileError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
@@ -248,9 +248,10 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
     if absurd is not None:
         raise CalibrationFileError(f"{source}: {absurd}")
     blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality")}
-    uncertainty_block: dict = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
-    temperature_block: dict = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
-    gyro_quality_block: dict = blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict) else {}
+    uncertainty_block: dict[str, Any] = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
+    temperature_block: dict[str, Any] = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
+    gyro_quality_block: dict[str, Any] = (blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict)
+                                          else {})
     for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps",
                                                           "gyro_matrix")] + [
             (f"gyro_quality.{key}", gyro_quality_block.get(key)) for key in (
@@ -334,7 +335,7 @@ def calibration_from_dict(document, source: str = "calibration") -> Calibration:
         raise CalibrationFileError(f"{source}: {error}") from None
 
 
-def _gyro_quality(block) -> GyroQuality | None:
+def _gyro_quality(block: object) -> GyroQuality | None:
     """The gyro_quality block (its numbers already checked to be numbers), or None when absent."""
     if block is None:
         return None
@@ -352,14 +353,14 @@ def _gyro_quality(block) -> GyroQuality | None:
                        motions=motions, bias_sigma_radps=block.get("bias_sigma_radps"))
 
 
-class _SafeLoader(yaml.SafeLoader):
+class _SafeLoader(yaml.SafeLoader):  # type: ignore[misc]  # yaml is untyped here (types-PyYAML not installed)
     """SafeLoader that refuses aliases (an alias bomb expands in whatever walks the result, not in the
     parser) and nesting beyond MAX_YAML_DEPTH (the composer recurses: deep input would exhaust the
     stack). Both are refused as soon as the parser reaches them, before the document is built."""
 
     depth = 0
 
-    def compose_node(self, parent, index):  # type: ignore[no-untyped-def]
+    def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
             event = self.peek_event()
             raise yaml.composer.ComposerError(None, None, "aliases (*name) are not accepted here",
@@ -374,7 +375,7 @@ class _SafeLoader(yaml.SafeLoader):
             self.depth -= 1
 
 
-def safe_yaml_load(text: str, source: str, error=None):
+def safe_yaml_load(text: str, source: str, error: type[Exception] | None = None) -> Any:
     """Parse untrusted YAML: no aliases, bounded depth, safe types only. Every failure is one
     `error` (CalibrationFileError by default) naming `source`."""
     error = error or CalibrationFileError
@@ -402,7 +403,8 @@ def calibration_from_yaml(text: str, source: str = "calibration") -> Calibration
     return calibration_from_dict(document, source)
 
 
-def read_regular_file(path, max_bytes: int, what: str, error=None) -> bytes:
+def read_regular_file(path: str | os.PathLike[str], max_bytes: int, what: str,
+                      error: type[Exception] | None = None) -> bytes:
     """The bytes of a regular file of at most `max_bytes`, or one `error` naming the path. A FIFO, device,
     socket or directory is refused from its stat, before it is opened (opening a FIFO blocks until a
     writer comes); the open itself is non-blocking and the type checked again on the open file."""
@@ -437,7 +439,7 @@ def read_regular_file(path, max_bytes: int, what: str, error=None) -> bytes:
     return b"".join(chunks)
 
 
-def _require_regular(info: os.stat_result, path: Path, what: str, max_bytes: int, error) -> None:
+def _require_regular(info: os.stat_result, path: Path, what: str, max_bytes: int, error: type[Exception]) -> None:
     mode = info.st_mode
     if stat.S_ISDIR(mode):
         raise error(f"{path}: is a directory, expected a {what}")
@@ -449,7 +451,7 @@ def _require_regular(info: os.stat_result, path: Path, what: str, max_bytes: int
         raise error(f"{path}: larger than {max_bytes // 1024} KiB, too large for a {what}")
 
 
-def load_calibration(path) -> Calibration:
+def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     raw = read_regular_file(path, MAX_CALIBRATION_BYTES, "calibration file")
     try:
         text = raw.decode("utf-8")
@@ -458,7 +460,7 @@ def load_calibration(path) -> Calibration:
     return calibration_from_yaml(text, str(path))
 
 
-def write_text_atomically(path, text: str) -> None:
+def write_text_atomically(path: str | os.PathLike[str], text: str) -> None:
     """Write next to the target and rename over it, so a reader (or a crash) never sees half a file
     and the old file stays whole when the write fails (see io/output_paths.py: symlinks are written
     through, the old file's mode kept). A temp file left by a killed process is removed by
@@ -466,7 +468,7 @@ def write_text_atomically(path, text: str) -> None:
     write_bytes_atomically(path, text.encode("utf-8"))
 
 
-def remove_stale_temp_files(path) -> int:
+def remove_stale_temp_files(path: str | os.PathLike[str]) -> int:
     """Remove temp files a killed writer left beside `path` (ours only: `.<name>.*.tmp`); returns how many."""
     removed = 0
     for candidate in stale_temp_files(path):
@@ -478,7 +480,7 @@ def remove_stale_temp_files(path) -> int:
     return removed
 
 
-def checked_calibration_text(calibration: Calibration, path) -> str:
+def checked_calibration_text(calibration: Calibration, path: str | os.PathLike[str]) -> str:
     """The file text of `calibration`, checked the way load_calibration will check it (size, then the
     whole parse), so that no file is put in place that its reader (the node at its next start) refuses."""
     text = calibration_to_yaml(calibration)
@@ -493,6 +495,6 @@ def checked_calibration_text(calibration: Calibration, path) -> str:
     return text
 
 
-def save_calibration(calibration: Calibration, path) -> None:
+def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> None:
     """Write `calibration` whole (temp file + rename), only once its text loads back (checked_calibration_text)."""
     write_text_atomically(path, checked_calibration_text(calibration, path))

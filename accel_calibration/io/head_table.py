@@ -4,6 +4,7 @@ and α = 45·(j − 1) degrees. Every problem is one CalibrationError naming the
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass
 
@@ -26,7 +27,7 @@ class HeadTable:
     accel: np.ndarray  # (N, 3) in the file's units
 
 
-def read_head_table(path) -> HeadTable:
+def read_head_table(path: str | os.PathLike[str]) -> HeadTable:
     table = read_table(path)
     header = table.header
     has_angles = [name in header for name in ANGLE_COLUMNS]

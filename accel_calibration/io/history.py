@@ -183,7 +183,7 @@ def _tables() -> tuple[Any, Any, Any]:
     from sqlalchemy import JSON, BigInteger, Column, Float, Integer, MetaData, String, Table, Text
 
     short, text, real, whole = String(200), Text, Float, Integer
-    kinds = {"recording_id": String(64), "path": text, "size_bytes": BigInteger, "vehicle": short,
+    kinds: dict[str, Any] = {"recording_id": String(64), "path": text, "size_bytes": BigInteger, "vehicle": short,
              "vehicle_source": String(16), "sensor": short, "status": String(16), "reason": text,
              "imu_topic": text, "frame_id": text, "start_ns": BigInteger, "duration_s": real,
              "messages": BigInteger,  # 2^31 messages are 25 days at 1 kHz; PostgreSQL's INTEGER is 32 bits
@@ -384,11 +384,13 @@ class History:
     def _upsert(connection: Any, table: Any, rows: list[dict[str, Any]], key: str, update: bool = True) -> None:
         name = connection.dialect.name
         if name in ("sqlite", "postgresql"):
+            statement: Any  # the two dialects' Insert classes share on_conflict_do_update/nothing, not a base
             if name == "sqlite":
-                from sqlalchemy.dialects.sqlite import insert
+                from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+                statement = sqlite_insert(table)
             else:
-                from sqlalchemy.dialects.postgresql import insert
-            statement = insert(table)
+                from sqlalchemy.dialects.postgresql import insert as postgresql_insert
+                statement = postgresql_insert(table)
             if update:
                 statement = statement.on_conflict_do_update(
                     index_elements=[table.c[key]],

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 
 import numpy as np
 
@@ -16,7 +17,12 @@ from .output_paths import write_bytes_atomically
 COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
-def write_history_figure(records: list[HistoryRecord], flags: list[DriftFlag], path) -> None:
+def _known(values: tuple[float, float, float] | None) -> tuple[float, float, float]:
+    assert values is not None, "sensor_series keeps only calibrated rows, which have a bias and a matrix"
+    return values
+
+
+def write_history_figure(records: list[HistoryRecord], flags: list[DriftFlag], path: str | os.PathLike[str]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -35,10 +41,10 @@ def write_history_figure(records: list[HistoryRecord], flags: list[DriftFlag], p
         x = np.array(when) if all(not np.isnat(w) for w in when) else np.arange(len(rows))
         scale_axis = panel.twinx()
         for k, axis in enumerate(AXES):
-            bias = np.array([r.bias[k] for r in rows]) / MG
+            bias = np.array([_known(r.bias)[k] for r in rows]) / MG
             bias_sigma = np.array([r.bias_sigma[k] if r.bias_sigma else math.nan for r in rows]) / MG
             panel.errorbar(x, bias, yerr=bias_sigma, fmt="o-", color=COLOURS[k], capsize=3, label=f"b_{axis}")
-            scale = (np.array([r.scale[k] for r in rows]) - 1.0) * 1e6
+            scale = (np.array([_known(r.scale)[k] for r in rows]) - 1.0) * 1e6
             scale_sigma = np.array([r.scale_sigma[k] if r.scale_sigma else math.nan for r in rows]) * 1e6
             scale_axis.errorbar(x, scale, yerr=scale_sigma, fmt="s--", color=COLOURS[k], alpha=0.45, capsize=2,
                                 markersize=4, label=f"M_{axis}{axis} - 1")

@@ -23,13 +23,13 @@ def temp_prefix(path: Path) -> str:
     return f".{path.name}."
 
 
-def write_target(path) -> Path:
+def write_target(path: str | os.PathLike[str]) -> Path:
     """The file a write to `path` lands in: symlinks followed to their final target (a dangling link
     gives the file it names), so a symlinked output is replaced at its target, the link kept."""
     return Path(os.path.realpath(path))
 
 
-def _stat(path) -> os.stat_result | None:
+def _stat(path: str | os.PathLike[str]) -> os.stat_result | None:
     try:
         return os.stat(path)
     except (FileNotFoundError, NotADirectoryError):
@@ -42,7 +42,8 @@ def _inside(child: Path, parent: Path) -> bool:
     return child == parent or parent in child.parents
 
 
-def check_outputs(outputs: Sequence[tuple[str, object | None]], inputs: Iterable[object | None],
+def check_outputs(outputs: Sequence[tuple[str, str | os.PathLike[str] | None]],
+                  inputs: Iterable[str | os.PathLike[str] | None],
                   directories: Iterable[str] = ()) -> None:
     """Refuse, before any work, outputs that are an input (same (st_dev, st_ino), through symlinks and
     hard links too), lie inside an input directory (a bag), repeat each other, or exist but are not
@@ -78,7 +79,7 @@ def check_outputs(outputs: Sequence[tuple[str, object | None]], inputs: Iterable
         seen[target] = f"{label} {output}"
 
 
-def check_output_places(outputs: Sequence[tuple[str, object | None]]) -> None:
+def check_output_places(outputs: Sequence[tuple[str, str | os.PathLike[str] | None]]) -> None:
     """Refuse, before any work, outputs whose directory does not exist (or is not a directory): each
     (label as the user typed it, path)."""
     for label, output in outputs:
@@ -101,7 +102,7 @@ def _umask() -> int:
     return 0o022
 
 
-def write_bytes_atomically(path, data: bytes) -> None:
+def write_bytes_atomically(path: str | os.PathLike[str], data: bytes) -> None:
     """Write beside the real target and rename over it, so a reader (or a crash) never sees half a file
     and the old file stays whole when the write fails. A symlink is written through to its target (the
     link stays a link); the replaced file's permissions (and, where allowed, owner) are kept; a new
@@ -153,7 +154,7 @@ def _fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def stale_temp_files(path) -> list[Path]:
+def stale_temp_files(path: str | os.PathLike[str]) -> list[Path]:
     """Temp files a killed writer left beside `path` or beside its symlink target."""
     path = Path(path)
     places = {path, write_target(path)}

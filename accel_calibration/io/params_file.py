@@ -15,6 +15,7 @@ the place of the first). Each block holds `ros__parameters:`; nested mappings be
 """
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -28,7 +29,8 @@ DEFAULT_NODE = "/accel_calibration"
 _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*|\*|\*\*")
 
 
-def read_params_file(path, what: str = "--params-file", error: type[Exception] = SettingsError) -> Any:
+def read_params_file(path: str | os.PathLike[str], what: str = "--params-file",
+                     error: type[Exception] = SettingsError) -> Any:
     """The parsed YAML document of a parameters file, or one `error` line naming it (see the module)."""
     raw = read_regular_file(path, MAX_PARAMS_FILE_BYTES, f"{what} (a ROS 2 parameters YAML)", error=error)
     try:
@@ -93,7 +95,7 @@ def node_parameters(document: Any, node_fqn: str = DEFAULT_NODE, source: str = "
     return values
 
 
-def params_file_parameters(path, node_fqn: str = DEFAULT_NODE, what: str = "--params-file",
+def params_file_parameters(path: str | os.PathLike[str], node_fqn: str = DEFAULT_NODE, what: str = "--params-file",
                            error: type[Exception] = SettingsError) -> dict[str, Any]:
     """read_params_file, then node_parameters: what a parameters file gives the node `node_fqn`."""
     document = read_params_file(path, what, error)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +39,7 @@ class Table:
     pose_sigma_mps2: np.ndarray | None = None  # from sigma_mg: the pose means' own noise, m/s^2
 
 
-def read_text(path) -> str:
+def read_text(path: str | os.PathLike[str]) -> str:
     path = Path(path)
     data = read_regular_file(path, MAX_TABLE_BYTES, "CSV file", error=CalibrationError)
     if b"\x00" in data:
@@ -49,7 +50,8 @@ def read_text(path) -> str:
         raise CalibrationError(f"{path}: not UTF-8 text, expected a CSV file") from None
 
 
-def _numbers(rows, header, names, path, limits=(-MAX_ACCEL, MAX_ACCEL)) -> np.ndarray:
+def _numbers(rows: list[list[str]], header: list[str], names: tuple[str, ...], path: str | os.PathLike[str],
+             limits: tuple[float, float] = (-MAX_ACCEL, MAX_ACCEL)) -> np.ndarray:
     indices = [header.index(name) for name in names]
     low, high = limits
     values = np.empty((len(rows), len(names)))
@@ -71,7 +73,7 @@ def _numbers(rows, header, names, path, limits=(-MAX_ACCEL, MAX_ACCEL)) -> np.nd
     return values
 
 
-def read_table(path) -> Table:
+def read_table(path: str | os.PathLike[str]) -> Table:
     text = read_text(path)
     try:
         records = [row for row in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in row)]

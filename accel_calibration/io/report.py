@@ -4,10 +4,13 @@ calibration has a temperature model; with a gyro fit, a row of its per-motion re
 alone) and after (M_g). matplotlib with the Agg backend: no display needed."""
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
@@ -17,8 +20,8 @@ if TYPE_CHECKING:
     from ..core.gyro_fit import GyroFitResult
 
 
-def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, title: str = "",
-                 gyro: GyroFitResult | None = None) -> None:
+def write_report(calibration: Calibration, accel_mps2: npt.ArrayLike, temperature_degc: Sequence[float | None] | None,
+                 path: str | os.PathLike[str], title: str = "", gyro: GyroFitResult | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -104,7 +107,7 @@ def write_report(calibration: Calibration, accel_mps2, temperature_degc, path, t
         plt.close(figure)
 
 
-def _gyro_row(figure, gyro: GyroFitResult, rows: int) -> None:
+def _gyro_row(figure: Any, gyro: GyroFitResult, rows: int) -> None:  # a matplotlib Figure (untyped here)
     """Per motion used: by how much it misses the next pose with the gyro bias alone and with M_g."""
     panel = figure.add_subplot(rows, 1, rows)
     index = np.array(gyro.used) + 1

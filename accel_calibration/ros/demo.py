@@ -47,7 +47,7 @@ def main() -> int:
             print(f"node up; playing {len(imu.rotations)} poses ({imu.duration_s:.0f} s of session at {SPEED:g}x)...")
             shown = [0]
 
-            def show_progress():
+            def show_progress() -> None:
                 if client.diagnostics and len(client.diagnostics) > shown[0]:
                     shown[0] = len(client.diagnostics)
                     d = client.diagnostics[-1]
