@@ -22,6 +22,7 @@ from typing import Any, TypedDict, overload
 
 import numpy as np
 
+from ..core.errors import AccelCalibrationError
 from .progress import ProgressBar
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -47,7 +48,7 @@ def _decompressor(name: str) -> Callable[[_Buffer, int], _Buffer] | None:
     if name == "":
         def plain(data: _Buffer, size: int) -> _Buffer:
             if len(data) != size:
-                raise _ChunkError(f"chunk holds {len(data)} bytes, declares {size}")
+                raise _ChunkError(f"a chunk holds {len(data)} bytes, not its declared size {size}")
             return data
         return plain
     if name == "zstd":
@@ -70,13 +71,15 @@ def _decompressor(name: str) -> Callable[[_Buffer, int], _Buffer] | None:
 
 def _bounded(decompressor: Any, data: _Buffer, size: int) -> bytes:
     if size > MAX_CHUNK_BYTES:
-        raise _ChunkError(f"chunk declares {size} bytes")
+        raise _ChunkError(f"a chunk declares an impossible size, {size} bytes")
     try:
         raw: bytes = decompressor.decompress(bytes(data), max_length=size + 1)
     except Exception as error:  # noqa: BLE001 - zstd and lz4 raise their own types for damaged data
         raise _ChunkError(str(error)) from None
-    if len(raw) != size:
-        raise _ChunkError(f"chunk decompresses to {len(raw)}+ bytes, declares {size}")
+    if len(raw) > size:
+        raise _ChunkError(f"a chunk decompresses to {len(raw)}+ bytes, past its declared size {size}")
+    if len(raw) < size:
+        raise _ChunkError(f"a chunk decompresses to {len(raw)} bytes, short of its declared size {size}")
     return raw
 
 
@@ -132,6 +135,10 @@ def scan_topics(path: str | os.PathLike[str], topics: Iterable[str], progress: P
     except NotStreamable:
         return None
     return {topic: PackedMessages(out[topic], times[topic]) for topic in wanted}
+
+
+class DamagedChunk(AccelCalibrationError):
+    """A chunk that does not decompress to its declared size: the file is damaged."""
 
 
 class NotStreamable(Exception):
@@ -225,7 +232,11 @@ def _chunk_runs(path: str | os.PathLike[str], wanted: set[str], progress: Progre
                     schemas.update(_recorded(channels, meta))
                 if group_messages is None or any(out[topic] for topic in wanted):
                     yield out, times
-    except (struct.error, IndexError, ValueError, OSError, _ChunkError) as error:
+    except _ChunkError as error:
+        # Damage, not a layout to read otherwise: never handed to another reader (rosbags' decompresses a
+        # chunk whole, whatever it declares).
+        raise DamagedChunk(f"{Path(path).name}: {error}") from None
+    except (struct.error, IndexError, ValueError, OSError) as error:
         raise NotStreamable(str(error)) from None
 
 

@@ -135,7 +135,7 @@ def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = N
     through the session. A bag whose storage can be read directly is streamed (memory bounded by a part,
     whatever its length), the rest read whole. `through_rosbags`: read a bag whole with rosbags' reader,
     message by message (what the direct reads are checked against)."""
-    from .mcap_scan import NotStreamable
+    from .mcap_scan import DamagedChunk, NotStreamable
     from .recording import open_recording, stream_bag
 
     s = settings or ReplaySettings()
@@ -151,6 +151,8 @@ def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = N
         recording = open_recording(path, progress=progress, through_rosbags=through_rosbags, **s.reader_options())
     except BagError as error:
         raise ReplayError(str(error)) from None
+    except DamagedChunk as error:
+        raise ReplayError(f"{path}: damaged mcap file {error}") from None
     except ModuleNotFoundError as error:  # an install without a reader's module, not a damaged recording
         if (missing := missing_module(error, path)) is None:
             raise

@@ -286,3 +286,49 @@ def test_mutated_bags_never_traceback_and_are_never_changed(tmp_path_factory, ba
     code, err = run_main(["replay", bag, "-o", folder / "cal.yaml", "--report", folder / "r.png", *extra])
     assert_at_most_one_line(code, err)
     assert contents(bag) == before
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_a_chunk_that_decompresses_past_its_declared_size_is_never_handed_to_another_reader(tmp_path, capsys,
+                                                                                            compression):
+    """Found by the docs audit: our mcap reader stops at a chunk's declared size, but then fell back to
+    rosbags' reader, which decompresses the chunk whole before it refuses it: a chunk declaring 1 KB that
+    inflates to gigabytes would be inflated. The damage is said by our reader, at the declared size."""
+    import struct
+
+    import rosbags.rosbag2
+
+    from accel_calibration.cli.main import main
+
+    samples = SyntheticImu(SensorErrors(noise_mps2=0.02), spread_orientations(6, np.random.default_rng(5)),
+                           dwell_s=1.0, move_s=0.5, rate_hz=100.0, seed=5).samples()
+    bag = tmp_path / "bag"
+    write_session_bag(bag, samples, start_ns=START_NS, storage="mcap", chunk_compression=compression)
+    (mcap,) = bag.glob("*.mcap")
+    data = bytearray(mcap.read_bytes())
+    offset = 8
+    while offset < len(data) - 8:  # the first chunk's uncompressed size, halved (its crc zeroed: unchecked)
+        opcode, length = data[offset], struct.unpack_from("<Q", data, offset + 1)[0]
+        if opcode == 0x06:
+            (size,) = struct.unpack_from("<Q", data, offset + 9 + 16)
+            struct.pack_into("<QI", data, offset + 9 + 16, size // 2, 0)
+            break
+        offset += 9 + length
+    mcap.write_bytes(bytes(data))
+    opened = []
+    real_reader = rosbags.rosbag2.Reader
+
+    class Watched(real_reader):  # type: ignore[misc,valid-type]
+        def __init__(self, *args, **kwargs):
+            opened.append(args)
+            super().__init__(*args, **kwargs)
+
+    rosbags.rosbag2.Reader = Watched
+    try:
+        code = main(["replay", str(bag), "-o", str(tmp_path / "cal.yaml")])
+    finally:
+        rosbags.rosbag2.Reader = real_reader
+    err = capsys.readouterr().err
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert "decompresses to" in err and "past its declared size" in err, err
+    assert not opened and not (tmp_path / "cal.yaml").exists()
