@@ -13,6 +13,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
 QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
+# The measuring subscriber must not be where messages are lost: a deep queue (the relay and the node
+# keep their own input depths).
+MEASURE_QOS = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 
 
 def wait_for_subscribers(node, publisher, count=1, timeout=30.0):
@@ -71,7 +74,7 @@ def subscribe(seconds: float, out: str) -> None:
     def on_imu(msg):
         latencies.append(time.time_ns() - (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec))
 
-    node.create_subscription(Imu, "imu/data_calibrated", on_imu, QOS)
+    node.create_subscription(Imu, "imu/data_calibrated", on_imu, MEASURE_QOS)
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.1)
