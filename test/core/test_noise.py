@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.signal import lfilter
 
 from accel_calibration.cli.main import main
@@ -129,3 +131,22 @@ def test_the_still_stretch_joins_the_detectors_consecutive_poses_and_leaves_moti
     first, last = still_stretch(t_ns, accel, gyro)
     assert moving <= first < moving + 3 * rate  # the stillness after the turning, not before
     assert last - first > 0.97 * (samples - moving)  # one stretch, not the detector's minute-long poses
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(3, 40), st.integers(0, 10_000))
+def test_the_nonnegative_least_squares_is_scipys(rows, seed):
+    """The Allan fit's 3-column NNLS (every subset tried, numpy only) gives scipy.optimize.nnls's
+    solution: the same cost to 1e-9 relative, x >= 0."""
+    from scipy.optimize import nnls
+
+    from accel_calibration.core.allan import nonnegative_least_squares
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(rows, 3)) * rng.uniform(0.01, 100, 3)
+    b = rng.normal(size=rows) * 10 + a @ rng.normal(size=3)
+    ours = nonnegative_least_squares(a, b)
+    theirs, _ = nnls(a, b)
+    assert np.all(ours >= 0)
+    cost = lambda x: float(np.sum((a @ x - b) ** 2))  # noqa: E731
+    assert cost(ours) <= cost(theirs) * (1 + 1e-9) + 1e-12
