@@ -30,11 +30,12 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                     "noise density (-1/2 line at tau = 1 s), random walk (+1/2 line at tau = 3 s) and bias "
                     "instability (the minimum / 0.664), each with its 95 % interval.")
     parser.add_argument("recording", metavar="RECORDING",
-                        help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, an ArduPilot .bin log, or a CSV "
-                             "of raw samples")
+                        help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, an ArduPilot .bin log, "
+                             "or a CSV of raw samples")
     parser.add_argument("--format", choices=FORMATS, default=None)
     parser.add_argument("--imu-topic", default=None, help="bags: sensor_msgs/Imu topic (default: the only one)")
-    parser.add_argument("--instance", type=int, default=None, metavar="N", help="ULog: sensor_accel instance N; DataFlash: IMU instance N")
+    parser.add_argument("--instance", type=int, default=None, metavar="N",
+                        help="ULog: sensor_accel instance N; DataFlash: IMU instance N")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None, help="CSV: time column unit")
     parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None, help="CSV: units of ax,ay,az")
     parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS", help="CSV with --units counts")

@@ -33,8 +33,8 @@ from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
+from ..core.answers import calibrate_answer, face_of
 from ..core.errors import AccelCalibrationError
-from ..core.fit import FitResult
 from ..core.pose import Pose
 from ..core.session import CalibrationSession
 from ..io.calibration_file import calibration_to_yaml
@@ -245,7 +245,7 @@ class CalibrationNode(Node):
         for pose in poses:
             event = self._session.add_pose(pose)
             verb = "refined" if event.merged else "accepted"
-            log.info(f"pose {event.index + 1} {verb} ({_face_of(pose.accel_mps2)}, {pose.duration_s:.1f} s still)")
+            log.info(f"pose {event.index + 1} {verb} ({face_of(pose.accel_mps2)}, {pose.duration_s:.1f} s still)")
             log.debug(f"pose {event.index + 1}: mean {np.round(pose.accel_mps2, 5).tolist()} m/s^2 over "
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
@@ -297,7 +297,7 @@ class CalibrationNode(Node):
             self.get_logger().warning(f"{self._calibrate_service}: {saved}")
             return False, saved
         self.get_logger().info(f"{self._calibrate_service}: calibrated, {saved}")
-        return True, _summary_yaml(verdict.result, saved, verdict.gyro_refusal)
+        return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal)
 
     def _reset_job(self) -> tuple[bool, str]:
         self._feed()
@@ -384,49 +384,6 @@ class CalibrationNode(Node):
         """Let a fit or save in flight finish (the file is then the old or the new one, whole); requests
         still queued are answered 'not done'."""
         self._worker.shutdown(wait=True, cancel_futures=True)
-
-
-def _face_of(accel: np.ndarray) -> str:
-    axis = int(np.argmax(np.abs(accel)))
-    return f"{'xyz'[axis]} {'up' if accel[axis] > 0 else 'down'}"
-
-
-def _summary_yaml(result: FitResult, saved_message: str, gyro_refusal: str | None = None) -> str:
-    c = result.calibration
-    if c is None or c.quality is None or result.sigma is None:
-        return f"saved: {saved_message}"
-    lines = [
-        f"model: {c.model}",
-        f"poses: {result.poses}",
-        f"residual_rms_mg: {c.quality.residual_rms_mg:.3f}",
-        f"residual_max_mg: {c.quality.residual_max_mg:.3f}",
-        "bias_mps2: [" + ", ".join(f"{v:.6f}" for v in c.bias) + "]",
-        "bias_sigma_mps2: [" + ", ".join(f"{v:.2e}" for v in result.sigma.bias) + "]",
-        "matrix: [" + ", ".join("[" + ", ".join(f"{v:.7f}" for v in row) + "]" for row in c.matrix) + "]",
-        f"frame_id: '{c.frame_id}'",
-    ]
-    if c.temperature is not None:
-        t = c.temperature
-        lines.append(f"temperature_model: {{kind: {t.kind}, reference_degc: {t.reference_degc:.2f}, "
-                     f"range_degc: [{t.range_degc[0]:.2f}, {t.range_degc[1]:.2f}]}}")
-    if result.outliers:  # poses left out of the fit, numbered from 1 as the log numbers accepted poses
-        lines.append("outliers: [" + ", ".join(
-            f"{{pose: {o.index + 1}, residual_mg: {o.residual_mg:.1f}, orientation: '{o.orientation}'}}"
-            for o in result.outliers) + "]")
-    if c.gyro_matrix is not None and c.gyro_quality is not None:
-        q = c.gyro_quality
-        lines.append(f"gyro: {{applied: true, motions: {q.motions}, residual_rms_mrad: {q.residual_rms_mrad:.3f}, "
-                     "matrix: [" + ", ".join("[" + ", ".join(f"{v:.7f}" for v in row) + "]" for row in c.gyro_matrix)
-                     + "]}")
-    elif gyro_refusal is not None:
-        lines.append(f"gyro: {{applied: false, reason: {yaml_quoted(gyro_refusal)}}}")
-    lines.append(f"saved: {saved_message}")
-    return "\n".join(lines)
-
-
-def yaml_quoted(text: str) -> str:
-    """A YAML single-quoted scalar of one line (quotes doubled)."""
-    return "'" + " ".join(text.splitlines()).replace("'", "''") + "'"
 
 
 def spin_until(node: Node, stop: threading.Event) -> None:
