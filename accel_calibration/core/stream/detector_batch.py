@@ -175,6 +175,66 @@ class BatchCarry:
     opened_window: int  # the first row of the opened row's window (where its pose may start)
     last: int
     window_from: int
+    # The rows above are views of these buffers from row `start` on, with room after them: the next part
+    # is appended in place, so a long still interval is not copied again with every part (live: 20 times
+    # a second). Never the caller's arrays.
+    store: CarryStore | None = None
+
+
+@dataclass
+class CarryStore:
+    """Growable buffers of the carried rows (stamps, accel, gyro, temperature): rows [start, used)."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray | None
+    temperature: np.ndarray | None
+    start: int
+    used: int
+
+    @classmethod
+    def holding(cls, rows: int, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
+                temps: np.ndarray | None) -> CarryStore:
+        """Buffers with room for `rows` rows, the given ones first."""
+        store = cls(np.empty(rows, np.int64), np.empty((rows, 3)), None if g is None else np.empty((rows, 3)),
+                    None if temps is None else np.empty(rows), 0, 0)
+        store.append(t, a, g, temps)
+        return store
+
+    def room(self) -> int:
+        return len(self.t) - self.used
+
+    def append(self, t: np.ndarray, a: np.ndarray, g: np.ndarray | None, temps: np.ndarray | None) -> None:
+        end = self.used + len(t)
+        self.t[self.used:end] = t
+        self.accel[self.used:end] = a
+        if self.gyro is not None and g is not None:
+            self.gyro[self.used:end] = g
+        if self.temperature is not None and temps is not None:
+            self.temperature[self.used:end] = temps
+        self.used = end
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        part = slice(self.start, self.used)
+        return (self.t[part], self.accel[part], None if self.gyro is None else self.gyro[part],
+                None if self.temperature is None else self.temperature[part])
+
+
+def _carried_and_new(carry: BatchCarry, t: np.ndarray, a: np.ndarray, g: np.ndarray | None,
+                     temps: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, CarryStore]:
+    """The carried rows followed by the new ones, as views of the carry's store (appended in place when
+    there is room, else into a store twice the size: amortised constant work per row)."""
+    store = carry.store
+    same_presence = store is not None and (store.gyro is None) == (g is None or carry.gyro is None) \
+        and (store.temperature is None) == (temps is None or carry.temperature is None)
+    if store is None or not same_presence or store.room() < len(t):
+        rows = 2 * (len(carry.t) + len(t)) + 1024
+        store = CarryStore.holding(rows, carry.t, carry.accel, None if g is None else carry.gyro,
+                                   None if temps is None else carry.temperature)
+    store.append(t, a, g, temps)
+    joined_t, joined_a, joined_g, joined_temps = store.rows()
+    return joined_t, joined_a, joined_g, joined_temps, store
 
 
 @dataclass
@@ -443,12 +503,16 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     temps = None if temp_all is None else temp_all if keep is None else temp_all[keep]
     # The rows kept from the part before come first; the interval rules run over the new rows only.
     context = 0
+    store: CarryStore | None = None
     if carry is not None:
         context = len(carry.t)
-        t = np.concatenate([carry.t, t])
-        a = np.concatenate([carry.accel, a])
-        g = None if g is None or carry.gyro is None else np.concatenate([carry.gyro, g])
-        temps = None if temps is None or carry.temperature is None else np.concatenate([carry.temperature, temps])
+        if len(t) == 0:
+            store = carry.store
+            g = None if g is None or carry.gyro is None else carry.gyro
+            temps = None if temps is None or carry.temperature is None else carry.temperature
+            t, a = carry.t, carry.accel
+        else:
+            t, a, g, temps, store = _carried_and_new(carry, t, a, g, temps)
         if dropped is not None:
             dropped = np.concatenate([np.zeros(context, bool), dropped])
     n = len(t)
@@ -599,12 +663,18 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     # the open interval from its window's first row (emit trims from there).
     windows_from = window_of(held + n - 1)
     keep_from = windows_from if opened is None else min(windows_from, window_of(opened))
-    left = BatchCarry(full_t[keep_from:].copy(), full_a[keep_from:].copy(),
-                      None if full_g is None else full_g[keep_from:].copy(),
-                      None if full_temps is None else full_temps[keep_from:].copy(),
+    if carry is None or store is None:  # the first part: the caller's arrays, never kept
+        rows = len(full_t) - keep_from
+        store = CarryStore.holding(2 * rows + 1024, full_t[keep_from:], full_a[keep_from:],
+                                   None if full_g is None else full_g[keep_from:],
+                                   None if full_temps is None else full_temps[keep_from:])
+    else:
+        store.start += keep_from
+    kept_t, kept_a, kept_g, kept_temps = store.rows()
+    left = BatchCarry(kept_t, kept_a, kept_g, kept_temps,
                       None if opened is None else opened - keep_from,
                       0 if opened is None else window_of(opened) - keep_from,
-                      max(last - keep_from, 0), windows_from - keep_from)
+                      max(last - keep_from, 0), windows_from - keep_from, store)
     if not final:
         state.carry = left
         return poses, rejected, out_of_range
