@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy.optimize import least_squares
@@ -71,6 +71,7 @@ def test_stacked_residuals_and_jacobian_are_the_plain_ones(seed, name, n):
 
 @settings(max_examples=25, deadline=None)
 @given(seed=seeds, name=st.sampled_from(["six", "sphere9"]), n=st.integers(12, 40), counts=st.booleans())
+@example(seed=911253579, name="sphere9", n=17, counts=False)  # 2.0e-9 apart: the optimum's own precision
 def test_stacked_gauss_newton_lands_on_scipys_optimum(seed, name, n, counts):
     accel = poses(seed, n, counts=counts, model=name)
     model = SphereModel(name)
@@ -85,8 +86,10 @@ def test_stacked_gauss_newton_lands_on_scipys_optimum(seed, name, n, counts):
     reference = least_squares(lambda p: fun(p)[0], x0, jac=lambda p: fun(p)[1], ftol=1e-15, xtol=1e-15, gtol=1e-15)
     assert ours.success and generic.success
     scale = np.abs(reference.x)
-    assert_allclose(ours.x, reference.x, rtol=0, atol=1e-9 * scale.max())
-    assert_allclose(generic.x, ours.x, rtol=0, atol=1e-9 * scale.max())
+    # Where the cost is this flat, a minimum's position is defined to ~sqrt(eps * cond) (~1e-8 of the
+    # parameters' scale, the cost to 1e-16): two solvers stopping at it differ by up to that.
+    assert_allclose(ours.x, reference.x, rtol=0, atol=1e-8 * scale.max())
+    assert_allclose(generic.x, ours.x, rtol=0, atol=1e-8 * scale.max())
     assert ours.cost == pytest.approx(reference.cost, rel=1e-8, abs=1e-20)
     # The normal matrix the solver hands on is J^T J at the point it returns.
     jac = plain_residual_and_jacobian(model, ours.x, accel, G)[1]
