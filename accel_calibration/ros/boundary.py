@@ -10,7 +10,7 @@ from typing import Any
 
 from rclpy.node import Node
 
-LOG_THROTTLE_S = 5.0
+from ..io.live_calibration import LOG_THROTTLE_S
 
 Fallback = Callable[[tuple[Any, ...], Exception], Any]
 

@@ -156,14 +156,14 @@ def _temperature(stamp_ns, degc):
 def test_a_message_in_another_frame_than_the_calibration_is_warned_and_counted(running_node):
     node = running_node()
     node._in_force.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="imu_link"))
-    node._on_frame_id("imu_link")
+    node._live.set_frame_id("imu_link")
     assert node.counters().get("frame_id_mismatch", 0) == 0
-    node._on_frame_id("camera_imu_optical_frame")
+    node._live.set_frame_id("camera_imu_optical_frame")
     counts = node.counters()
     assert counts["frame_id_mismatch"] == 1 and counts["frame_id_changes"] == 1
     # A calibration made in the new frame stops the warnings.
     node._in_force.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="camera_imu_optical_frame"))
-    node._check_frame()
+    node._live.check_frame()
     assert node.counters()["frame_id_mismatch"] == 1
 
 

@@ -1,0 +1,177 @@
+"""The node's work without ROS (io.live_calibration), driven as a person and a stream would: samples in
+parts of any size, services called in any order (calibrate too early, pause, reset, save, switch the
+correction off, arm). What must hold after every step: the calibration in force is the one its file
+holds (saved, then applied), a refusal leaves it as it was, nothing collected while paused or armed
+becomes a pose, and every calibration put in force is within 1 mg of the sensor's true bias."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, event, settings
+from hypothesis import strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
+
+from accel_calibration.core.settings import Settings
+from accel_calibration.io.calibration_file import load_calibration
+from accel_calibration.io.live_calibration import LiveCalibration
+
+from helpers.session_streams import stream
+
+MG = 9.80665e-3
+ERRORS, SAMPLES = stream(seed=3, poses=16)
+
+
+class Lines:
+    """A logger as rclpy's: every line kept, throttling arguments accepted."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level: str):
+        return lambda message, **kwargs: self.lines.append((level, message))
+
+
+def buffer(live: LiveCalibration, start: int, stop: int) -> None:
+    for i in range(start, stop):
+        live.buffer_imu(int(SAMPLES.t_ns[i]), *SAMPLES.accel_raw[i].tolist(), *SAMPLES.gyro_raw[i].tolist())
+
+
+def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
+    log = Lines()
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", log)
+    live.start()
+    assert live.status[0] == "warn" and live.in_force.calibration is None
+    rng = np.random.default_rng(0)
+    start = 0
+    while start < len(SAMPLES.t_ns):
+        stop = min(len(SAMPLES.t_ns), start + int(rng.integers(1, 400)))
+        buffer(live, start, stop)
+        live.feed()
+        start = stop
+    success, message = live.calibrate()
+    assert success, message
+    calibration = live.in_force.calibration
+    assert np.abs(calibration.bias - ERRORS.bias_mps2).max() < 0.1 * MG
+    np.testing.assert_allclose(load_calibration(tmp_path / "cal.yaml").bias, calibration.bias, rtol=0, atol=0)
+    assert live.status == ("ok", "calibrated")
+    assert any("calibrated" in text for level, text in log.lines if level == "info")
+
+
+def test_a_restart_puts_the_saved_calibration_in_force_and_mirrors_it(tmp_path):
+    path = tmp_path / "cal.yaml"
+    first = LiveCalibration(Settings(), path, Lines())
+    first.start()
+    buffer(first, 0, len(SAMPLES.t_ns))
+    assert first.calibrate()[0]
+    mirrored = []
+    again = LiveCalibration(Settings(), path, Lines(), on_applied=mirrored.append)
+    again.start()
+    assert again.status == ("ok", "calibrated from file")
+    assert len(mirrored) == 1 and np.array_equal(mirrored[0].bias, first.in_force.calibration.bias)
+
+
+@settings(max_examples=60, stateful_step_count=40, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+class ServicesInAnyOrder(RuleBasedStateMachine):
+    @initialize()
+    def start(self):
+        import tempfile
+
+        self.directory = Path(tempfile.mkdtemp(prefix="live_calibration_"))
+        self.path = self.directory / "cal.yaml"
+        self.live = LiveCalibration(Settings(), self.path, Lines())
+        self.live.start()
+        self.next_sample = 0
+        self.paused = self.armed = False
+        self.collecting = np.zeros(len(SAMPLES.t_ns), bool)  # each sample: buffered while collecting
+        self.collected_any = False  # a sample buffered while neither paused nor armed
+
+    def teardown(self):
+        import shutil
+
+        shutil.rmtree(self.directory, ignore_errors=True)
+
+    @precondition(lambda self: self.next_sample < len(SAMPLES.t_ns))
+    @rule(seconds=st.sampled_from([0.2, 1.5, 6.0, 20.0, 60.0]))
+    def stream(self, seconds):
+        start, stop = self.next_sample, min(len(SAMPLES.t_ns), self.next_sample + int(seconds * 200))
+        buffer(self.live, start, stop)
+        self.next_sample = stop
+        self.collecting[start:stop] = not (self.paused or self.armed)
+        self.collected_any |= not (self.paused or self.armed)
+
+    @rule()
+    def feed(self):
+        for pose in self.live.feed():
+            inside = slice(*np.searchsorted(SAMPLES.t_ns, [pose.start_ns, pose.end_ns], side="left"))
+            assert self.collecting[inside].all(), "a pose holds samples buffered while paused or armed"
+
+    @rule()
+    def calibrate(self):
+        before = self.live.in_force.calibration
+        success, message = self.live.calibrate()
+        event(f"calibrate: {'applied' if success else 'refused'}")
+        assert success or (message and "\n" not in message), message
+        if not success:
+            assert self.live.in_force.calibration is before, "a refusal changed the calibration in force"
+
+    @rule()
+    def reset(self):
+        before = self.live.in_force.calibration
+        success, message = self.live.reset()
+        assert success and self.live.session.progress().poses == 0
+        assert self.live.in_force.calibration is before
+
+    @rule()
+    def save(self):
+        success, message = self.live.save()
+        assert success == (self.live.in_force.calibration is not None), message
+
+    @rule(on=st.booleans())
+    def pause(self, on):
+        self.paused = on
+        self.live.pause(on)
+
+    @rule(on=st.booleans())
+    def armed(self, on):
+        self.armed = on
+        self.live.set_armed(on)
+
+    @rule(on=st.booleans())
+    def enable(self, on):
+        self.live.enable(on)
+        assert self.live.diagnostic_values()["correction"] == ("on" if on and self.live.in_force.calibration
+                                                               else "off")
+
+    @invariant()
+    def the_calibration_in_force_is_the_files(self):
+        calibration = self.live.in_force.calibration
+        if calibration is None:
+            return
+        saved = load_calibration(self.path)
+        assert np.array_equal(saved.bias, calibration.bias) and np.array_equal(saved.matrix, calibration.matrix)
+        assert np.abs(calibration.bias - ERRORS.bias_mps2).max() < 1.0 * MG
+
+    @invariant()
+    def nothing_held_while_paused_or_armed_becomes_a_pose(self):
+        if not self.collected_any:
+            assert self.live.session.progress().poses == 0
+
+    @invariant()
+    def collecting_follows_pause_and_armed(self):
+        assert self.live.session.collecting == (not self.paused and not self.armed)
+
+
+ServicesInAnyOrder.TestCase.settings = settings(ServicesInAnyOrder.TestCase.settings)
+test_services_in_any_order = ServicesInAnyOrder.TestCase
+
+
+@pytest.mark.parametrize("ahead_s, kept", [(30, True), (120, False)])
+def test_a_temperature_from_another_clock_is_set_aside(tmp_path, ahead_s, kept):
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", Lines())
+    live.start()
+    buffer(live, 0, 10)
+    live.take_temperature(int(SAMPLES.t_ns[9]) + ahead_s * 10**9, 45.0)
+    assert (live.counters().get("temperature_future", 0) == 0) == kept
