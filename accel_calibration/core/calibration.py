@@ -124,6 +124,54 @@ class GyroQuality:
     __hash__ = None  # type: ignore[assignment]
 
 
+# What a noise block may say: a MEMS accelerometer's white noise is ~50-1000 ug/sqrt(Hz), a gyro's
+# ~0.003-0.1 deg/s/sqrt(Hz); beyond these bounds it is no sensor's (or another unit's).
+NOISE_RATE_HZ = (1.0, 100_000.0)
+MAX_ACCEL_DENSITY = 1.0  # m/s^2/sqrt(Hz)
+MAX_GYRO_DENSITY = 0.1  # rad/s/sqrt(Hz)
+
+
+@dataclass(frozen=True)
+class MeasuredNoise:
+    """The sensor's white noise as measured at the still poses, in Kalibr's terms: the noise density per
+    axis (sigma of one sample = density * sqrt(rate), the discrete-time convention Kalibr and OpenVINS use)
+    and the sample rate it was measured at. Kept in the calibration so that a restart's covariance starts
+    from it instead of from nothing."""
+
+    rate_hz: float
+    accel_density: float  # m/s^2/sqrt(Hz)
+    gyro_density: float | None = None  # rad/s/sqrt(Hz); None without a gyro
+
+    def __post_init__(self) -> None:
+        bounds = {"rate_hz": NOISE_RATE_HZ, "accel_density": (0.0, MAX_ACCEL_DENSITY),
+                  "gyro_density": (0.0, MAX_GYRO_DENSITY)}
+        for name, (low, high) in bounds.items():
+            value = getattr(self, name)
+            if value is None and name == "gyro_density":
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise CalibrationError(f"noise.{name} must be a number, got {value!r:.40}")
+            if not (low < value <= high or value == low > 0):  # a density of 0 is no sensor's either
+                raise CalibrationError(f"noise.{name} {value:.4g} outside {low:g}..{high:g}: no MEMS sensor's")
+            object.__setattr__(self, name, float(value))
+
+    @classmethod
+    def from_variances(cls, rate_hz: float, accel_var: float, gyro_var: float | None) -> MeasuredNoise:
+        """From the per-sample variances per axis ((m/s^2)^2, (rad/s)^2) at `rate_hz`."""
+        return cls(rate_hz, math.sqrt(accel_var / rate_hz),
+                   None if gyro_var is None else math.sqrt(gyro_var / rate_hz))
+
+    @property
+    def accel_var(self) -> float:
+        """Variance of one sample per axis, (m/s^2)^2."""
+        return self.accel_density * self.accel_density * self.rate_hz
+
+    @property
+    def gyro_var(self) -> float | None:
+        """Variance of one sample per axis, (rad/s)^2."""
+        return None if self.gyro_density is None else self.gyro_density * self.gyro_density * self.rate_hz
+
+
 def _same_optional(a: np.ndarray | None, b: np.ndarray | None) -> bool:
     if a is None or b is None:
         return a is None and b is None
@@ -156,9 +204,12 @@ class Calibration:
     # w_true = gyro_matrix (w_raw - gyro_bias_radps), in the accelerometer's calibrated frame (fit_gyro)
     gyro_matrix: np.ndarray | None = None
     gyro_quality: GyroQuality | None = None
+    noise: MeasuredNoise | None = None  # white noise measured at the poses (the covariance's start)
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        if self.noise is not None and not isinstance(self.noise, MeasuredNoise):
+            raise CalibrationError("noise must be a MeasuredNoise or None")
         set_(self, "bias", _frozen(self.bias, (3,), "bias"))
         set_(self, "matrix", _frozen(self.matrix, (3, 3), "matrix"))
         self._check_model_gravity_matrix()
@@ -350,6 +401,7 @@ class Calibration:
             and self.reference_temperature_degc == other.reference_temperature_degc
             and _same_temperature(self.temperature, other.temperature)
             and self.dividing_head == other.dividing_head
+            and self.noise == other.noise
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

@@ -106,7 +106,13 @@ class Correction:
               noise_var_per_axis: float | None = None, gyro_noise_var_per_axis: float | None = None
               ) -> Correction | None:
         """None when there is nothing to apply and no covariance to report. The noise variances are per
-        axis, (m/s^2)^2 and (rad/s)^2, as measured at the still poses (None: not yet)."""
+        axis, (m/s^2)^2 and (rad/s)^2, as measured at the still poses (None: not yet, and then the noise
+        the calibration was made with, when it says, so a restart's covariance starts from it)."""
+        if calibration is not None and calibration.noise is not None:
+            if noise_var_per_axis is None:
+                noise_var_per_axis = calibration.noise.accel_var
+            if gyro_noise_var_per_axis is None:
+                gyro_noise_var_per_axis = calibration.noise.gyro_var
         gyro = cls._gyro_terms(calibration, gyro_noise_var_per_axis)
         if calibration is None:
             cov = rep145_covariance(np.eye(3), noise_var_per_axis, None, None, 0.0)

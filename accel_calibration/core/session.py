@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .calibration import Calibration
+from .calibration import Calibration, MeasuredNoise
 from .coverage import missing_directions
 from .errors import CalibrationError, SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
@@ -290,7 +290,8 @@ class CalibrationSession:
         if result is None or result.calibration is None or refusal is not None:
             return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
         calibration = result.calibration.replace(
-            gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id)
+            gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id,
+            noise=self.measured_noise())
         gyro, gyro_text = self.gyro_verdict(calibration)
         if gyro is not None and gyro_text is None:
             calibration = gyro.apply_to(calibration)
@@ -299,6 +300,20 @@ class CalibrationSession:
             if gyro_text is None and gyro is not None else f"; {gyro_text} (the gyro keeps its bias only)")
         return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=calibration),
                        calibration, gyro, gyro_text)
+
+    def measured_noise(self) -> MeasuredNoise | None:
+        """The white noise measured at the still poses, as a density at the poses' sample rate (None
+        before the noise floor is learned or a pose is held)."""
+        accel_var = self.detector.noise_floor_accel_var
+        poses = [p for p in self.store.poses if p.samples > 1 and p.end_ns > p.start_ns]
+        if accel_var is None or accel_var <= 0 or not poses:
+            return None
+        rate_hz = round(float(np.median([(p.samples - 1) / p.duration_s for p in poses])), 2)
+        try:
+            gyro_var = self.gyro_noise_var()
+            return MeasuredNoise.from_variances(rate_hz, accel_var, gyro_var if gyro_var else None)
+        except CalibrationError:  # a stream in counts or another unit: no density to keep
+            return None
 
     def gyro_noise_var(self) -> float | None:
         """The gyro's white-noise variance per axis, (rad/s)^2: the quietest still windows' (None before)."""

@@ -17,6 +17,8 @@ Layout (keys other tools read are the first six; the rest is ours):
       gyro_matrix: [[..]..]     # w_true = gyro_matrix (w_raw - gyro_bias_radps), in the accelerometer's
                                 # calibrated frame, when the motions between the poses were fitted
       gyro_quality: {matrix_sigma: [[..]..], residual_rms_mrad: .., residual_max_mrad: .., motions: ..}
+      noise: {rate_hz: .., accel_density_mps2_per_sqrt_hz: .., gyro_density_radps_per_sqrt_hz: ..}
+                                # white noise measured at the poses (Kalibr's *_noise_density)
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
 """
 from __future__ import annotations
@@ -30,7 +32,7 @@ from typing import Any, cast
 import numpy as np
 import yaml
 
-from ..core.calibration import Calibration, GyroQuality, Quality
+from ..core.calibration import Calibration, GyroQuality, MeasuredNoise, Quality
 from ..core.dividing_head import DividingHeadTerms
 from ..core.errors import CalibrationError
 from ..core.temperature_models import TemperatureModel
@@ -47,6 +49,8 @@ MAX_CALIBRATION_BYTES = 1 << 20  # a calibration file is ~2 KB; a bigger one is 
 MAX_YAML_DEPTH = 32  # a calibration file nests 4 deep, a rosbag2 metadata.yaml 6
 MAX_NUMBER = 1e12  # beyond any bias or gain, raw counts included: a corrupt or foreign file
 MAX_POSES = 10**9
+# The noise block's keys, each with its unit.
+NOISE_KEYS = {"accel_density": "accel_density_mps2_per_sqrt_hz", "gyro_density": "gyro_density_radps_per_sqrt_hz"}
 
 
 def _first_absurd_number(value: object, where: str = "") -> str | None:
@@ -113,6 +117,10 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
                                 "residual_max_mrad": g.residual_max_mrad, "motions": g.motions}
         if g.bias_sigma_radps is not None:
             body["gyro_quality"]["bias_sigma_radps"] = g.bias_sigma_radps.tolist()
+    if c.noise is not None:
+        body["noise"] = {"rate_hz": c.noise.rate_hz, NOISE_KEYS["accel_density"]: c.noise.accel_density}
+        if c.noise.gyro_density is not None:
+            body["noise"][NOISE_KEYS["gyro_density"]] = c.noise.gyro_density
     if c.temperature is not None:
         t = c.temperature
         block = {"model": t.kind, "reference_degc": t.reference_degc, "range_degc": list(t.range_degc)}
@@ -247,16 +255,18 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
     absurd = _first_absurd_number(body)
     if absurd is not None:
         raise CalibrationFileError(f"{source}: {absurd}")
-    blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality")}
+    blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality", "noise")}
     uncertainty_block: dict[str, Any] = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
     temperature_block: dict[str, Any] = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
     gyro_quality_block: dict[str, Any] = (blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict)
                                           else {})
+    noise_block: dict[str, Any] = blocks["noise"] if isinstance(blocks["noise"], dict) else {}
     for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps",
                                                           "gyro_matrix")] + [
             (f"gyro_quality.{key}", gyro_quality_block.get(key)) for key in (
                 "matrix_sigma", "bias_sigma_radps", "residual_rms_mrad", "residual_max_mrad")] + [
             (f"uncertainty.{key}", uncertainty_block.get(key)) for key in ("bias", "matrix")] + [
+            (f"noise.{key}", noise_block.get(key)) for key in ("rate_hz", *NOISE_KEYS.values())] + [
             (f"temperature.{key}", temperature_block.get(key)) for key in (
                 "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
                 "segment_temperatures_degc", "segment_coefficients", "segment_poses")]:
@@ -316,6 +326,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             dividing_head=dividing_head,
             gyro_matrix=body.get("gyro_matrix"),
             gyro_quality=_gyro_quality(body.get("gyro_quality")),
+            noise=_noise(body.get("noise")),
             temperature=temperature,
             bias=body["bias"],
             matrix=body["matrix"],
@@ -351,6 +362,20 @@ def _gyro_quality(block: object) -> GyroQuality | None:
                        residual_rms_mrad=_number(block["residual_rms_mrad"], "gyro_quality.residual_rms_mrad"),
                        residual_max_mrad=_number(block["residual_max_mrad"], "gyro_quality.residual_max_mrad"),
                        motions=motions, bias_sigma_radps=block.get("bias_sigma_radps"))
+
+
+def _noise(block: object) -> MeasuredNoise | None:
+    """The noise block (its numbers already checked to be numbers), or None when absent."""
+    if block is None:
+        return None
+    if not isinstance(block, dict):
+        raise CalibrationFileError(f"noise must be a mapping, got {block!r:.40}")
+    missing = [key for key in ("rate_hz", NOISE_KEYS["accel_density"]) if key not in block]
+    if missing:
+        raise CalibrationFileError(f"noise is missing {', '.join(missing)}")
+    gyro = block.get(NOISE_KEYS["gyro_density"])
+    return MeasuredNoise(rate_hz=block["rate_hz"], accel_density=block[NOISE_KEYS["accel_density"]],
+                         gyro_density=gyro)
 
 
 class _SafeLoader(yaml.SafeLoader):  # type: ignore[misc]  # yaml is untyped here (types-PyYAML not installed)

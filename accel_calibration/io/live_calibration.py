@@ -17,7 +17,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..core.answers import calibrate_answer, face_of
-from ..core.calibration import Calibration
+from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
 from ..core.pose import Pose
 from ..core.session import CalibrationSession, Progress
@@ -53,6 +53,7 @@ class LiveCalibration:
         self.still = False  # the detector's state at the last feed
         self.counts: collections.Counter[str] = collections.Counter()  # what the node set aside, by name
         self.status = (OK, "")  # the level and first words of the diagnostics
+        self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
         self._log = log
         self._calibrate_service = calibrate_service
         self._imu_topic = imu_topic
@@ -163,7 +164,21 @@ class LiveCalibration:
             "calibration_file": str(self.in_force.path),
             "frame_id": self.frame_id or "",
             "temperature_degc": "" if temperature is None else f"{temperature:.2f}",
+            **self._noise_values(),
         }
+
+    def _noise_values(self) -> dict[str, str]:
+        """The white noise measured at this session's poses, else the one the calibration in force was
+        made with (Kalibr's *_noise_density, for the estimator's IMU file)."""
+        noise, source = self.noise, "measured"
+        if noise is None and self.in_force.calibration is not None:
+            noise, source = self.in_force.calibration.noise, "calibration file"
+        if noise is None:
+            return {"accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
+        gyro = noise.gyro_density
+        return {"accel_noise_density": f"{noise.accel_density:.3e} m/s^2/sqrt(Hz)",
+                "gyro_noise_density": "" if gyro is None else f"{gyro:.3e} rad/s/sqrt(Hz)",
+                "noise_source": f"{source} at {noise.rate_hz:g} Hz"}
 
     def hardware_id(self) -> str:
         calibration = self.in_force.calibration
@@ -209,6 +224,7 @@ class LiveCalibration:
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
         # The covariances follow the noise measured at the still poses.
         self.in_force.set_noise(self.session.detector.noise_floor_accel_var, self.session.gyro_noise_var())
+        self.noise = self.session.measured_noise()  # read by the diagnostics' thread: set whole
         result = self.session.refit()
         progress = self.refresh_progress()
         self._log_refit(result, progress)
