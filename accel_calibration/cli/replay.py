@@ -94,7 +94,8 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
     unit = replay.recording.unit if replay.recording is not None else "messages"
     lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
-             replay.result.summary(), *gyro_lines(replay), *notes]
+             replay.result.summary(), *gyro_lines(replay),
+             *([calibration.noise.describe()] if calibration.noise is not None else []), *notes]
     from ..core.stream.screening import Counters
 
     informational = Counters.INFORMATIONAL  # counts of what was read, not of what was skipped

@@ -161,6 +161,12 @@ class MeasuredNoise:
         return cls(rate_hz, math.sqrt(accel_var / rate_hz),
                    None if gyro_var is None else math.sqrt(gyro_var / rate_hz))
 
+    def describe(self) -> str:
+        """One line, as replay says it."""
+        gyro = "" if self.gyro_density is None else f", gyro {self.gyro_density:.3e} rad/s/sqrt(Hz)"
+        return (f"white noise at the poses: accel {self.accel_density:.3e} m/s^2/sqrt(Hz){gyro} at {self.rate_hz:g} Hz "
+                "(random walk and bias instability: accel-calib noise)")
+
     @property
     def accel_var(self) -> float:
         """Variance of one sample per axis, (m/s^2)^2."""
