@@ -1,16 +1,9 @@
-"""The words of the node's answers, without ROS: what /calibrate says when it applied a calibration,
-and how a pose is named in the log."""
+"""The words of the node's answers, without ROS: what /calibrate says when it applied a calibration."""
 from __future__ import annotations
-
-import numpy as np
 
 from .fit import FitResult
 
-
-def face_of(accel: np.ndarray) -> str:
-    """The face a pose shows up: "z up", "x down"."""
-    axis = int(np.argmax(np.abs(accel)))
-    return f"{'xyz'[axis]} {'up' if accel[axis] > 0 else 'down'}"
+__all__ = ["calibrate_answer", "yaml_quoted"]
 
 
 def calibrate_answer(result: FitResult, saved_message: str, gyro_refusal: str | None = None) -> str:

@@ -151,7 +151,9 @@ class MeasuredNoise:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise CalibrationError(f"noise.{name} must be a number, got {value!r:.40}")
-            if not (low < value <= high or value == low > 0):  # a density of 0 is no sensor's either
+            # A rate of 1 Hz is a (slow) rate; a density of 0 is no sensor's.
+            inside = low <= value <= high if name == "rate_hz" else low < value <= high
+            if not inside:
                 raise CalibrationError(f"noise.{name} {value:.4g} outside {low:g}..{high:g}: no MEMS sensor's")
             object.__setattr__(self, name, float(value))
 

@@ -16,9 +16,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..core.answers import calibrate_answer, face_of
+from ..core.answers import calibrate_answer
 from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
+from ..core.fit_outliers import nearest_face
 from ..core.pose import Pose
 from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
@@ -218,7 +219,7 @@ class LiveCalibration:
         for pose in poses:
             event = self.session.add_pose(pose)
             verb = "refined" if event.merged else "accepted"
-            log.info(f"pose {event.index + 1} {verb} ({face_of(pose.accel_mps2)}, {pose.duration_s:.1f} s still)")
+            log.info(f"pose {event.index + 1} {verb} ({nearest_face(pose.accel_mps2)}, {pose.duration_s:.1f} s still)")
             log.debug(f"pose {event.index + 1}: mean {np.round(pose.accel_mps2, 5).tolist()} m/s^2 over "
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))

@@ -31,13 +31,13 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import LOG_THROTTLE_S, MAX_BUFFERED, LiveCalibration
+from ..io.live_calibration import LOG_THROTTLE_S, LiveCalibration
 from .boundary import Boundary, failed_service
 from .diagnostics import StreamHealth, diagnostic_status
 from .parameters import NODE_PARAMETERS, NodeParameters
 from .process import run_node, spin_until
 
-__all__ = ["MAX_BUFFERED", "NODE_NAME", "NODE_PARAMETERS", "CalibrationNode", "main", "spin_until"]
+__all__ = ["NODE_NAME", "NODE_PARAMETERS", "CalibrationNode", "main", "spin_until"]
 
 NODE_NAME = "accel_calibration"
 # Best effort (as drivers publish sensor data), depth 200 in: 50 ms at 4 kHz, so a worker batch or a busy

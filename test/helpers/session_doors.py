@@ -46,3 +46,20 @@ def per_message(session: CalibrationSession, t_ns, accel, gyro, temperatures=Non
         for pose in poses:
             session.add_pose(pose)
     return poses
+
+
+class LogLines:
+    """A logger as rclpy's, for LiveCalibration (the node's door without ROS): every line kept as
+    (level, text), throttling arguments accepted."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level: str):
+        return lambda message, **kwargs: self.lines.append((level, message))
+
+
+def buffer_messages(live, samples, start: int = 0, stop: int | None = None) -> None:
+    """What the node's Imu callback hands LiveCalibration, one message at a time: samples[start:stop]."""
+    for i in range(start, len(samples.t_ns) if stop is None else stop):
+        live.buffer_imu(int(samples.t_ns[i]), *samples.accel_raw[i].tolist(), *samples.gyro_raw[i].tolist())

@@ -5,6 +5,8 @@ holds (saved, then applied), a refusal leaves it as it was, nothing collected wh
 becomes a pose, and every calibration put in force is within 1 mg of the sensor's true bias."""
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -17,29 +19,19 @@ from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import load_calibration
 from accel_calibration.io.live_calibration import LiveCalibration
 
+from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream
 
 MG = 9.80665e-3
 ERRORS, SAMPLES = stream(seed=3, poses=16)
 
 
-class Lines:
-    """A logger as rclpy's: every line kept, throttling arguments accepted."""
-
-    def __init__(self) -> None:
-        self.lines: list[tuple[str, str]] = []
-
-    def __getattr__(self, level: str):
-        return lambda message, **kwargs: self.lines.append((level, message))
-
-
 def buffer(live: LiveCalibration, start: int, stop: int) -> None:
-    for i in range(start, stop):
-        live.buffer_imu(int(SAMPLES.t_ns[i]), *SAMPLES.accel_raw[i].tolist(), *SAMPLES.gyro_raw[i].tolist())
+    buffer_messages(live, SAMPLES, start, stop)
 
 
 def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
-    log = Lines()
+    log = LogLines()
     live = LiveCalibration(Settings(), tmp_path / "cal.yaml", log)
     live.start()
     assert live.status[0] == "warn" and live.in_force.calibration is None
@@ -61,12 +53,12 @@ def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
 
 def test_a_restart_puts_the_saved_calibration_in_force_and_mirrors_it(tmp_path):
     path = tmp_path / "cal.yaml"
-    first = LiveCalibration(Settings(), path, Lines())
+    first = LiveCalibration(Settings(), path, LogLines())
     first.start()
     buffer(first, 0, len(SAMPLES.t_ns))
     assert first.calibrate()[0]
     mirrored = []
-    again = LiveCalibration(Settings(), path, Lines(), on_applied=mirrored.append)
+    again = LiveCalibration(Settings(), path, LogLines(), on_applied=mirrored.append)
     again.start()
     assert again.status == ("ok", "calibrated from file")
     assert len(mirrored) == 1 and np.array_equal(mirrored[0].bias, first.in_force.calibration.bias)
@@ -77,20 +69,15 @@ def test_a_restart_puts_the_saved_calibration_in_force_and_mirrors_it(tmp_path):
 class ServicesInAnyOrder(RuleBasedStateMachine):
     @initialize()
     def start(self):
-        import tempfile
-
         self.directory = Path(tempfile.mkdtemp(prefix="live_calibration_"))
         self.path = self.directory / "cal.yaml"
-        self.live = LiveCalibration(Settings(), self.path, Lines())
+        self.live = LiveCalibration(Settings(), self.path, LogLines())
         self.live.start()
         self.next_sample = 0
         self.paused = self.armed = False
         self.collecting = np.zeros(len(SAMPLES.t_ns), bool)  # each sample: buffered while collecting
-        self.collected_any = False  # a sample buffered while neither paused nor armed
 
     def teardown(self):
-        import shutil
-
         shutil.rmtree(self.directory, ignore_errors=True)
 
     @precondition(lambda self: self.next_sample < len(SAMPLES.t_ns))
@@ -100,7 +87,6 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
         buffer(self.live, start, stop)
         self.next_sample = stop
         self.collecting[start:stop] = not (self.paused or self.armed)
-        self.collected_any |= not (self.paused or self.armed)
 
     @rule()
     def feed(self):
@@ -156,7 +142,7 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
 
     @invariant()
     def nothing_held_while_paused_or_armed_becomes_a_pose(self):
-        if not self.collected_any:
+        if not self.collecting.any():
             assert self.live.session.progress().poses == 0
 
     @invariant()
@@ -164,13 +150,12 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
         assert self.live.session.collecting == (not self.paused and not self.armed)
 
 
-ServicesInAnyOrder.TestCase.settings = settings(ServicesInAnyOrder.TestCase.settings)
 test_services_in_any_order = ServicesInAnyOrder.TestCase
 
 
 @pytest.mark.parametrize("ahead_s, kept", [(30, True), (120, False)])
 def test_a_temperature_from_another_clock_is_set_aside(tmp_path, ahead_s, kept):
-    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", Lines())
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", LogLines())
     live.start()
     buffer(live, 0, 10)
     live.take_temperature(int(SAMPLES.t_ns[9]) + ahead_s * 10**9, 45.0)

@@ -19,14 +19,10 @@ from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import calibration_to_dict
 from accel_calibration.io.live_calibration import LiveCalibration
 
+from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream
 
 RATE_HZ = 200.0
-
-
-class Quiet:
-    def __getattr__(self, level):
-        return lambda message, **kwargs: None
 
 
 @pytest.fixture(scope="module")
@@ -36,10 +32,9 @@ def session():
 
 
 def calibrated_live(path, samples) -> LiveCalibration:
-    live = LiveCalibration(Settings(), path, Quiet())
+    live = LiveCalibration(Settings(), path, LogLines())
     live.start()
-    for i in range(len(samples.t_ns)):
-        live.buffer_imu(int(samples.t_ns[i]), *samples.accel_raw[i].tolist(), *samples.gyro_raw[i].tolist())
+    buffer_messages(live, samples)
     live.feed()
     success, message = live.calibrate()
     assert success, message
@@ -66,7 +61,7 @@ def test_a_restart_starts_from_the_noise_the_file_keeps(tmp_path, session):
     noise = first.in_force.calibration.noise
     assert first.diagnostic_values()["noise_source"] == f"measured at {RATE_HZ:g} Hz"
 
-    again = LiveCalibration(Settings(), path, Quiet())
+    again = LiveCalibration(Settings(), path, LogLines())
     again.start()
     calibration, correction = again.in_force.calibration, again.in_force.correction
     assert calibration.noise == noise
