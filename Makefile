@@ -30,7 +30,7 @@ test: $(STAMP) lint
 	done
 
 # ruff over all Python; mypy over the whole package (not msg_tools, test, bench), strict per pyproject.toml.
-# Both always run (one report for each); fails if either finds something. Not yet a prerequisite of test.
+# Both always run (one report for each); fails if either finds something. A prerequisite of test.
 lint: $(STAMP)
 	status=0; \
 	$(VENV)/bin/ruff check accel_calibration msg_tools test bench || status=1; \

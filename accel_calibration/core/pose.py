@@ -1,7 +1,6 @@
 """A static pose: what the detector hands to the fit, the same record live, in replay and in the CLI."""
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,15 +33,3 @@ class Pose:
         direction: np.ndarray = self.accel_mps2 / np.linalg.norm(self.accel_mps2)
         return direction
 
-
-def pose_array(poses: Iterable[Pose]) -> np.ndarray:
-    """N x 3 array of the poses' mean accelerations."""
-    return np.array([p.accel_mps2 for p in poses], dtype=float).reshape(-1, 3)
-
-
-def temperature_array(poses: Iterable[Pose]) -> np.ndarray | None:
-    """N mean temperatures, or None when any pose has none."""
-    temps = [p.temperature_degc for p in poses]
-    if any(t is None for t in temps):
-        return None
-    return np.array(temps, dtype=float)

@@ -273,9 +273,6 @@ class Settings:
             changes[parameter.field] = check_value(parameter, value)
         return replace(base or cls(), **changes)
 
-    def as_parameters(self) -> dict[str, Any]:
-        return {p.name: getattr(self, p.field) for p in PARAMETERS}
-
     @property
     def outliers(self) -> OutlierOptions:
         return OutlierOptions(threshold_mg=self.outlier_threshold_mg, k_sigma=self.outlier_k_sigma)

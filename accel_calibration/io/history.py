@@ -26,8 +26,6 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
 
-import numpy as np
-
 from ..core.errors import AccelCalibrationError
 from ..core.units import MG
 
@@ -646,6 +644,3 @@ def vehicle_from_rule(rule: str, path: str) -> str | None:
         found = match.group(0)
     return found or None
 
-
-def as_mg(values: Sequence[float] | np.ndarray | None) -> np.ndarray | None:
-    return None if values is None else np.asarray(values, dtype=float) / MG

@@ -12,8 +12,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "accel_calibration"
 
-# What each layer may import (DESIGN.md): core imports nothing of ours; io the core; bag, ros and cli
-# io and the core; cli also bag (replay). ros does not read recordings.
+# What each layer may import (docs/architecture.md, "Layers"): core imports nothing of ours; io the core;
+# bag, ros and cli io and the core; cli also bag (replay). ros does not read recordings.
 ALLOWED = {"core": {"core"}, "io": {"core", "io"}, "bag": {"core", "io", "bag"}, "ros": {"core", "io", "ros"},
            "cli": {"core", "io", "bag", "cli"}}
 

@@ -1,4 +1,4 @@
-"""The node calibrates the gyro too (issue 23): after /calibrate, a rotation at 2 rad/s about each axis
+"""The node calibrates the gyro too: after /calibrate, a rotation at 2 rad/s about each axis
 comes out of imu/data_calibrated within 0.1 % of the truth. In this process (the node's callbacks called
 in order, what it publishes captured) and over DDS (the console script, closed-loop playback)."""
 from __future__ import annotations
@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pytest
 import yaml
 from rclpy.parameter import Parameter
 
@@ -78,6 +79,7 @@ def test_in_process_the_node_calibrates_the_gyro_at_calibrate(ros, tmp_path):
         node.destroy_node()
 
 
+@pytest.mark.ros
 def test_over_dds_the_node_calibrates_the_gyro_at_calibrate(tmp_path, tester):
     from msg_tools.node_process import NodeProcess
 
