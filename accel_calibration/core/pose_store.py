@@ -90,6 +90,7 @@ class PoseStore:
         self.capacity = capacity
         self.temperature_bin_degc = temperature_bin_degc
         self._poses: list[Pose] = []
+        self._merges: list[int] = []  # per pose held: how many later poses were merged into it
 
     def __len__(self) -> int:
         return len(self._poses)
@@ -98,14 +99,21 @@ class PoseStore:
     def poses(self) -> list[Pose]:
         return list(self._poses)
 
+    @property
+    def merges(self) -> list[int]:
+        """Per pose held, in the order of `poses`: how many later poses were merged into it."""
+        return list(self._merges)
+
     def copy(self) -> PoseStore:
         other = PoseStore.__new__(PoseStore)
         other.__dict__.update(self.__dict__)
         other._poses = list(self._poses)
+        other._merges = list(self._merges)
         return other
 
     def clear(self) -> None:
         self._poses.clear()
+        self._merges.clear()
 
     def _same_bin(self, a: Pose, b: Pose) -> bool:
         if self.temperature_bin_degc is None or a.temperature_degc is None or b.temperature_degc is None:
@@ -124,10 +132,12 @@ class PoseStore:
             held = self._poses[index]
             if means_agree(held, pose, self.merge_tolerance_mps2):
                 self._poses[index] = merge_poses(held, pose)
+                self._merges[index] += 1
                 return StoreEvent(index, merged=True)
         disagreed = bool(neighbours)
         if len(self._poses) < self.capacity:
             self._poses.append(pose)
+            self._merges.append(0)
             return StoreEvent(len(self._poses) - 1, merged=False, disagreed=disagreed)
         # The oldest pose whose orientation is held at least twice (itself excluded) gives way: dropping it
         # loses no coverage. Only when every orientation is held once does the oldest overall.
@@ -142,4 +152,5 @@ class PoseStore:
         candidates = redundant or list(range(len(self._poses)))
         oldest = min(candidates, key=lambda i: self._poses[i].end_ns)
         self._poses[oldest] = pose
+        self._merges[oldest] = 0
         return StoreEvent(oldest, merged=False, replaced_oldest=True, disagreed=disagreed)

@@ -21,6 +21,7 @@ from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
 from ..core.fit_outliers import nearest_face
 from ..core.pose import Pose
+from ..core.pose_map import pose_map
 from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
 from .calibration_file import calibration_to_yaml
@@ -65,6 +66,7 @@ class LiveCalibration:
         self._readings: collections.deque[tuple[int, float]] = collections.deque()
         self._latest_imu_ns = -1  # the latest IMU header stamp: temperature stamps are judged against it
         self.progress = self.session.progress(None, calibrate_service)
+        self.pose_map = pose_map(self.session, None, self.progress)  # the worker's latest, replaced whole
 
     def start(self) -> None:
         """Clear what an interrupted save left, and put the file's calibration in force."""
@@ -193,6 +195,7 @@ class LiveCalibration:
 
     def refresh_progress(self) -> Progress:
         self.progress = self.session.progress(self.in_force.calibration, self._calibrate_service)
+        self.pose_map = pose_map(self.session, self.in_force.calibration, self.progress)
         return self.progress
 
     def feed(self) -> list[Pose]:

@@ -1,0 +1,63 @@
+"""calibration/markers over real DDS, as RViz or Foxglove would subscribe to it: the poses held as points on
+the unit sphere at the orientations they were held in, the arrow where /diagnostics' advice says to turn,
+and nothing stale after calibration/reset."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import Marker, MarkerArray
+
+from accel_calibration.ros.markers import NEXT_ID, POSES_ID
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, rotation_with_up
+
+pytestmark = pytest.mark.ros
+START_NS = 1_700_000_000 * 10**9
+# As a late RViz subscribes: the latest map at once (the node publishes it latched).
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def markers_of(array: MarkerArray, marker_id: int) -> Marker | None:
+    return next((m for m in array.markers if m.action == Marker.ADD and m.id == marker_id), None)
+
+
+def test_the_markers_show_the_poses_held_and_where_to_turn_next(tmp_path, tester, node_process):
+    node_process(tmp_path / "cal.yaml")
+    tester.wait_ready()
+    received: list[MarkerArray] = []
+    tester.node.create_subscription(MarkerArray, "calibration/markers", received.append, LATCHED)
+    faces = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, -1]], dtype=float)
+    errors = SensorErrors.mpu6050_like(np.random.default_rng(5), noise_mps2=0.02)
+    imu = SyntheticImu(errors, [rotation_with_up(d) for d in faces], dwell_s=2.5, move_s=1.0, rate_hz=200.0, seed=5)
+    tester.play(imu.samples(), start_ns=START_NS)
+
+    def drawn_as_held():
+        """The latest map has one point per pose /diagnostics says is held (the last orientation is still
+        being held when the stream stops: it becomes a pose at /calibrate, not before)."""
+        if not received or not tester.diagnostics:
+            return False
+        poses = markers_of(received[-1], POSES_ID)
+        held = int(tester.diagnostics[-1]["poses"])
+        return poses is not None and len(poses.points) == held >= len(faces) - 1
+
+    assert tester.spin_until(drawn_as_held, 20.0), [len(a.markers) for a in received[-3:]]
+    latest = received[-1]
+    poses = markers_of(latest, POSES_ID)
+    points = np.array([[p.x, p.y, p.z] for p in poses.points])
+    # Each point is one played orientation, within a few degrees (no calibration in force: raw directions),
+    # each orientation at most once.
+    nearest = np.argmax(points @ faces.T, axis=1)
+    assert len(set(nearest.tolist())) == len(points)
+    assert np.all(np.degrees(np.arccos(np.clip(np.sum(points * faces[nearest], axis=1), -1, 1))) < 4.0)
+    assert len(poses.colors) == len(points) and poses.header.frame_id == "imu_link"
+    # The arrow points where the advice says: z never pointed up.
+    assert tester.diagnostics[-1]["advice"] == "turn z up"
+    arrow = markers_of(latest, NEXT_ID)
+    assert arrow is not None and arrow.text == "turn z up"
+    tip = np.array([arrow.points[1].x, arrow.points[1].y, arrow.points[1].z])
+    np.testing.assert_allclose(tip / np.linalg.norm(tip), [0.0, 0.0, 1.0], atol=1e-9)
+    # A reset drops the poses, and the map with them (DELETEALL first, then no points).
+    assert tester.call("calibration/reset").success
+    assert tester.spin_until(lambda: markers_of(received[-1], POSES_ID) is None, 10.0)
+    assert received[-1].markers[0].action == Marker.DELETEALL
