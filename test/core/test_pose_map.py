@@ -4,12 +4,13 @@ pose is."""
 from __future__ import annotations
 
 import numpy as np
-from helpers.session_doors import per_message
 
 from accel_calibration.core.coverage import CANDIDATE_DIRECTIONS
 from accel_calibration.core.pose_map import PoseStatus, holes, pose_map
 from accel_calibration.core.session import CalibrationSession
 from msg_tools.synthetic_imu import FACE_DIRECTIONS, SensorErrors, SyntheticImu, rotation_with_up
+
+from helpers.session_doors import per_message
 
 
 def held(directions, seed=3, repeat_first=False):
