@@ -14,6 +14,7 @@ import numpy.typing as npt
 
 from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
+from ..core.pose_map import holes
 from ..core.units import MG
 
 if TYPE_CHECKING:
@@ -50,7 +51,10 @@ def write_report(calibration: Calibration, accel_mps2: npt.ArrayLike, temperatur
     points = sphere.scatter(*directions.T, c=colour, cmap="coolwarm", s=30, depthshade=False)
     figure.colorbar(points, ax=sphere, shrink=0.6,
                     label="pose temperature, degC" if temps is not None else "|residual|, mg")
-    sphere.set_title("pose directions (gravity in the sensor frame)")
+    empty = holes(directions)  # the same holes calibration/markers shows: orientations no pose came near
+    if len(empty):
+        sphere.scatter(*empty.T, color="0.55", marker="x", s=20, depthshade=False)
+    sphere.set_title("pose directions (gravity in the sensor frame)" + ("; x: no pose near" if len(empty) else ""))
     sphere.set_xlabel("x")
     sphere.set_ylabel("y")
     sphere.set_zlabel("z")

@@ -45,6 +45,8 @@ def main() -> int:
         try:
             client.wait_ready()
             print(f"node up; playing {len(imu.rotations)} poses ({imu.duration_s:.0f} s of session at {SPEED:g}x)...")
+            print("  to watch the poses: RViz (fixed frame imu_link) or Foxglove (3D panel), add the topic "
+                  "calibration/markers (visualization_msgs/MarkerArray): a point per pose, an arrow where to turn")
             shown = [0]
 
             def show_progress() -> None:
