@@ -7,6 +7,7 @@ False, message saying what is missing), never raised: finite poses of the right 
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -160,7 +161,10 @@ def fit(
         s = pose_sigma if pose_sigma is None or keep is None else pose_sigma[keep]
         if options is not None:
             assert t is not None  # checked above: a temperature model needs temperature_degc
-            result = fit_with_temperature(a, t, model, gravity, options, initial, frame_id, r, base_fit=fit)
+            # The room-temperature fit inside takes the caller's outlier test and pose noise, as this one does.
+            base_fit = functools.partial(fit, outlier_options=outlier_options)
+            result = fit_with_temperature(a, t, model, gravity, options, initial, frame_id, r, base_fit=base_fit,
+                                          pose_sigma=s)
         else:
             result = fit_without_temperature(a, model, gravity, t, r, initial, frame_id, s)
         return _with_uncertainty(result, a, t, gravity)

@@ -44,7 +44,7 @@ from .units import MG
 
 def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None, name: str, gravity: float,
                    options: TemperatureOptions, initial: Calibration | None, frame_id: str, *,
-                   base_fit: Callable[..., FitResult]) -> FitResult:
+                   base_fit: Callable[..., FitResult], pose_sigma: np.ndarray | None = None) -> FitResult:
     """The seed paper's segmented model: the room-temperature calibration from the poses near T_ref (else
     near the temperature most poses share), then per segment the drift (l, m, n) of each axis against it:
     observed directly with known orientations (a linear fit per axis), on the sphere without."""
@@ -69,7 +69,8 @@ def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None,
     reference_degc = float(temps[in_base].mean())
     base_key = float(segment_keys(np.array([reference_degc]), width)[0])
     base = base_fit(accel[in_base], model=name, gravity=gravity, reference=None if ref is None else ref[in_base],
-                    initial=initial, frame_id=frame_id)
+                    initial=initial, frame_id=frame_id,
+                    pose_sigma_mps2=None if pose_sigma is None else pose_sigma[in_base])
     if not base.success or base.calibration is None:  # a successful fit always carries its calibration
         return FitResult(False, f"room-temperature calibration from the {int(in_base.sum())} poses at "
                          f"{reference_degc:.1f} degC: {base.message}", name, poses=n,
@@ -157,10 +158,12 @@ def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None,
 
 def fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravity: float,
                          options: TemperatureOptions, initial: Calibration | None, frame_id: str,
-                         ref: np.ndarray | None = None, *, base_fit: Callable[..., FitResult]) -> FitResult:
+                         ref: np.ndarray | None = None, *, base_fit: Callable[..., FitResult],
+                         pose_sigma: np.ndarray | None = None) -> FitResult:
     """A calibration with a temperature model (polynomial on the sphere, segmented on any model).
-    `base_fit`: the room-temperature fit the drift is learned against -- fit() itself, given by the
-    caller, so its outlier test and uncertainty apply and this module does not import fit.py."""
+    `base_fit`: the room-temperature fit the drift is learned against -- fit() itself with the caller's
+    outlier options, given by the caller, so its outlier test and uncertainty apply and this module does
+    not import fit.py; `pose_sigma` (one per pose) weighs the poses in it as in any fit."""
     n = len(accel)
     size = {"reference12": 4, "reference15": 5}.get(name, parameter_count(name))
     if n < size:
@@ -169,7 +172,8 @@ def fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravit
     if problem is not None:
         return FitResult(False, problem, name, poses=n)
     if options.model == "segmented":
-        return _fit_segmented(accel, temps, ref, name, gravity, options, initial, frame_id, base_fit=base_fit)
+        return _fit_segmented(accel, temps, ref, name, gravity, options, initial, frame_id, base_fit=base_fit,
+                              pose_sigma=pose_sigma)
     reference_degc = options.reference_degc if options.reference_degc is not None else float(np.median(temps))
     span = (float(temps.min()), float(temps.max()))
 
@@ -179,7 +183,7 @@ def fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravit
                  f"scale order {options.scale_order})")
     if n < model.size:
         return FitResult(False, f"{described} needs at least {model.size} poses, got {n}", name, poses=n)
-    base = base_fit(accel, model=name, gravity=gravity, initial=initial, frame_id=frame_id)
+    base = base_fit(accel, model=name, gravity=gravity, initial=initial, frame_id=frame_id, pose_sigma_mps2=pose_sigma)
     if not base.success or base.calibration is None:  # a successful fit always carries its calibration
         return FitResult(False, base.message, name, poses=n, missing_directions=base.missing_directions)
     solution = gauss_newton(lambda p: model.residual_and_jacobian(p, accel, temps, gravity),
