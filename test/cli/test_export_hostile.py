@@ -5,12 +5,14 @@ from __future__ import annotations
 import struct
 import warnings
 
-import numpy as np
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from accel_calibration.cli.main import main
 from accel_calibration.core.calibration import Calibration
+from accel_calibration.io.autopilot_params import parse_number
 from accel_calibration.io.calibration_file import save_calibration
 from accel_calibration.io.estimator_yaml import EstimatorFileError, NoiseFigures, kalibr_imu_yaml
 
@@ -147,4 +149,17 @@ def test_compare_reads_a_param_file_beginning_with_a_bom(tmp_path, capsys):
     assert "ardupilot parameters (3)" in out and "+0.1000" in out
     # 0.1 m/s^2 on x against identity: 10.2 mg at worst
     assert f"worst {0.1 / 9.80665 * 1000:.3f} mg" in out
-    assert np.isfinite(0.1)
+
+
+@given(st.floats(allow_nan=False, allow_infinity=False))
+def test_numbers_as_the_autopilots_write_them_parse_to_themselves(value):
+    for text in (repr(value), f"{value:.9g}", f"{value:e}", f"{value:f}"):
+        assert parse_number(text) == float(text)
+
+
+@given(st.text(max_size=12))
+def test_parse_number_takes_nothing_float_would_not_and_no_underscores_or_words(text):
+    value = parse_number(text)
+    if value is not None:
+        assert value == float(text) and text.isascii()
+        assert not any(c in text for c in "_ \t\n") and text.strip().lower() not in ("nan", "inf", "infinity")
