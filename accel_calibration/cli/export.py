@@ -106,12 +106,12 @@ def _matrix_correction(calibration: Calibration, with_bias: bool) -> Correction:
     return correct
 
 
-def _check_cost(cost: Cost, args: argparse.Namespace) -> None:
+def _check_cost(cost: Cost, args: argparse.Namespace, after: str = "") -> None:
     if not (args.max_loss_mg >= 0):
         raise CalibrationError(f"--max-loss-mg must be >= 0, got {args.max_loss_mg}")
     if cost.worst_mg > args.max_loss_mg and not args.force:
         raise CalibrationError(
-            f"{args.to} cannot hold this calibration within {args.max_loss_mg:g} mg: {cost.describe()}; "
+            f"{args.to} cannot hold this calibration within {args.max_loss_mg:g} mg{after}: {cost.describe()}; "
             "--force writes it anyway, or raise --max-loss-mg")
 
 
@@ -134,7 +134,7 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
     if calibration.gyro_matrix is not None:
         notes.append(f"{args.to} holds no gyro scale or misalignment, only the gyro offset: up to "
                      f"{gyro_matrix_loss_mrad_per_radps(calibration.gyro_matrix):.1f} mrad per rad/s of rate lost")
-    _check_cost(rotated, args)
+    _check_cost(rotated, args, " after the best rotation of the sensor to the vehicle")
     if args.to == "px4":
         device = _device_id(args, calibration)
         if device is None:
