@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 import warnings
 
+import numpy as np
 import pytest
 import yaml
 from hypothesis import given
@@ -163,3 +164,17 @@ def test_parse_number_takes_nothing_float_would_not_and_no_underscores_or_words(
     if value is not None:
         assert value == float(text) and text.isascii()
         assert not any(c in text for c in "_ \t\n") and text.strip().lower() not in ("nan", "inf", "infinity")
+
+
+def test_noise_kalibr_refuses_a_topic_that_is_no_ros_name_and_writes_nothing(tmp_path, capsys):
+    rate = 100.0
+    rng = np.random.default_rng(3)
+    accel = rng.normal(0.0, 0.02, (6000, 3)) + [0.0, 0.0, 9.80665]
+    gyro = rng.normal(0.0, 0.002, (6000, 3))
+    data = np.column_stack([np.arange(6000) / rate, accel, gyro])
+    np.savetxt(tmp_path / "still.csv", data, delimiter=",", fmt="%.9g", header="t,ax,ay,az,gx,gy,gz", comments="")
+    out = tmp_path / "imu.yaml"
+    assert main(["noise", str(tmp_path / "still.csv"), "--whole", "--kalibr", str(out),
+                 "--rostopic=/imu\naccelerometer_noise_density: 99.0"]) == 1
+    assert "not a valid ROS topic name" in _one_line_error(capsys)
+    assert not out.exists()
