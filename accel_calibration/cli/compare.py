@@ -32,13 +32,14 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def _instance(args: argparse.Namespace, parameters: ParameterSet, sensor_id: str) -> int:
-    from ..io.autopilot_params import MAX_INSTANCES
+    from ..io.autopilot_params import MAX_INSTANCES, parse_device_id
 
     if args.instance is not None:
         return int(args.instance)
-    if parameters.autopilot == "px4" and sensor_id.strip().isdigit():
+    device = parse_device_id(sensor_id)
+    if parameters.autopilot == "px4" and device is not None:
         for slot in range(MAX_INSTANCES["px4"]):
-            if parameters.values.get(f"CAL_ACC{slot}_ID") == float(sensor_id):
+            if parameters.values.get(f"CAL_ACC{slot}_ID") == float(device):
                 return slot
     return 0
 
@@ -60,7 +61,7 @@ def describe(parameters: ParameterSet, instance: int, held: AxisWiseCalibration)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.axis_calibration import cost_against
+    from ..core.axis_calibration import cost_after_best_rotation, cost_against, rotation_angle_mrad
     from ..io.autopilot_params import MAX_INSTANCES, ardupilot_calibration, px4_calibration, read_parameters
     from ..io.calibration_file import load_calibration
 
@@ -78,4 +79,7 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     cost = cost_against(calibration, held)
     print(f"difference from {args.calibration}: {cost.describe()}")
+    rotated, rotation = cost_after_best_rotation(calibration, held)
+    print(f"after the best rotation of the sensor to the vehicle ({rotation_angle_mrad(rotation):.2f} mrad, which the "
+          f"level / board-rotation calibration absorbs): worst {rotated.worst_mg:.3f} mg (rms {rotated.rms_mg:.3f} mg)")
     return 0

@@ -165,7 +165,11 @@ def cost_against(calibration: Calibration, other: AxisWiseCalibration | Correcti
     """Worst error (mg at 1 g) of `other`'s correction of the sensor our calibration describes."""
     true, raw, temperature = _samples(calibration, directions)
     correct = other.apply if isinstance(other, AxisWiseCalibration) else other
-    error = np.linalg.norm(correct(raw, temperature) - true, axis=1) / MG
+    try:
+        with np.errstate(over="raise", invalid="raise"):
+            error = np.linalg.norm(correct(raw, temperature) - true, axis=1) / MG
+    except FloatingPointError:
+        raise CalibrationError("the other correction overflows: its parameters are beyond any sensor's") from None
     worst = int(np.argmax(error))
     direction = true[worst] / STANDARD_GRAVITY
     temps = temperature_grid(calibration)
@@ -173,6 +177,43 @@ def cost_against(calibration: Calibration, other: AxisWiseCalibration | Correcti
                 worst_direction=(float(direction[0]), float(direction[1]), float(direction[2])),
                 worst_temperature_degc=float(temperature[worst]),
                 temperature_range_degc=(float(temps[0]), float(temps[-1])))
+
+
+def best_rotation(corrected: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """The rotation R minimising sum |R corrected_i - true_i|^2 (Kabsch: the SVD of sum corrected_i true_i^T,
+    with the sign fixed so that det R = +1)."""
+    u, _, vt = np.linalg.svd(corrected.T @ true)
+    sign = 1.0 if np.linalg.det(vt.T @ u.T) > 0 else -1.0
+    rotation: np.ndarray = vt.T @ np.diag([1.0, 1.0, sign]) @ u.T
+    return rotation
+
+
+def cost_after_best_rotation(calibration: Calibration, other: AxisWiseCalibration | Correction,
+                             directions: int = EVALUATION_DIRECTIONS) -> tuple[Cost, np.ndarray]:
+    """(cost, R): `other`'s cost once its output is rotated by the best rotation R (least squares over the
+    evaluation grid). Our calibrated frame's orientation is the fit's convention (sphere9 ties it to the
+    sensor's x axis and xy plane); the rotation from it to the vehicle is what the autopilot's level and
+    board-rotation calibration measure on the vehicle, so only the rest is a loss of the sensor calibration."""
+    true, raw, temperature = _samples(calibration, directions)
+    correct = other.apply if isinstance(other, AxisWiseCalibration) else other
+    rotation = best_rotation(correct(raw, temperature), true)
+
+    def rotated(raw_mps2: np.ndarray, temperature_degc: np.ndarray) -> np.ndarray:
+        corrected: np.ndarray = correct(raw_mps2, temperature_degc) @ rotation.T
+        return corrected
+
+    return cost_against(calibration, rotated, directions), rotation
+
+
+def rotation_angle_mrad(rotation: np.ndarray) -> float:
+    """The angle of a rotation matrix, mrad."""
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))) * 1e3
+
+
+def gyro_matrix_loss_mrad_per_radps(gyro_matrix: np.ndarray) -> float:
+    """What dropping the gyro matrix costs (a target that applies w = w_raw - b_g only): the worst error per
+    rad/s of true rate over all directions, mrad/s per rad/s = the largest singular value of M_g^-1 - I."""
+    return float(np.linalg.norm(np.linalg.inv(gyro_matrix) - np.eye(3), 2)) * 1e3
 
 
 def fit_axis_wise(calibration: Calibration, *, drift_order: int, drift_origin_degc: float,

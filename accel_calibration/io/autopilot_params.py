@@ -19,6 +19,7 @@ What each name means, from the autopilots' own source:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,13 @@ ARDUPILOT_TCAL_REFERENCE_DEGC = 35.0
 ARDUPILOT_TCAL_SCALE = 1e6
 MAX_INSTANCES = {"px4": 4, "ardupilot": 3}
 MAX_PARAMETER_BYTES = 4 << 20  # a full parameter file is ~30-100 KB
+FLOAT32_MAX = 3.4028234663852886e38  # both autopilots keep REAL32 parameters
+# A decimal number as the autopilots' files write it; Python's float() also takes '1_0', 'nan', 'inf' and
+# non-ASCII digits, which no autopilot writes or reads.
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+# A sensor_id the readers write: the device ID alone, or 'px4 device ID' (ulog_reader), 'ardupilot accel ID'
+# (dataflash); PX4 and ArduPilot encode device IDs alike (bus type, bus, address, device type).
+_DEVICE_ID = re.compile(r"(?:px4 device |ardupilot accel )?([0-9]{1,10})")
 
 
 class ParameterFileError(CalibrationError):
@@ -70,6 +78,31 @@ def _check_range(name: str, value: float, low: float, high: float) -> None:
                                  f"{low:g}..{high:g}")
 
 
+def _check_float32(name: str, value: float) -> None:
+    if not (math.isfinite(value) and abs(value) <= FLOAT32_MAX):
+        raise ParameterFileError(f"{name} = {value:.6g} is not a float32, which the autopilot's parameters are")
+
+
+def _check_temperature_span(low_name: str, low: float, high_name: str, high: float) -> None:
+    if not low <= high:
+        raise ParameterFileError(f"{low_name} {low:g} above {high_name} {high:g}: the autopilot's clamp range is empty")
+
+
+def parse_number(text: str) -> float | None:
+    """A decimal number written as the autopilots write one, else None."""
+    return float(text) if _NUMBER.fullmatch(text) else None
+
+
+def parse_device_id(sensor_id: str) -> int | None:
+    """The device ID in a calibration's sensor_id ('1310988', 'px4 device 1310988', 'ardupilot accel 1310988'),
+    a 32-bit number above 0; None when it holds none."""
+    match = _DEVICE_ID.fullmatch(sensor_id.strip())
+    if match is None:
+        return None
+    device = int(match.group(1))
+    return device if 0 < device < 2**32 else None
+
+
 def _check_instance(autopilot: str, instance: int) -> None:
     count = MAX_INSTANCES[autopilot]
     if not (isinstance(instance, int) and 0 <= instance < count):
@@ -81,7 +114,9 @@ def _check_instance(autopilot: str, instance: int) -> None:
 def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int | None = None,
                    gyro_bias_radps: np.ndarray | None = None) -> list[Parameter]:
     """CAL_ACCn_* (and CAL_ACCn_ID when the device ID is known), TC_A* when the fit carries a drift
-    polynomial, CAL_GYROn_*OFF from the gyro bias. Refuses values outside PX4's accepted ranges."""
+    polynomial, CAL_GYROn_*OFF from the gyro bias with CAL_GYROn_ID (PX4 applies a gyro slot only to the
+    device whose ID it holds; its IMU drivers register a chip's accel and gyro under one device ID).
+    Refuses values outside PX4's accepted ranges."""
     _check_instance("px4", instance)
     out: list[Parameter] = []
     prefix = f"CAL_ACC{instance}_"
@@ -110,6 +145,8 @@ def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int
             for axis in range(3):
                 out.append(Parameter(f"{tc}X{power}_{axis}", float(rows[power, axis])))
     if gyro_bias_radps is not None:
+        if device_id is not None:
+            out.append(Parameter(f"CAL_GYRO{instance}_ID", device_id, integer=True))
         for axis, name in enumerate(AXES):
             out.append(Parameter(f"CAL_GYRO{instance}_{name}OFF", float(gyro_bias_radps[axis])))
     return out
@@ -133,10 +170,19 @@ def px4_calibration(values: dict[str, float], instance: int) -> AxisWiseCalibrat
     scale = [values.get(f"{prefix}{a}SCALE", 1.0) for a in AXES]
     if not any(f"{prefix}{a}OFF" in values for a in AXES):
         raise ParameterFileError(f"no {prefix}XOFF/YOFF/ZOFF parameters: not this instance, or not PX4")
+    for a, value in zip(AXES, offset):
+        _check_float32(f"{prefix}{a}OFF", value)
+    for a, value in zip(AXES, scale):
+        _check_range(f"{prefix}{a}SCALE", value, *PX4_SCALE_RANGE)
     slot = _px4_thermal_slot(values, instance)
     if slot is not None:
         tc = f"TC_A{slot}_"
         rows = np.array([[values.get(f"{tc}X{p}_{axis}", 0.0) for axis in range(3)] for p in range(4)])
+        for name in [f"{tc}TREF", f"{tc}TMIN", f"{tc}TMAX"] + [f"{tc}X{p}_{i}" for p in range(4) for i in range(3)]:
+            if name in values:
+                _check_float32(name, values[name])
+        _check_temperature_span(f"{tc}TMIN", values.get(f"{tc}TMIN", -math.inf),
+                                f"{tc}TMAX", values.get(f"{tc}TMAX", math.inf))
         return AxisWiseCalibration(
             offset_mps2=np.array(offset), scale=np.array(scale), drift_constant_mps2=rows[0],
             drift_coefficients=rows[1:], drift_origin_degc=values[f"{tc}TREF"],
@@ -229,12 +275,24 @@ def ardupilot_calibration(values: dict[str, float], instance: int) -> AxisWiseCa
         raise ParameterFileError(f"no {offset_prefix}X/Y/Z parameters: not this instance, or not ArduPilot")
     offset = np.array([values.get(offset_prefix + a, 0.0) for a in AXES])
     scale = np.array([values.get(scale_prefix + a, 1.0) for a in AXES])
+    for a, value in zip(AXES, offset):
+        _check_range(offset_prefix + a, float(value), *ARDUPILOT_OFFSET_RANGE_MPS2)
     if not np.any(scale):
         scale = np.ones(3)  # the never-calibrated default, replaced by 1 at start-up
+    for a, value in zip(AXES, scale):
+        _check_range(scale_prefix + a, float(value), *ARDUPILOT_SCALE_RANGE)
     n = instance + 1
     tcal = f"INS_TCAL{n}_"
     if values.get(tcal + "ENABLE", 0) == 1:
         rows = np.array([[values.get(f"{tcal}ACC{p}_{a}", 0.0) for a in AXES] for p in (1, 2, 3)])
+        for name in (tcal + "TMIN", tcal + "TMAX"):
+            if name in values:
+                _check_range(name, values[name], *ARDUPILOT_TEMPERATURE_RANGE_DEGC)
+        _check_temperature_span(tcal + "TMIN", values.get(tcal + "TMIN", 0.0), tcal + "TMAX",
+                                values.get(tcal + "TMAX", 70.0))
+        for name in [f"{tcal}ACC{p}_{a}" for p in (1, 2, 3) for a in AXES] + [f"INS_ACC{n}_CALTEMP"]:
+            if name in values:
+                _check_float32(name, values[name])
         return AxisWiseCalibration(
             offset_mps2=offset, scale=scale, drift_coefficients=rows / ARDUPILOT_TCAL_SCALE,
             drift_origin_degc=ARDUPILOT_TCAL_REFERENCE_DEGC,
@@ -270,13 +328,11 @@ def parse_parameter_text(text: str, source: str) -> ParameterSet:
         else:
             raise ParameterFileError(f"{source}: line {number}: expected NAME,VALUE or QGroundControl's "
                                      f"5 columns, got {raw_line.strip()[:60]!r}")
-        try:
-            value = float(value_text)
-        except ValueError:
-            raise ParameterFileError(f"{source}: line {number}: {name} value {value_text[:30]!r} is not a number") \
-                from None
+        value = parse_number(value_text)
+        if value is None:
+            raise ParameterFileError(f"{source}: line {number}: {name} value {value_text[:30]!r} is not a number")
         if not math.isfinite(value):
-            raise ParameterFileError(f"{source}: line {number}: {name} = {value_text} is not finite")
+            raise ParameterFileError(f"{source}: line {number}: {name} = {value_text[:30]} is not finite")
         values[name] = value
     if not values:
         raise ParameterFileError(f"{source}: no parameters in it")
@@ -291,7 +347,13 @@ def read_ulog_parameters(path: str | Path) -> ParameterSet:
         ulog = ULog(str(path), [], False)
     except Exception as error:  # pyulog raises bare exceptions on damaged files
         raise ParameterFileError(f"{path}: not a readable ULog ({type(error).__name__}: {str(error)[:80]})") from None
-    values = {str(k): float(v) for k, v in ulog.initial_parameters.items()}
+    values: dict[str, float] = {}
+    for key, value in ulog.initial_parameters.items():
+        # PX4 logs int32 and float parameters; anything else is no value the autopilot would apply.
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ParameterFileError(f"{path}: parameter {str(key)[:40]} is not a number "
+                                     f"({type(value).__name__} {str(value)[:20]!r})")
+        values[str(key)] = float(value)
     if not values:
         raise ParameterFileError(f"{path}: the ULog holds no parameters")
     return ParameterSet(_autopilot_of(set(values), str(path)), values, str(path))
@@ -329,7 +391,7 @@ def read_parameters(path: str | Path) -> ParameterSet:
         return read_dataflash_parameters(p)
     raw = read_regular_file(p, MAX_PARAMETER_BYTES, "parameter file", error=ParameterFileError)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # Windows editors begin a file with a byte-order mark
     except UnicodeDecodeError:
         raise ParameterFileError(f"{p}: neither a parameter text file, a ULog nor a DataFlash log") from None
     return parse_parameter_text(text, str(p))

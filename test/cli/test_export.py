@@ -4,6 +4,8 @@ within the cost the export reports; export -> compare gives back that cost (0 fo
 whole); out-of-range values are refused with the range; real autopilot logs are read."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from conftest import shared_path
@@ -13,6 +15,7 @@ from hypothesis import strategies as st
 from accel_calibration.cli.export import fit_for
 from accel_calibration.cli.main import main
 from accel_calibration.core.axis_calibration import (
+    AxisWiseCalibration,
     cost_against,
     lower_triangular_with_rotation,
     raw_for_true,
@@ -21,7 +24,12 @@ from accel_calibration.core.axis_calibration import (
 from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.core.units import MG, STANDARD_GRAVITY
-from accel_calibration.io.autopilot_params import parse_parameter_text
+from accel_calibration.io.autopilot_params import (
+    ParameterFileError,
+    ardupilot_parameters,
+    parse_parameter_text,
+    px4_parameters,
+)
 from accel_calibration.io.calibration_file import save_calibration
 from accel_calibration.io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
 
@@ -135,10 +143,13 @@ def test_compare_of_an_export_gives_the_exports_cost(tmp_path, capsys):
     assert main(["export", str(tmp_path / "cal.yaml"), "--to", "px4", "-o", str(tmp_path / "x.params")]) == 0
     reported = capsys.readouterr().out.splitlines()[0]
     assert main(["compare", str(tmp_path / "cal.yaml"), str(tmp_path / "x.params")]) == 0
-    compared = capsys.readouterr().out.splitlines()[-1]
+    compared, compared_rotated = capsys.readouterr().out.splitlines()[-2:]
     worst = reported.split("worst ")[1].split(" mg")[0]
     assert 1.9 < float(worst) < 2.0  # 1.960 mg: up to 1.5 mrad of misalignment at 1 g
     assert f"worst {worst} mg" in compared
+    rotated = reported.split("after the best rotation")[1].split("worst ")[1].split(" mg")[0]
+    assert 1.2 < float(rotated) < 1.3  # 1.237 mg once the level calibration takes its 1.08 mrad
+    assert f"worst {rotated} mg" in compared_rotated
 
 
 def test_export_refuses_above_max_loss_unless_forced(tmp_path, capsys):
@@ -153,17 +164,19 @@ def test_export_refuses_above_max_loss_unless_forced(tmp_path, capsys):
     assert main(args + ["--max-loss-mg", "20"]) == 0
 
 
-@pytest.mark.parametrize("target, matrix, bias, expected", [
-    ("ardupilot", np.diag([1.25, 1, 1]), [0, 0, 0], "INS_ACCSCAL_X = 1.25 is outside the range the autopilot "
-                                                   "accepts, 0.8..1.2"),
-    ("ardupilot", np.eye(3), [0, 4.0, 0], "INS_ACCOFFS_Y = 4 is outside the range the autopilot accepts, -3.5..3.5"),
-    ("px4", np.diag([1, 1, 3.5]), [0, 0, 0], "CAL_ACC0_ZSCALE = 3.5 is outside the range the autopilot accepts, "
-                                             "0.1..3"),
+@pytest.mark.parametrize("target, scale, offset, expected", [
+    ("ardupilot", [1.25, 1, 1], [0, 0, 0], "INS_ACCSCAL_X = 1.25 is outside the range the autopilot accepts, 0.8..1.2"),
+    ("ardupilot", [1, 1, 1], [0, 4.0, 0], "INS_ACCOFFS_Y = 4 is outside the range the autopilot accepts, -3.5..3.5"),
+    ("px4", [1, 1, 3.5], [0, 0, 0], "CAL_ACC0_ZSCALE = 3.5 is outside the range the autopilot accepts, 0.1..3"),
 ])
-def test_values_outside_the_targets_range_are_refused_naming_it(target, matrix, bias, expected, tmp_path, capsys):
-    save_calibration(Calibration(bias=bias, matrix=matrix), tmp_path / "cal.yaml")
-    assert main(["export", str(tmp_path / "cal.yaml"), "--to", target, "-o", str(tmp_path / "x")]) == 1
-    assert expected in capsys.readouterr().err
+def test_values_outside_the_targets_range_are_refused_naming_it(target, scale, offset, expected):
+    """The writers refuse what the target refuses (export refuses sooner: our loader's gates are tighter)."""
+    held = AxisWiseCalibration(offset_mps2=offset, scale=scale)
+    with pytest.raises(ParameterFileError, match=re.escape(expected)):
+        if target == "px4":
+            px4_parameters(held, 0)
+        else:
+            ardupilot_parameters(held, 0, reference_degc=None)
 
 
 def test_ardupilot_instances_and_px4_ids(tmp_path):
