@@ -54,6 +54,29 @@ def flight_state_settings(args: argparse.Namespace) -> dict[str, Any]:
             "ignore_flight_state": bool(getattr(args, "ignore_flight_state", False))}
 
 
+def add_reader_options(parser: argparse.ArgumentParser) -> None:
+    """How to read a recording other than a bag directory (bag/recording.open_recording)."""
+    from ..bag.recording import FORMATS
+
+    parser.add_argument("--format", choices=FORMATS, default=None,
+                        help="the recording's format (default: found from the path and content)")
+    parser.add_argument("--instance", type=int, default=None, metavar="N",
+                        help="ULog: sensor_accel/sensor_gyro instance N (default: sensor_combined); "
+                             "DataFlash: IMU instance N (default 0)")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                        help="CSV: unit of the time column (default: s for t, ns for t_ns)")
+    parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
+                        help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
+    parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
+                        help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
+
+
+def reader_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """ReplaySettings' reader fields from add_reader_options' options."""
+    return {"format": args.format, "instance": args.instance, "time_unit": args.time_unit, "units": args.units,
+            "counts_per_g": args.counts_per_g}
+
+
 def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool) -> None:
     """The topics, the node's settings (--params-file, -p, the flags standing for parameters) and the
     flight state. `detector`: also the flags for the detector and the temperature model (replay)."""
