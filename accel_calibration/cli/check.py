@@ -7,7 +7,14 @@ import argparse
 import dataclasses
 
 from .history import DRIFT_EXIT_CODE, add_change_rule_options
-from .options import add_reader_options, add_settings_options, reader_fields, replay_settings
+from .options import (
+    add_local_gravity_options,
+    add_reader_options,
+    add_settings_options,
+    local_gravity,
+    reader_fields,
+    replay_settings,
+)
 
 CANNOT_TELL_EXIT_CODE = 1
 
@@ -25,8 +32,9 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, an ArduPilot .bin log, "
                              "or a CSV of raw samples")
     add_reader_options(parser)
-    add_settings_options(parser, detector=False)
+    add_settings_options(parser, detector=False, model=False)
     add_change_rule_options(parser)
+    add_local_gravity_options(parser)  # default: the g the calibration was fitted with
     return parser
 
 
@@ -37,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import CalibrationError
     from ..io.calibration_file import load_calibration
 
+    located = local_gravity(args)  # the flags refused before any file is read
     try:
         rule = ChangeRule(k_sigma=args.drift_k_sigma, max_bias_change_mg=args.max_bias_change,
                           max_scale_change=args.max_scale_change)
@@ -45,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
     replay = replay_bag(args.recording, settings)  # its errors are one line (bag/replay.ReplayError)
-    result = check_calibration(calibration, replay.poses, rule)
+    result = check_calibration(calibration, replay.poses, rule, gravity=None if located is None else located[0])
     lines = describe(result)
     if replay.flight_state_line:
         lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")

@@ -291,7 +291,7 @@ class CalibrationSession:
             return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id,
-            noise=self.measured_noise())
+            noise=self.measured_noise(), gravity_source=self.settings.gravity_source)
         gyro, gyro_text = self.gyro_verdict(calibration)
         if gyro is not None and gyro_text is None:
             calibration = gyro.apply_to(calibration)

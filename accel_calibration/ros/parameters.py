@@ -42,7 +42,8 @@ RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
 def _descriptor(parameter: Parameter) -> ParameterDescriptor:
     fixed = "" if parameter.dynamic else " (fixed at start-up)"
     descriptor = ParameterDescriptor(description=parameter.description + fixed)
-    if parameter.low is not None and parameter.high is not None:
+    # rclpy checks a declared default against its range, and NaN ("not given") is within none.
+    if parameter.low is not None and parameter.high is not None and not parameter.nan_means_unset:
         if type(parameter.default) is int:
             descriptor.integer_range = [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high),
                                                      step=0)]
