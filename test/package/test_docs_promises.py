@@ -629,17 +629,19 @@ def test_an_mcap_chunk_that_decompresses_to_other_than_its_declared_size_is_one_
 
 
 def test_building_the_parser_imports_what_startup_md_says_and_no_more():
-    """docs/startup.md: building the parser imports `io.history` (the drift rule's defaults), not the fit,
+    """docs/startup.md: building the parser imports `core.change_rule` (the change rule's defaults), not the
+    history (SQLAlchemy's module), the fit,
     scipy.linalg, scipy.stats, matplotlib or rosbags' type store (fresh interpreter)."""
     import subprocess
     import sys
 
     code = ("import sys\nfrom accel_calibration.cli.main import _parser\n_parser()\n"
-            "print(sorted(m for m in ('accel_calibration.io.history', 'accel_calibration.core.fit', 'scipy.linalg',"
+            "print(sorted(m for m in ('accel_calibration.core.change_rule', 'accel_calibration.io.history',"
+            " 'accel_calibration.core.fit', 'scipy.linalg',"
             " 'scipy.stats', 'matplotlib', 'rosbags.typesys.stores.ros2_jazzy') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert done.stdout.strip() == "['accel_calibration.io.history']", done.stdout
-    assert "building the parser imports `io.history`" in re.sub(r"\s+", " ", _text(REPO / "docs" / "startup.md"))
+    assert done.stdout.strip() == "['accel_calibration.core.change_rule']", done.stdout
+    assert "building the parser imports `core.change_rule`" in re.sub(r"\s+", " ", _text(REPO / "docs" / "startup.md"))
 
 
 def test_the_calibration_file_the_readme_shows_is_what_save_calibration_writes(tmp_path):
