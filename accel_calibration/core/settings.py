@@ -191,6 +191,12 @@ def check_value(parameter: Parameter, value: Any) -> Any:
     return value
 
 
+def changed(before: Any, after: Any) -> bool:
+    """A setting's value changed (NaN, an unset latitude, is equal to itself here)."""
+    unset = isinstance(before, float) and isinstance(after, float) and math.isnan(before) and math.isnan(after)
+    return not unset and bool(before != after)
+
+
 def _as_float_text(value: Any) -> str:
     try:
         return repr(float(value))
