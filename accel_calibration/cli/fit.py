@@ -7,7 +7,7 @@ from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from ..core.units import STANDARD_GRAVITY
-from .options import UNIT_SCALE
+from .options import UNIT_SCALE, add_local_gravity_options, local_gravity
 
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -18,8 +18,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of ax,ay,az (default mps2)")
     parser.add_argument("--model", choices=MODELS + (DIVIDING_HEAD,), default="sphere9",
                         help="error model (default sphere9)")
-    parser.add_argument("--gravity", type=float, default=STANDARD_GRAVITY,
-                        help=f"local gravity, m/s^2 (default {STANDARD_GRAVITY})")
+    add_local_gravity_options(parser)
     parser.add_argument("--frame-id", default="", help="sensor frame id stored in the file")
     parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default="none",
                         help="temperature drift model, needs a temperature column (default none)")
@@ -41,6 +40,20 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     return parser
 
 
+def _gravity(args: argparse.Namespace) -> tuple[float, str]:
+    """The local g and where it came from: --latitude [--height] (checked as the node checks them), else
+    --gravity (any positive number: a table in other units), else the standard 1 g."""
+    from ..core.gravity import given_gravity_source
+
+    located = local_gravity(args) if args.latitude is not None or args.height is not None else None
+    if located is not None:
+        return located
+    gravity = STANDARD_GRAVITY if args.gravity is None else args.gravity
+    if not (gravity > 0 and gravity < 1e3):
+        raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {gravity}")
+    return gravity, given_gravity_source(gravity)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..core.fit import fit
     from ..core.plausibility import PLAUSIBLE_TEMPERATURE_DEGC
@@ -49,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.output_paths import check_outputs
     from ..io.pose_table import read_table
 
-    if not (args.gravity > 0 and args.gravity < 1e3):
-        raise CalibrationError(f"--gravity must be a positive number of m/s^2, got {args.gravity}")
+    gravity, gravity_source = _gravity(args)
     low, high = PLAUSIBLE_TEMPERATURE_DEGC
     if args.reference_temperature is not None and not low <= args.reference_temperature <= high:
         raise CalibrationError(f"--reference-temperature must be a sensor temperature within {low:g}..{high:g} degC, "
@@ -59,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model == DIVIDING_HEAD:
         from . import dividing_head as dividing_head_command
 
-        return dividing_head_command.fit_table(args, UNIT_SCALE[args.units])
+        return dividing_head_command.fit_table(args, UNIT_SCALE[args.units], gravity)
     table = read_table(args.poses)
     if args.model in REFERENCE_MODELS and table.reference is None:
         raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
@@ -76,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     result = fit(
         accel,
         model=args.model,
-        gravity=args.gravity,
+        gravity=gravity,
         temperature_degc=table.temperature_degc,
         reference=table.reference if args.model in REFERENCE_MODELS else None,
         frame_id=args.frame_id,
@@ -86,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if not result.success or result.calibration is None:
         raise CalibrationError(f"fit failed: {result.message}")
-    save_calibration(result.calibration, args.output)
+    save_calibration(result.calibration.replace(gravity_source=gravity_source), args.output)
     print(result.summary())
     print(f"written {args.output}")
     return 0

@@ -20,11 +20,16 @@ DRIFT_EXIT_CODE = 3  # drift flagged (1 stays "could not run")
 
 def add_drift_options(parser: argparse.ArgumentParser) -> None:
     """The history selection and the drift rule, shared by `history` and `report --history`."""
-    from ..io.history import DriftRule
-
-    defaults = DriftRule()
     parser.add_argument("--vehicle", default=None, help="only this vehicle")
     parser.add_argument("--sensor", default=None, help="only this sensor (its frame_id, else its IMU topic)")
+    add_change_rule_options(parser)
+
+
+def add_change_rule_options(parser: argparse.ArgumentParser) -> None:
+    """The change rule's thresholds (core/change_rule.py), shared by `history`, `report --history` and `check`."""
+    from ..core.change_rule import ChangeRule
+
+    defaults = ChangeRule()
     parser.add_argument("--drift-k-sigma", "--k-sigma", dest="drift_k_sigma", type=float, default=defaults.k_sigma,
                         help="flag a change larger than K times the combined sigma of the two calibrations, "
                              f"|delta| > K sqrt(s1^2 + s2^2) (default {defaults.k_sigma:g})")

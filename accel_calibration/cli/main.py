@@ -19,6 +19,7 @@ from ..core.errors import AccelCalibrationError, CalibrationError
 # by the commands that use them: `--help` and a start-up cost at most twice numpy's own import
 # (bench/bench_startup.py).
 from . import apply as apply_command
+from . import check as check_command
 from . import compare as compare_command
 from . import export as export_command
 from . import fit as fit_command
@@ -31,7 +32,7 @@ from .options import PROG
 
 COMMANDS = {"fit": fit_command, "replay": replay_command, "report": report_command, "apply": apply_command,
             "fleet": fleet_command, "history": history_command, "export": export_command,
-            "compare": compare_command, "noise": noise_command}
+            "compare": compare_command, "noise": noise_command, "check": check_command}
 
 
 class _OneLineParser(argparse.ArgumentParser):

@@ -17,7 +17,8 @@ UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665
 
 # Flag -> the node's parameter it stands for. A command offers some of them (fleet: model, min_poses).
 FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "min_span": "temperature.min_span_degc",
-                   "gravity": "gravity", "min_poses": "min_poses", "window": "static.window_s",
+                   "gravity": "gravity", "latitude": "latitude_deg", "height": "height_m",
+                   "min_poses": "min_poses", "window": "static.window_s",
                    "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
 
 DEFAULT_MARGIN_S = 2.0
@@ -54,9 +55,66 @@ def flight_state_settings(args: argparse.Namespace) -> dict[str, Any]:
             "ignore_flight_state": bool(getattr(args, "ignore_flight_state", False))}
 
 
-def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool) -> None:
+def add_local_gravity_options(parser: argparse.ArgumentParser) -> None:
+    """Local gravity: a number, or the WGS84 normal gravity at a latitude and height (fit, replay, check)."""
+    parser.add_argument("--gravity", type=float, default=None, metavar="G",
+                        help=f"local gravity, m/s^2 (default {STANDARD_GRAVITY}; -p gravity:=...)")
+    parser.add_argument("--latitude", type=float, default=None, metavar="DEG",
+                        help="local gravity from the WGS84 normal gravity at this geodetic latitude, deg "
+                             "(instead of --gravity; -p latitude_deg:=...)")
+    parser.add_argument("--height", type=float, default=None, metavar="M",
+                        help="with --latitude: height above the WGS84 ellipsoid, m (default 0; -p height_m:=...)")
+
+
+def local_gravity(args: argparse.Namespace) -> tuple[float, str] | None:
+    """(g, where it came from) from --gravity or --latitude [--height], checked as the node's settings
+    check them; None when neither was given."""
+    from ..core.settings import Settings
+
+    gravity, latitude, height = (getattr(args, name, None) for name in ("gravity", "latitude", "height"))
+    if gravity is not None and latitude is not None:
+        raise CalibrationError("--gravity and --latitude exclude each other: give the local g or where it is")
+    if height is not None and latitude is None:
+        raise CalibrationError("--height needs --latitude (the normal gravity's height above the ellipsoid)")
+    values = {"gravity": gravity, "latitude_deg": latitude, "height_m": height}
+    given = {name: value for name, value in values.items() if value is not None}
+    if not given:
+        return None
+    try:
+        settings = Settings.from_parameters(given)
+    except CalibrationError as error:  # named as the flags are
+        text = str(error).replace("latitude_deg", "--latitude").replace("height_m", "--height")
+        raise CalibrationError(text.replace("gravity must", "--gravity must")) from None
+    return settings.gravity, settings.gravity_source
+
+
+def add_reader_options(parser: argparse.ArgumentParser) -> None:
+    """How to read a recording other than a bag directory (bag/recording.open_recording)."""
+    from ..bag.recording import FORMATS
+
+    parser.add_argument("--format", choices=FORMATS, default=None,
+                        help="the recording's format (default: found from the path and content)")
+    parser.add_argument("--instance", type=int, default=None, metavar="N",
+                        help="ULog: sensor_accel/sensor_gyro instance N (default: sensor_combined); "
+                             "DataFlash: IMU instance N (default 0)")
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                        help="CSV: unit of the time column (default: s for t, ns for t_ns)")
+    parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
+                        help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
+    parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
+                        help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
+
+
+def reader_fields(args: argparse.Namespace) -> dict[str, Any]:
+    """ReplaySettings' reader fields from add_reader_options' options."""
+    return {"format": args.format, "instance": args.instance, "time_unit": args.time_unit, "units": args.units,
+            "counts_per_g": args.counts_per_g}
+
+
+def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool, model: bool = True) -> None:
     """The topics, the node's settings (--params-file, -p, the flags standing for parameters) and the
-    flight state. `detector`: also the flags for the detector and the temperature model (replay)."""
+    flight state. `detector`: also the flags for the detector and the temperature model (replay); `model`:
+    the flags for the model and min_poses (not for `check`, which fits nothing)."""
     parser.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic (default: the only one)")
     parser.add_argument("--temperature-topic", default=None,
                         help="sensor_msgs/Temperature topic (default: the only one)")
@@ -67,14 +125,15 @@ def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool) -> 
                              "(default /accel_calibration)")
     parser.add_argument("--param", "-p", action="append", default=[], metavar="NAME:=VALUE",
                         help="one setting as the node takes it, e.g. -p static.window_s:=0.3 (repeatable)")
-    parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
-    parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
+    if model:
+        parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
+        parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
     if detector:
         parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default=None,
                             help="same as -p temperature.model:=...")
         parser.add_argument("--min-span", type=float, default=None,
                             help="same as -p temperature.min_span_degc:=...")
-        parser.add_argument("--gravity", type=float, default=None, help="same as -p gravity:=...")
+        add_local_gravity_options(parser)
         parser.add_argument("--window", type=float, default=None,
                             help="detector window, s (-p static.window_s:=...)")
         parser.add_argument("--min-hold", type=float, default=None,
@@ -102,6 +161,7 @@ def replay_settings(args: argparse.Namespace) -> Any:
         if not sep:
             raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
         values[name.strip()] = safe_yaml_load(text, f"-p {item}: value", error=CalibrationError)
+    local_gravity(args)  # the flags' own one-line refusals, before the parameters combine them
     offered = vars(args)
     for flag, name in FLAG_PARAMETERS.items():
         if offered.get(flag) is not None:  # a flag this command does not offer is absent, not None

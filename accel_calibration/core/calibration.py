@@ -213,6 +213,9 @@ class Calibration:
     gyro_matrix: np.ndarray | None = None
     gyro_quality: GyroQuality | None = None
     noise: MeasuredNoise | None = None  # white noise measured at the poses (the covariance's start)
+    # Where `gravity` came from: "standard", "given", "WGS84 normal gravity, latitude .. deg, height .. m";
+    # "" when not recorded (files written before it was).
+    gravity_source: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -280,7 +283,7 @@ class Calibration:
     def _check_model_gravity_matrix(self) -> None:
         """The checks both constructors make (gravity becomes a float): a known model, a positive finite
         gravity, M not singular, and the identifiers bounded (bounded_identifier)."""
-        for name in ("frame_id", "sensor_id"):
+        for name in ("frame_id", "sensor_id", "gravity_source"):
             object.__setattr__(self, name, bounded_identifier(getattr(self, name)))
         if self.model not in CALIBRATION_MODELS:
             raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(CALIBRATION_MODELS)}")
@@ -410,6 +413,7 @@ class Calibration:
             and _same_temperature(self.temperature, other.temperature)
             and self.dividing_head == other.dividing_head
             and self.noise == other.noise
+            and self.gravity_source == other.gravity_source
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

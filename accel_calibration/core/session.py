@@ -24,7 +24,7 @@ from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
-from .settings import BY_NAME, DYNAMIC, Settings
+from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
@@ -111,7 +111,7 @@ class CalibrationSession:
         """Take new values of the run-time settings (gates, auto_calibrate); the others shape the
         detector and store already built and are refused."""
         fixed = [p.name for p in BY_NAME.values() if p.name not in DYNAMIC
-                 and getattr(settings, p.field) != getattr(self.settings, p.field)]
+                 and changed(getattr(self.settings, p.field), getattr(settings, p.field))]
         if fixed:
             raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
         self.gates = QualityGates.from_settings(settings)
@@ -291,7 +291,7 @@ class CalibrationSession:
             return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id,
-            noise=self.measured_noise())
+            noise=self.measured_noise(), gravity_source=self.settings.gravity_source)
         gyro, gyro_text = self.gyro_verdict(calibration)
         if gyro is not None and gyro_text is None:
             calibration = gyro.apply_to(calibration)

@@ -15,6 +15,7 @@ from typing import Any
 from .coverage import SigmaBounds
 from .errors import SettingsError
 from .fit import OutlierOptions
+from .gravity import HEIGHT_RANGE_M, LATITUDE_RANGE_DEG, given_gravity_source, normal_gravity, normal_gravity_source
 from .gyro_fit import GyroFitOptions
 from .gyro_gates import GyroGates
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
@@ -38,6 +39,7 @@ class Parameter:
     choices: tuple[str, ...] = ()
     dynamic: bool = False  # changeable while the node runs (the gates and auto_calibrate)
     zero_means_auto: bool = False  # 0 is allowed and means "learned" (detector thresholds)
+    nan_means_unset: bool = False  # NaN (the default) means "not given" (the latitude: 0 is the equator)
 
     @property
     def field(self) -> str:
@@ -48,6 +50,10 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("model", "sphere9", "online error model: sphere9 (bias + lower-triangular M) or six (bias + diagonal)",
               choices=ONLINE_MODELS),
     Parameter("gravity", STANDARD_GRAVITY, "local gravity magnitude, m/s^2", 9.7, 9.9),
+    Parameter("latitude_deg", math.nan, "geodetic latitude, deg: gravity is then the WGS84 normal gravity there "
+              "(instead of the gravity parameter); NaN = not given", *LATITUDE_RANGE_DEG, nan_means_unset=True),
+    Parameter("height_m", 0.0, "with latitude_deg: height above the WGS84 ellipsoid, m (free-air correction)",
+              *HEIGHT_RANGE_M),
     Parameter("sensor_id", "", "identity of the sensor, written into the calibration file"),
     Parameter("auto_calibrate", False, "apply (and save) a new fit by itself once it passes the quality gates",
               dynamic=True),
@@ -163,6 +169,8 @@ def check_value(parameter: Parameter, value: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, float):
             raise SettingsError(f"{name} must be a floating-point number (write {_as_float_text(value)}), "
                                 f"got {value!r}")
+        if math.isnan(value) and parameter.nan_means_unset:
+            return value
         if not math.isfinite(value):
             raise SettingsError(f"{name} must be a finite number, got {value!r}")
     elif kind is int:
@@ -183,6 +191,12 @@ def check_value(parameter: Parameter, value: Any) -> Any:
     return value
 
 
+def changed(before: Any, after: Any) -> bool:
+    """A setting's value changed (NaN, an unset latitude, is equal to itself here)."""
+    unset = isinstance(before, float) and isinstance(after, float) and math.isnan(before) and math.isnan(after)
+    return not unset and bool(before != after)
+
+
 def _as_float_text(value: Any) -> str:
     try:
         return repr(float(value))
@@ -196,6 +210,8 @@ class Settings:
 
     model: str = _default("model")
     gravity: float = _default("gravity")
+    latitude_deg: float = _default("latitude_deg")
+    height_m: float = _default("height_m")
     sensor_id: str = _default("sensor_id")
     auto_calibrate: bool = _default("auto_calibrate")
     min_poses: int = _default("min_poses")
@@ -247,6 +263,7 @@ class Settings:
                 object.__setattr__(self, parameter.field, float(value))
                 value = float(value)
             check_value(parameter, value)
+        self._local_gravity()
         from .models import parameter_count
 
         needed = parameter_count(self.model)
@@ -259,6 +276,24 @@ class Settings:
         if self.static_min_hold_s <= self.static_window_s / 2:
             raise SettingsError(f"static.min_hold_s ({self.static_min_hold_s:g}) must exceed half of static.window_s "
                                 f"({self.static_window_s:g})")
+
+    def _local_gravity(self) -> None:
+        """gravity from latitude_deg and height_m when a latitude is given; the two ways exclude each other."""
+        if math.isnan(self.latitude_deg):
+            if self.height_m != 0.0:
+                raise SettingsError("height_m needs latitude_deg (the normal gravity's height above the ellipsoid)")
+            return
+        local = normal_gravity(self.latitude_deg, self.height_m)
+        if self.gravity not in (STANDARD_GRAVITY, local):
+            raise SettingsError(f"gravity ({self.gravity:g}) and latitude_deg exclude each other: give one")
+        object.__setattr__(self, "gravity", local)
+
+    @property
+    def gravity_source(self) -> str:
+        """Where gravity came from, as the calibration file records it."""
+        if math.isnan(self.latitude_deg):
+            return given_gravity_source(self.gravity)
+        return normal_gravity_source(self.latitude_deg, self.height_m)
 
     @classmethod
     def from_parameters(cls, values: Mapping[str, Any], base: Settings | None = None) -> Settings:

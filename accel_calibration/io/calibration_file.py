@@ -87,6 +87,7 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
         "format_version": FORMAT_VERSION,
         "model": c.model,
         "gravity": c.gravity,
+        **({"gravity_source": c.gravity_source} if c.gravity_source else {}),
         "bias": c.bias.tolist(),
         "matrix": c.matrix.tolist(),
     }
@@ -339,6 +340,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             created=str(body.get("created", "")),
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
+            gravity_source=str(body.get("gravity_source", "") or ""),  # absent from older files
             reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),
             gyro_bias_radps=body.get("gyro_bias_radps"),
         )

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
 
+from ..core.change_rule import ChangeRule
 from ..core.errors import AccelCalibrationError
 from ..core.units import MG
 
@@ -522,19 +523,12 @@ def open_history(target: str | Path, read_only: bool = False) -> History:
 # --- when a calibration moved -------------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class DriftRule:
+class DriftRule(ChangeRule):
     """A change between consecutive calibrations of one sensor is flagged when it exceeds what their
-    sigmas explain, |delta| > k_sigma * sqrt(s1^2 + s2^2), or a plausibility bound whatever the sigmas."""
+    sigmas explain, |delta| > k_sigma * sqrt(s1^2 + s2^2), or a plausibility bound whatever the sigmas
+    (core/change_rule.py, the rule `accel-calib check` applies too)."""
 
-    k_sigma: float = 5.0
-    max_bias_change_mg: float = 50.0  # a healthy MEMS part's bias does not jump this much between flights
-    max_scale_change: float = 0.01  # nor its gain by 1 %
-
-    def __post_init__(self) -> None:
-        for name in ("k_sigma", "max_bias_change_mg", "max_scale_change"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise HistoryError(f"{name} must be a positive number, got {value!r}")
+    error = HistoryError
 
 
 @dataclass(frozen=True)
@@ -603,15 +597,10 @@ def drift_flags(records: Iterable[HistoryRecord], rule: DriftRule | None = None)
                 for axis, (a, sa), (b, sb) in zip(AXES, _pairs(v1, s1), _pairs(v2, s2)):
                     change = b - a
                     combined = math.hypot(sa, sb) if math.isfinite(sa) and math.isfinite(sb) else math.nan
-                    if math.isfinite(combined) and combined > 0:
-                        sigmas = abs(change) / combined
-                    else:
-                        sigmas = math.inf if change != 0 else 0.0
-                    by_sigma = math.isfinite(combined) and combined > 0 and abs(change) > rule.k_sigma * combined
-                    by_bound = abs(change) > bound
-                    if by_sigma or by_bound:
-                        flags.append(DriftFlag(vehicle, sensor, quantity, axis, change, sigmas, by_sigma, by_bound,
-                                               before, after))
+                    judged = rule.judge(change, combined, bound)
+                    if judged.flagged:
+                        flags.append(DriftFlag(vehicle, sensor, quantity, axis, change, judged.sigmas,
+                                               judged.by_sigma, judged.by_bound, before, after))
     return flags
 
 

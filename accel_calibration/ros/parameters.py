@@ -17,7 +17,7 @@ from rclpy.parameter import Parameter as RosParameter
 
 from ..core.calibration import Calibration
 from ..core.errors import SettingsError
-from ..core.settings import PARAMETERS, RELIABILITIES, Parameter, Settings, check_value
+from ..core.settings import PARAMETERS, RELIABILITIES, Parameter, Settings, changed, check_value
 
 MIRROR_PREFIX = "calibration."
 # Parameters of the node itself (not of the session): fixed at start-up.
@@ -42,7 +42,8 @@ RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
 def _descriptor(parameter: Parameter) -> ParameterDescriptor:
     fixed = "" if parameter.dynamic else " (fixed at start-up)"
     descriptor = ParameterDescriptor(description=parameter.description + fixed)
-    if parameter.low is not None and parameter.high is not None:
+    # rclpy checks a declared default against its range, and NaN ("not given") is within none.
+    if parameter.low is not None and parameter.high is not None and not parameter.nan_means_unset:
         if type(parameter.default) is int:
             descriptor.integer_range = [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high),
                                                      step=0)]
@@ -111,7 +112,7 @@ class NodeParameters:
         try:
             new = Settings.from_parameters(changes, base=settings)
             fixed = [p.name for p in PARAMETERS
-                     if not p.dynamic and getattr(new, p.field) != getattr(settings, p.field)]
+                     if not p.dynamic and changed(getattr(settings, p.field), getattr(new, p.field))]
             if fixed:
                 raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
         except SettingsError as error:

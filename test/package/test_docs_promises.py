@@ -54,8 +54,8 @@ def _options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
 # --- the README's command reference --------------------------------------------------------------------
 
 def _reference_block() -> dict[str, str]:
-    """{command: its lines in the README's command-reference code block}."""
-    section = _text(README).split("## Command reference", 1)[1].split("\n## ", 1)[0]
+    """{command: its lines in docs/cli.md's command-reference code block (the README links to it)."""
+    section = _text(REPO / "docs" / "cli.md").split("## Command reference", 1)[1].split("\n## ", 1)[0]
     block = section.split("```", 2)[1]
     commands: dict[str, str] = {}
     current = None
@@ -105,7 +105,9 @@ CLI_DEFAULTS = [
     ("README.md", "history", "--max-bias-change", "beyond 50 mg of bias", 50.0),
     ("README.md", "history", "--max-scale-change", "1 % of scale", 0.01),
     ("README.md", "export", "--max-loss-mg", "`--max-loss-mg`, 2 mg at 1 g", 2.0),
+    ("docs/cli.md", "export", "--max-loss-mg", "`--max-loss-mg`, 2 mg at 1 g", 2.0),
     ("README.md", "fit", "--model", "`sphere9` (default;", "sphere9"),
+    ("docs/cli.md", "fit", "--model", "`sphere9` (default;", "sphere9"),
     ("docs/replay.md", "replay", "--armed-margin-s", "`--armed-margin-s` (default 2 s", 2.0),
     ("docs/exports.md", "export", "--max-loss-mg", "`--max-loss-mg` (default 2)", 2.0),
     ("docs/fleet.md", "history", "--k-sigma", "k = 5 by default (`--k-sigma`)", 5.0),
@@ -629,17 +631,19 @@ def test_an_mcap_chunk_that_decompresses_to_other_than_its_declared_size_is_one_
 
 
 def test_building_the_parser_imports_what_startup_md_says_and_no_more():
-    """docs/startup.md: building the parser imports `io.history` (the drift rule's defaults), not the fit,
+    """docs/startup.md: building the parser imports `core.change_rule` (the change rule's defaults), not the
+    history (SQLAlchemy's module), the fit,
     scipy.linalg, scipy.stats, matplotlib or rosbags' type store (fresh interpreter)."""
     import subprocess
     import sys
 
     code = ("import sys\nfrom accel_calibration.cli.main import _parser\n_parser()\n"
-            "print(sorted(m for m in ('accel_calibration.io.history', 'accel_calibration.core.fit', 'scipy.linalg',"
+            "print(sorted(m for m in ('accel_calibration.core.change_rule', 'accel_calibration.io.history',"
+            " 'accel_calibration.core.fit', 'scipy.linalg',"
             " 'scipy.stats', 'matplotlib', 'rosbags.typesys.stores.ros2_jazzy') if m in sys.modules))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert done.stdout.strip() == "['accel_calibration.io.history']", done.stdout
-    assert "building the parser imports `io.history`" in re.sub(r"\s+", " ", _text(REPO / "docs" / "startup.md"))
+    assert done.stdout.strip() == "['accel_calibration.core.change_rule']", done.stdout
+    assert "building the parser imports `core.change_rule`" in re.sub(r"\s+", " ", _text(REPO / "docs" / "startup.md"))
 
 
 def test_the_calibration_file_the_readme_shows_is_what_save_calibration_writes(tmp_path):

@@ -1,0 +1,100 @@
+"""accel-calib check's statistics against a simulated truth: a calibration checked on new poses of the
+sensor it was fitted to holds (false alarms over many seeds), a 5 mg bias step on one axis is found and
+named, and poses that cannot observe a change say so and which orientations would."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from accel_calibration.core.change_rule import ChangeRule
+from accel_calibration.core.check import check_calibration
+from accel_calibration.core.pose import Pose
+from accel_calibration.core.session import CalibrationSession
+from accel_calibration.core.units import MG
+from msg_tools.synthetic_imu import SensorErrors, spread_orientations
+
+SAMPLES = 200  # 2 s at 100 Hz per pose
+NOISE_MPS2 = 0.02  # per sample and axis, ~2 mg
+
+
+def poses_of(errors: SensorErrors, rotations: list[Rotation], rng: np.random.Generator) -> list[Pose]:
+    """The poses the detector hands over for these orientations: the mean of SAMPLES white-noise samples
+    (drawn as their mean and sample covariance) of the sensor's raw output."""
+    out = []
+    for i, rotation in enumerate(rotations):
+        true = rotation.inv().apply([0.0, 0.0, 9.80665])
+        mean = errors.raw_from_true(true[None])[0] + rng.normal(0.0, errors.noise_mps2 / np.sqrt(SAMPLES), 3)
+        cov = np.diag(rng.chisquare(SAMPLES - 1, 3) / (SAMPLES - 1)) * errors.noise_mps2**2
+        out.append(Pose(mean, cov, SAMPLES, i * 3_000_000_000, i * 3_000_000_000 + 2_000_000_000))
+    return out
+
+
+def fitted(errors: SensorErrors, rng: np.random.Generator, count: int = 14):
+    session = CalibrationSession()
+    for pose in poses_of(errors, spread_orientations(count, rng), rng):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    assert verdict.success, verdict.message
+    return verdict.calibration
+
+
+def sensor(seed: int) -> tuple[SensorErrors, np.random.Generator]:
+    rng = np.random.default_rng(seed)
+    return SensorErrors.mpu6050_like(rng, noise_mps2=NOISE_MPS2), rng
+
+
+def test_false_alarms_on_the_sensor_it_was_fitted_to_stay_under_one_percent():
+    # 0 alarms in 300 independent sessions bounds the rate below 1 % (95 % confidence, rule of three).
+    seeds, alarms, worst = 300, 0, []
+    for seed in range(seeds):
+        errors, rng = sensor(seed)
+        calibration = fitted(errors, rng)
+        result = check_calibration(calibration, poses_of(errors, spread_orientations(10, rng), rng))
+        alarms += result.verdict != "holds"
+        worst.append(max([c.judgement.sigmas for c in result.changes if c.judgement] +
+                         [p.judgement.sigmas for p in result.poses]))
+    assert alarms == 0, alarms
+    # Not so loose that it could never fire: the largest figure of a session reaches ~2-4 sigma.
+    assert 1.5 < float(np.median(worst)) < 3.5, np.median(worst)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_a_5_mg_bias_step_on_one_axis_is_flagged_and_named(axis):
+    for seed in range(10):
+        errors, rng = sensor(100 + seed)
+        calibration = fitted(errors, rng)
+        step = np.zeros(3)
+        step[axis] = 5 * MG
+        moved = dataclasses.replace(errors, bias_mps2=errors.bias_mps2 + step)
+        result = check_calibration(calibration, poses_of(moved, spread_orientations(10, rng), rng))
+        assert result.verdict == "moved"
+        assert [c.name for c in result.moved] == [f"bias {'xyz'[axis]}"]
+        change = result.moved[0]
+        assert change.change is not None and change.sigma is not None
+        assert abs(change.change - 5 * MG) < 4 * change.sigma  # the step itself, within its sigma
+        assert change.sigma < 0.5 * MG
+
+
+def test_the_bound_flags_what_large_sigmas_would_excuse():
+    errors, rng = sensor(7)
+    calibration = fitted(errors, rng)
+    moved = dataclasses.replace(errors, bias_mps2=errors.bias_mps2 + np.array([0.0, 0.0, 5 * MG]))
+    result = check_calibration(calibration, poses_of(moved, spread_orientations(10, rng), rng),
+                               ChangeRule(k_sigma=1000.0, max_bias_change_mg=3.0))
+    assert [c.name for c in result.moved] == ["bias z"]
+    assert result.moved[0].judgement is not None and result.moved[0].judgement.by_bound
+
+
+def test_poses_from_one_side_cannot_tell_and_say_which_orientations_would():
+    errors, rng = sensor(3)
+    calibration = fitted(errors, rng)
+    level = [Rotation.from_euler("xy", rng.normal(0.0, 0.02, 2)) for _ in range(5)]  # a vehicle on the ground
+    result = check_calibration(calibration, poses_of(errors, level, rng))
+    assert result.verdict == "cannot tell"
+    assert {"bias z", "scale z"} <= {c.name for c in result.unobserved}
+    assert "turn z down" in result.advice
+    none = check_calibration(calibration, [])
+    assert none.verdict == "cannot tell" and len(none.advice) == 6
