@@ -21,6 +21,7 @@ from .fit_solvers import fit_without_temperature, numerical_failure, uncertainty
 from .fit_temperature import fit_with_temperature
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS
 from .pose import Pose
+from .prior import Prior, fit_sphere_with_prior, prior_terms
 from .temperature_models import (
     TEMPERATURE_MODELS,
     TemperatureOptions,
@@ -103,6 +104,7 @@ def fit(
     temperature_options: TemperatureOptions | None = None,
     outlier_options: OutlierOptions | None = None,
     pose_sigma_mps2: ArrayLike | None = None,
+    prior: Calibration | Prior | None = None,
 ) -> FitResult:
     """Fit a calibration to static pose means.
 
@@ -120,6 +122,12 @@ def fit(
     reference fits (without a temperature model) weight pose i by 1 / (s_i^2 + tau^2), tau the common extra
     error estimated so that chi^2/dof = 1, and report sigma from (J^T W J)^-1 rescaled by chi^2/dof; equal
     ones give the unweighted fit exactly. Also the floor under the outlier test's scale.
+    prior: a calibration of this sphere model with its uncertainty (e.g. the one in force), or a Prior (the
+    same with the bias drift allowed since, default 10 mg), for poses that cannot reach every orientation:
+    its b and M enter as Gaussian pseudo-measurements with its sigma, so what the poses observe is fitted
+    and the rest stays at the prior (core/prior.py). The poses are then
+    weighted alike (pose_sigma_mps2 only floors the outlier test) and the result's parameter_sources say
+    what came from where.
     """
     if pose_sigma_mps2 is None and isinstance(accel_mps2, (list, tuple)) and accel_mps2 \
             and all(isinstance(p, Pose) for p in accel_mps2):
@@ -150,6 +158,11 @@ def fit(
             options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
     else:
         options = None
+    prior_values = None
+    if prior is not None:
+        if options is not None:
+            raise CalibrationError("a fit with a prior fits without a temperature model")
+        prior_values = prior_terms(prior, model, gravity)
     # The arguments are good: from here on every problem is the data's, reported in the result. Overflow
     # and the like are expected on wild data (and checked for), so numpy is not to warn about them.
     def fit_poses(keep: np.ndarray | None) -> FitResult:
@@ -158,7 +171,10 @@ def fit(
         t = temps if temps is None or keep is None else temps[keep]
         r = ref if ref is None or keep is None else ref[keep]
         s = pose_sigma if pose_sigma is None or keep is None else pose_sigma[keep]
-        if options is not None:
+        if prior_values is not None:
+            result = fit_sphere_with_prior(a, model, gravity, *prior_values,
+                                           None if t is None else float(t.mean()), frame_id)
+        elif options is not None:
             assert t is not None  # checked above: a temperature model needs temperature_degc
             result = fit_with_temperature(a, t, model, gravity, options, initial, frame_id, r, base_fit=fit)
         else:
