@@ -1,0 +1,120 @@
+"""Recalibration with a prior, for a vehicle that cannot be turned over: poses within 30 deg of level and
+the calibration in force as a Gaussian pseudo-measurement. What the poses observe moves to them, the rest
+stays at the prior with the prior's sigma, and the gates judge poses and prior together."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from accel_calibration import MG, fit
+from accel_calibration.core.calibration import Calibration
+from accel_calibration.core.errors import CalibrationError
+from accel_calibration.core.gates import QualityGates
+from accel_calibration.core.prior import Prior
+from msg_tools.synthetic_imu import SensorErrors
+
+G = 9.80665
+OLD_POSE_NOISE_MG = 0.5  # a full calibration's session on a MEMS part: a few tenths of a mg per pose mean
+POSE_NOISE_MG = 0.065  # an MPU-6050 at 0.02 m/s^2 per sample, 1000 samples a pose
+# What 8 poses within 30 deg of level leave to the prior: the z row's cross terms (a level vehicle's
+# gravity barely reaches x and y of the z row).
+UNSEEN = ("M_zx", "M_zy")
+
+
+def near_level(count, degrees, rng):
+    """`count` gravity directions within `degrees` of z up (specific force at rest, REP-103)."""
+    d = Rotation.random(20000, random_state=rng).apply([0.0, 0.0, 1.0])
+    return d[d[:, 2] > np.cos(np.radians(degrees))][:count]
+
+
+def sensor_and_old_calibration(seed):
+    """A sensor, its calibration from 24 poses over the sphere, and the same sensor after its z bias moved 8 mg."""
+    rng = np.random.default_rng(seed)
+    errors = SensorErrors.mpu6050_like(rng)
+    d = Rotation.random(24, random_state=rng).apply([0.0, 0.0, 1.0])
+    old = fit(errors.raw_from_true(G * d) + rng.normal(0.0, OLD_POSE_NOISE_MG * MG, (24, 3)))
+    assert old.success, old.message
+    moved = dataclasses.replace(errors, bias_mps2=errors.bias_mps2 + np.array([0.0, 0.0, 8.0 * MG]))
+    return rng, moved, old.calibration
+
+
+def level_poses(errors, rng, count=8):
+    d = near_level(count, 30.0, rng)
+    return errors.raw_from_true(G * d) + rng.normal(0.0, POSE_NOISE_MG * MG, (count, 3))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_moved_z_bias_comes_back_from_eight_level_poses_with_the_old_calibration_as_prior(seed):
+    rng, moved, old = sensor_and_old_calibration(seed)
+    result = fit(level_poses(moved, rng), prior=old)
+    assert result.success, result.message
+    assert abs(old.bias[2] - moved.bias_mps2[2]) / MG > 7.0  # the prior is 8 mg off
+    assert abs(result.calibration.bias[2] - moved.bias_mps2[2]) / MG < 1.0
+    sources = {s.name: s for s in result.parameter_sources}
+    for name in UNSEEN:  # not seen by the poses: the prior's sigma, within 5 %
+        assert 0.95 < sources[name].sigma / sources[name].prior_sigma <= 1.0, sources[name]
+        assert sources[name].source == "prior"
+    for name in ("b_x", "b_y", "b_z"):  # seen: far below the prior's (file sigma and 10 mg of drift)
+        assert sources[name].sigma / sources[name].prior_sigma < 0.2, sources[name]
+        assert sources[name].source == "poses"
+    assert QualityGates(min_poses=8).check(result) is None
+    text = result.summary()
+    assert "M_zx" in text and "from prior" in text and "from poses" in text
+
+
+def test_the_same_level_poses_without_a_prior_are_refused_as_today():
+    rng, moved, _ = sensor_and_old_calibration(0)
+    eight = fit(level_poses(moved, rng))
+    assert not eight.success and "needs at least 9 poses, got 8" in eight.message
+    assert QualityGates(min_poses=8).check(eight).startswith("gate fit: ")
+    twelve = fit(level_poses(moved, rng, 12))
+    assert QualityGates().check(twelve).startswith(("gate fit: poses do not constrain", "gate sigma: "))
+
+
+def test_a_prior_with_huge_sigma_does_not_pass_the_gates():
+    """A prior that says nothing cannot stand in for the orientations the poses lack: refused by the fit
+    (numerically singular) or by the sigma gate, which names a parameter the poses do not see."""
+    rng, moved, old = sensor_and_old_calibration(1)
+    raw = level_poses(moved, rng)
+    for factor in (1e3, 1e9):
+        loose = old.replace(bias_sigma=old.bias_sigma * factor, matrix_sigma=old.matrix_sigma * factor)
+        verdict = QualityGates(min_poses=8).check(fit(raw, prior=Prior(loose, bias_drift_mps2=0.0)))
+        assert verdict is not None and verdict.startswith(("gate sigma: ", "gate fit: ")), verdict
+        if verdict.startswith("gate sigma: "):
+            assert "misalignment z" in verdict or "scale" in verdict, verdict
+
+
+def test_with_poses_all_round_a_loose_prior_changes_the_fit_by_a_small_fraction_of_its_sigma():
+    rng = np.random.default_rng(11)
+    errors = SensorErrors.mpu6050_like(rng)
+    d = Rotation.random(24, random_state=rng).apply([0.0, 0.0, 1.0])
+    raw = errors.raw_from_true(G * d) + rng.normal(0.0, POSE_NOISE_MG * MG, (24, 3))
+    plain = fit(raw)
+    prior = Calibration(bias=np.zeros(3), matrix=np.eye(3), model="sphere9", bias_sigma=np.full(3, 1.0),
+                        matrix_sigma=np.tril(np.full((3, 3), 0.1)))
+    with_prior = fit(raw, prior=prior)
+    assert with_prior.success, with_prior.message
+    shift = np.abs(with_prior.calibration.bias - plain.calibration.bias) / plain.sigma.bias
+    assert shift.max() < 0.05
+    assert np.allclose(with_prior.sigma.bias, plain.sigma.bias, rtol=0.3)
+    assert all(s.source == "poses" for s in with_prior.parameter_sources)
+
+
+def test_a_prior_that_cannot_serve_is_refused_in_one_line():
+    rng, moved, old = sensor_and_old_calibration(2)
+    raw = level_poses(moved, rng)
+    cases = [
+        (old.replace(bias_sigma=None, matrix_sigma=None), "the prior has no uncertainty"),
+        (old.replace(model="six", matrix=np.diag(np.diag(old.matrix)), matrix_sigma=np.diag(np.diag(old.matrix_sigma))),
+         "the prior is model six and the fit model sphere9"),
+        (old.replace(matrix_sigma=old.matrix_sigma * np.eye(3)), "the prior's sigma of M_yx is 0"),
+    ]
+    for prior, message in cases:
+        with pytest.raises(CalibrationError, match=message) as caught:
+            fit(raw, prior=prior)
+        assert "\n" not in str(caught.value)
+    with pytest.raises(CalibrationError, match="sphere models"):
+        fit(raw, model="reference12", reference=np.tile([0.0, 0.0, 1.0], (8, 1)), prior=old)
