@@ -3,8 +3,6 @@ the calibration in force as a Gaussian pseudo-measurement. What the poses observ
 stays at the prior with the prior's sigma, and the gates judge poses and prior together."""
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -16,34 +14,11 @@ from accel_calibration.core.gates import QualityGates
 from accel_calibration.core.prior import Prior
 from msg_tools.synthetic_imu import SensorErrors
 
-G = 9.80665
-OLD_POSE_NOISE_MG = 0.5  # a full calibration's session on a MEMS part: a few tenths of a mg per pose mean
-POSE_NOISE_MG = 0.065  # an MPU-6050 at 0.02 m/s^2 per sample, 1000 samples a pose
+from helpers.prior_sessions import POSE_NOISE_MG, G, level_poses, sensor_and_old_calibration
+
 # What 8 poses within 30 deg of level leave to the prior: the z row's cross terms (a level vehicle's
 # gravity barely reaches x and y of the z row).
 UNSEEN = ("M_zx", "M_zy")
-
-
-def near_level(count, degrees, rng):
-    """`count` gravity directions within `degrees` of z up (specific force at rest, REP-103)."""
-    d = Rotation.random(20000, random_state=rng).apply([0.0, 0.0, 1.0])
-    return d[d[:, 2] > np.cos(np.radians(degrees))][:count]
-
-
-def sensor_and_old_calibration(seed):
-    """A sensor, its calibration from 24 poses over the sphere, and the same sensor after its z bias moved 8 mg."""
-    rng = np.random.default_rng(seed)
-    errors = SensorErrors.mpu6050_like(rng)
-    d = Rotation.random(24, random_state=rng).apply([0.0, 0.0, 1.0])
-    old = fit(errors.raw_from_true(G * d) + rng.normal(0.0, OLD_POSE_NOISE_MG * MG, (24, 3)))
-    assert old.success, old.message
-    moved = dataclasses.replace(errors, bias_mps2=errors.bias_mps2 + np.array([0.0, 0.0, 8.0 * MG]))
-    return rng, moved, old.calibration
-
-
-def level_poses(errors, rng, count=8):
-    d = near_level(count, 30.0, rng)
-    return errors.raw_from_true(G * d) + rng.normal(0.0, POSE_NOISE_MG * MG, (count, 3))
 
 
 @pytest.mark.parametrize("seed", range(5))
