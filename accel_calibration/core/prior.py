@@ -44,6 +44,10 @@ NOISE_FLOOR = 1e-8
 # Beyond this (Jacobi-scaled) condition number poses and prior together are numerically singular: a prior
 # so loose it adds nothing where the poses see nothing. Below it the sigma gate judges the posterior.
 SINGULAR_CONDITION = 1e12
+# Poses and prior disagree when freeing the prior's bias lowers the poses' residuals beyond what the
+# parameters it frees explain at this many Gaussian sigmas (an F test); the bias freed has this sigma.
+CONFLICT_K_SIGMA = 4.0
+FREE_BIAS_SIGMA_MPS2 = 10.0
 
 
 DEFAULT_BIAS_DRIFT_MPS2 = 10.0 * MG
@@ -113,6 +117,52 @@ def _solve(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_values
     return gauss_newton_stacked(stacked, start)
 
 
+@dataclass(frozen=True)
+class _Settled:
+    """The last solve once the poses' noise settled: the solution, H, its condition number and inverse, s^2
+    and the poses' degrees of freedom n - tr(J^T J H^-1) (NaN when the loop stopped before forming them)."""
+
+    solution: LeastSquaresSolution
+    normal: np.ndarray
+    condition: float
+    inverse: np.ndarray | None
+    variance: float
+    dof: float
+
+    @property
+    def pose_residual_squares(self) -> float:
+        residuals = self.solution.residuals[:-len(self.normal)]
+        return float(residuals @ residuals)
+
+
+def _settle(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_values: np.ndarray,
+            prior_sigma: np.ndarray, typical: float) -> _Settled:
+    """Fit and re-estimate the poses' noise s^2 = residual sum of squares / (n - tr(J^T J H^-1)) until it
+    settles, each solve from the last; stops early where a solve is not usable (the caller judges it).
+    typical: the poses' |a|, which sets the first guess of s (~0.1 mg) and its floor."""
+    n = accel_t.shape[1]
+    floor = (NOISE_FLOOR * typical) ** 2
+    variance, x, dof = (1e-4 * typical) ** 2, prior_values, float("nan")
+    for _ in range(NOISE_ITERATIONS):
+        solution = _solve(model, accel_t, gravity, prior_values, math.sqrt(variance) / prior_sigma, x)
+        jacobian = solution.jacobian
+        normal = solution.normal if solution.normal is not None else jacobian.T @ jacobian
+        condition, inverse = condition_and_inverse(normal)
+        broken = not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=jacobian)
+        if broken or inverse is None or condition > SINGULAR_CONDITION or not solution.success:
+            break
+        poses_normal = jacobian[:n].T @ jacobian[:n]
+        dof = n - float(np.sum(poses_normal * inverse))  # n - tr(J^T J H^-1): H and its inverse are symmetric
+        if dof < 1.0:
+            break
+        pose_residuals = solution.residuals[:n]
+        settled = max(float(pose_residuals @ pose_residuals) / dof, floor)
+        if abs(settled - variance) <= NOISE_TOLERANCE * variance:
+            break
+        variance, x = settled, solution.x
+    return _Settled(solution, normal, condition, inverse, variance, dof)
+
+
 def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_values: np.ndarray,
                           prior_sigma: np.ndarray, ref_temperature: float | None, frame_id: str) -> FitResult:
     """The sphere fit of `accel` with the prior (prior_terms) as pseudo-measurements; a failed result
@@ -125,38 +175,48 @@ def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_va
         return numerical_failure(accel, None, f"values beyond {LARGEST_VALUE:.0e} overflow the fit", model=name)
     accel_t = np.ascontiguousarray(accel.T)
     typical = float(np.median(np.linalg.norm(accel, axis=1)))
-    floor = (NOISE_FLOOR * typical) ** 2
-    variance, x = (1e-4 * typical) ** 2, prior_values  # start: ~0.1 mg of noise per pose
-    for _ in range(NOISE_ITERATIONS):
-        solution = _solve(model, accel_t, gravity, prior_values, math.sqrt(variance) / prior_sigma, x)
-        jacobian = solution.jacobian
-        normal = solution.normal if solution.normal is not None else jacobian.T @ jacobian
-        condition, inverse = condition_and_inverse(normal)
-        broken = not_finite(parameters=solution.x, residuals=solution.residuals, jacobian=jacobian)
-        if broken or inverse is None or condition > SINGULAR_CONDITION or not solution.success:
-            break
-        poses_normal = jacobian[:n].T @ jacobian[:n]
-        dof = n - float(np.sum(poses_normal * inverse))  # n - tr(J^T J H^-1): H and its inverse are symmetric
-        if dof < 1.0:
-            return no_degree_of_freedom(n, f"{model.size} parameters of model {name} and the prior", name,
-                                        condition_number=condition)
-        pose_residuals = solution.residuals[:n]
-        settled = max(float(pose_residuals @ pose_residuals) / dof, floor)
-        if abs(settled - variance) <= NOISE_TOLERANCE * variance:
-            break
-        variance, x = settled, solution.x
-    return _result(accel, model, gravity, solution, (normal, condition, inverse), variance, prior_sigma,
-                   ref_temperature, frame_id)
+    settled = _settle(model, accel_t, gravity, prior_values, prior_sigma, typical)
+    if settled.dof < 1.0:
+        return no_degree_of_freedom(n, f"{model.size} parameters of model {name} and the prior", name,
+                                    condition_number=settled.condition)
+    conflict = _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled)
+    if conflict:
+        return FitResult(False, conflict, name, condition_number=settled.condition, poses=n,
+                         residuals_mg=settled.solution.residuals[:n] / MG)
+    return _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id)
 
 
-def _result(accel: np.ndarray, model: SphereModel, gravity: float, solution: LeastSquaresSolution,
-            information: tuple[np.ndarray, float, np.ndarray | None], variance: float, prior_sigma: np.ndarray,
+def _conflict(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_values: np.ndarray,
+              prior_sigma: np.ndarray, typical: float, settled: _Settled) -> str | None:
+    """Whether the poses contradict the prior's bias, said plainly (None when not): with the bias freed the
+    poses' residual sum of squares falls by more than the q parameters it frees explain (F(q, dof) at
+    CONFLICT_K_SIGMA). Else a bias that moved beyond its drift allowance would be taken for pose noise."""
+    from .fit_outliers import critical_ratio  # scipy.stats, imported only when a fit has a prior
+
+    free_sigma = prior_sigma.copy()
+    free_sigma[:3] = np.maximum(free_sigma[:3], FREE_BIAS_SIGMA_MPS2)
+    free = _settle(model, accel_t, gravity, prior_values, free_sigma, typical)
+    freed = settled.dof - free.dof
+    if not (free.dof >= 1.0 and freed >= 0.5 and free.solution.success):
+        return None  # the prior's bias is as loose as free already, or the poses alone cannot say
+    held, loose = settled.pose_residual_squares, free.pose_residual_squares
+    ratio = ((held - loose) / freed) / (loose / free.dof) if loose > 0 else math.inf
+    if not ratio > critical_ratio(CONFLICT_K_SIGMA, max(1, round(freed)), max(1, round(free.dof))):
+        return None
+    moved = ", ".join(f"{v:+.2f}" for v in (free.solution.x[:3] - prior_values[:3]) / MG)
+    n = accel_t.shape[1]
+    return (f"the poses disagree with the prior: with its bias freed the bias moves ({moved}) mg and the poses' "
+            f"residual falls from {math.sqrt(held / n) / MG:.3g} to {math.sqrt(loose / n) / MG:.3g} mg rms; the bias "
+            "moved beyond the prior's drift allowance (raise it) or the prior is not this sensor's")
+
+
+def _result(accel: np.ndarray, model: SphereModel, gravity: float, settled: _Settled, prior_sigma: np.ndarray,
             ref_temperature: float | None, frame_id: str) -> FitResult:
     """The FitResult of the last solve: posterior sigma s^2 H^-1, the Uncertainty of poses and prior
-    (what the sigma gate's advice adds a pose to) and each parameter's share from the poses.
-    information: H = J^T J + s^2 diag(1 / sigma0^2) at the solution, its condition number and inverse."""
+    (what the sigma gate's advice adds a pose to) and each parameter's share from the poses."""
     n, name = len(accel), model.name
-    normal, condition, inverse = information
+    solution, normal, condition = settled.solution, settled.normal, settled.condition
+    inverse, variance = settled.inverse, settled.variance
     bias, matrix = model.unpack(solution.x)
     residuals_mg = solution.residuals[:n] / MG
     directions = (matrix @ (accel - bias).T).T

@@ -88,3 +88,11 @@ def test_a_loose_prior_is_refused_by_a_named_gate(level_session, capsys):
     save_calibration(old.replace(matrix_sigma=old.matrix_sigma * 30.0), tmp_path / "loose.yaml")
     err = one_line_refusal(capsys, tmp_path, tmp_path / "loose.yaml")
     assert "(gate sigma: " in err and "above" in err and "would lower it most" in err, err
+
+
+def test_a_prior_without_drift_against_a_moved_bias_is_refused_in_one_line(level_session, capsys):
+    tmp_path, _, _ = level_session
+    err = one_line_refusal(capsys, tmp_path, tmp_path / "old.yaml", "--prior-bias-drift", "0")
+    assert "the poses disagree with the prior" in err
+    err = one_line_refusal(capsys, tmp_path, tmp_path / "old.yaml", "--prior-bias-drift", "-1")
+    assert "--prior-bias-drift must be" in err

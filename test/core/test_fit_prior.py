@@ -14,7 +14,7 @@ from accel_calibration.core.gates import QualityGates
 from accel_calibration.core.prior import Prior
 from msg_tools.synthetic_imu import SensorErrors
 
-from helpers.prior_sessions import POSE_NOISE_MG, G, level_poses, sensor_and_old_calibration
+from helpers.prior_sessions import POSE_NOISE_MG, Z_BIAS_MOVE_MG, G, level_poses, sensor_and_old_calibration
 
 # What 8 poses within 30 deg of level leave to the prior: the z row's cross terms (a level vehicle's
 # gravity barely reaches x and y of the z row).
@@ -93,3 +93,18 @@ def test_a_prior_that_cannot_serve_is_refused_in_one_line():
         assert "\n" not in str(caught.value)
     with pytest.raises(CalibrationError, match="sphere models"):
         fit(raw, model="reference12", reference=np.tile([0.0, 0.0, 1.0], (8, 1)), prior=old)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_bias_moved_beyond_the_drift_allowed_is_refused_not_taken_for_pose_noise(seed):
+    """No drift allowed: the prior holds b_z to its file sigma (a few tenths of a mg) and the 8 mg move
+    would pass for 7-8 mg of pose noise. Freeing the bias explains the poses to 0.1 mg: refused, saying so."""
+    rng, moved, old = sensor_and_old_calibration(seed)
+    raw = level_poses(moved, rng)
+    result = fit(raw, prior=Prior(old, bias_drift_mps2=0.0))
+    assert not result.success
+    assert result.message.startswith("the poses disagree with the prior"), result.message
+    z_move = float(result.message.split("moves (")[1].split(")")[0].split(", ")[2])
+    assert z_move == pytest.approx(Z_BIAS_MOVE_MG, abs=1.0)
+    assert QualityGates(min_poses=8).check(result).startswith("gate fit: the poses disagree with the prior")
+    assert fit(raw, prior=Prior(old, bias_drift_mps2=10 * MG)).success
