@@ -122,12 +122,9 @@ def fit(
     reference fits (without a temperature model) weight pose i by 1 / (s_i^2 + tau^2), tau the common extra
     error estimated so that chi^2/dof = 1, and report sigma from (J^T W J)^-1 rescaled by chi^2/dof; equal
     ones give the unweighted fit exactly. Also the floor under the outlier test's scale.
-    prior: a calibration of this sphere model with its uncertainty (e.g. the one in force), or a Prior (the
-    same with the bias drift allowed since, default 10 mg), for poses that cannot reach every orientation:
-    its b and M enter as Gaussian pseudo-measurements with its sigma, so what the poses observe is fitted
-    and the rest stays at the prior (core/prior.py). The poses are then
-    weighted alike (pose_sigma_mps2 only floors the outlier test) and the result's parameter_sources say
-    what came from where.
+    prior: a sphere calibration with its uncertainty (the one in force), or a Prior (bias drift allowed since):
+    Gaussian pseudo-measurements of b and M, for poses that cannot reach every orientation (core/prior.py);
+    poses weighted alike; the result's parameter_sources say what came from the poses, what from the prior.
     """
     if pose_sigma_mps2 is None and isinstance(accel_mps2, (list, tuple)) and accel_mps2 \
             and all(isinstance(p, Pose) for p in accel_mps2):
@@ -136,33 +133,11 @@ def fit(
     outlier_options = DEFAULT_OUTLIER_OPTIONS if outlier_options is None else outlier_options
     if not isinstance(outlier_options, OutlierOptions):
         raise CalibrationError("outlier_options must be an OutlierOptions or None")
-    pose_sigma = None
-    if pose_sigma_mps2 is not None:
-        try:
-            pose_sigma = np.array(pose_sigma_mps2, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            pose_sigma = np.zeros(0)
-        if pose_sigma.shape != (len(accel),) or not np.all(np.isfinite(pose_sigma)) or np.any(pose_sigma < 0):
-            raise CalibrationError(f"pose_sigma_mps2 must be {len(accel)} finite numbers >= 0 (one per pose)")
-    if temperature_model not in TEMPERATURE_MODELS:
-        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
-                               f"got {temperature_model!r}")
-    if temperature_model != "none":
-        if temps is None:
-            raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
-        if model in REFERENCE_MODELS and temperature_model == "polynomial":
-            raise CalibrationError("the polynomial temperature model fits with the sphere models (six, sphere9); "
-                                   "with reference directions use the segmented one")
-        options = temperature_options or TemperatureOptions(model=temperature_model)
-        if options.model != temperature_model:
-            options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
-    else:
-        options = None
-    prior_values = None
-    if prior is not None:
-        if options is not None:
-            raise CalibrationError("a fit with a prior fits without a temperature model")
-        prior_values = prior_terms(prior, model, gravity)
+    pose_sigma = None if pose_sigma_mps2 is None else _checked_pose_sigma(pose_sigma_mps2, len(accel))
+    options = _checked_temperature_options(temperature_model, temperature_options, temps, model)
+    if prior is not None and options is not None:
+        raise CalibrationError("a fit with a prior fits without a temperature model")
+    prior_values = None if prior is None else prior_terms(prior, model, gravity)
     # The arguments are good: from here on every problem is the data's, reported in the result. Overflow
     # and the like are expected on wild data (and checked for), so numpy is not to warn about them.
     def fit_poses(keep: np.ndarray | None) -> FitResult:
@@ -188,6 +163,34 @@ def fit(
         text = error.args[-1] if error.args and isinstance(error.args[-1], str) else str(error)
         reason = text if isinstance(error, CalibrationError) else f"{type(error).__name__}: {text}"
         return numerical_failure(accel, temps, reason, model=model)
+
+
+def _checked_temperature_options(temperature_model: str, temperature_options: TemperatureOptions | None,
+                                 temps: np.ndarray | None, model: str) -> TemperatureOptions | None:
+    if temperature_model not in TEMPERATURE_MODELS:
+        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
+                               f"got {temperature_model!r}")
+    if temperature_model == "none":
+        return None
+    if temps is None:
+        raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
+    if model in REFERENCE_MODELS and temperature_model == "polynomial":
+        raise CalibrationError("the polynomial temperature model fits with the sphere models (six, sphere9); "
+                               "with reference directions use the segmented one")
+    options = temperature_options or TemperatureOptions(model=temperature_model)
+    if options.model != temperature_model:
+        options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
+    return options
+
+
+def _checked_pose_sigma(pose_sigma_mps2: ArrayLike, count: int) -> np.ndarray:
+    try:
+        pose_sigma = np.array(pose_sigma_mps2, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        pose_sigma = np.zeros(0)
+    if pose_sigma.shape != (count,) or not np.all(np.isfinite(pose_sigma)) or np.any(pose_sigma < 0):
+        raise CalibrationError(f"pose_sigma_mps2 must be {count} finite numbers >= 0 (one per pose)")
+    return pose_sigma
 
 
 def pose_mean_sigma(poses: Sequence[Pose]) -> np.ndarray:
