@@ -179,11 +179,12 @@ def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_va
     if settled.dof < 1.0:
         return no_degree_of_freedom(n, f"{model.size} parameters of model {name} and the prior", name,
                                     condition_number=settled.condition)
-    conflict = _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled)
+    result = _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id)
+    conflict = result.success and _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled)
     if conflict:
-        return FitResult(False, conflict, name, condition_number=settled.condition, poses=n,
-                         residuals_mg=settled.solution.residuals[:n] / MG)
-    return _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id)
+        return FitResult(False, conflict, name, condition_number=result.condition_number, poses=n,
+                         residuals_mg=result.residuals_mg, missing_directions=result.missing_directions)
+    return result
 
 
 def _conflict(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_values: np.ndarray,
