@@ -99,10 +99,11 @@ def run(args: argparse.Namespace) -> int:
     if not result.success or result.calibration is None:
         raise CalibrationError(f"fit failed: {result.message}")
     if prior is not None:
-        # With a prior nothing else stops a loose one from standing in for the orientations not reached.
+        # With a prior nothing else stops a loose one from standing in for the orientations not reached
+        # (the sigma gate) or poses far off the sphere from passing (the residual gate).
         from ..core.gates import QualityGates
 
-        refusal = QualityGates().sigma_refusal(result) or QualityGates().plausibility(result.calibration)
+        refusal = QualityGates().check_fit(result)
         if refusal:
             raise CalibrationError(f"fit refused with --prior {args.prior} ({refusal})")
     save_calibration(result.calibration, args.output, result.parameter_sources, args.prior)

@@ -57,6 +57,10 @@ class QualityGates:
         if result.poses < self.min_poses:
             left_out = f" ({len(result.outliers)} more left out as outliers)" if result.outliers else ""
             return f"gate poses: have {result.poses} poses{left_out}, need min_poses={self.min_poses}"
+        return self.check_fit(result)
+
+    def check_fit(self, result: FitResult) -> str | None:
+        """Every gate but the pose count: what a fit with a prior must meet, whose few poses are its point."""
         if not result.success:
             return f"gate fit: {result.message}"
         calibration = result.calibration

@@ -3,6 +3,7 @@ calibration file. The file written says per parameter whether the poses or the p
 that cannot serve, and the same poses without a prior, are refused in one line."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import yaml
 
@@ -96,3 +97,13 @@ def test_a_prior_without_drift_against_a_moved_bias_is_refused_in_one_line(level
     assert "the poses disagree with the prior" in err
     err = one_line_refusal(capsys, tmp_path, tmp_path / "old.yaml", "--prior-bias-drift", "-1")
     assert "--prior-bias-drift must be" in err
+
+
+def test_poses_far_off_the_sphere_are_refused_by_the_residual_gate(level_session, capsys):
+    """Level poses taken while moving (30 mg of error each) fit the prior, but off the sphere by more than
+    the residual gate allows: refused, as /calibrate would."""
+    tmp_path, moved, _ = level_session
+    rng = np.random.default_rng(12)
+    write_table(tmp_path / "level.csv", level_poses(moved, rng, 12) + rng.normal(0.0, 30 * MG, (12, 3)))
+    err = one_line_refusal(capsys, tmp_path, tmp_path / "old.yaml")
+    assert "(gate residual: rms" in err, err

@@ -128,3 +128,19 @@ def test_the_six_parameter_model_takes_a_prior_too(seed):
     assert np.abs(result.calibration.bias - moved.bias_mps2).max() / MG < 1.0
     assert [s.source for s in result.parameter_sources[:3]] == ["poses"] * 3
     assert all(s.sigma / s.prior_sigma > 0.75 for s in result.parameter_sources[3:]), result.parameter_sources
+
+
+def test_with_a_prior_finite_poses_never_raise():
+    """Hostile poses give a failed or a successful result, never an exception: one pose, the same pose
+    repeated, zeros, values that overflow, poses at the prior's bias, random counts."""
+    _, _, old = sensor_and_old_calibration(5)
+    rng = np.random.default_rng(9)
+    cases = [np.array([[0.0, 0.0, G]]), np.tile([0.1, 0.2, G], (8, 1)), np.zeros((8, 3)),
+             np.full((8, 3), 1e200), np.tile(old.bias, (8, 1)), rng.normal(0.0, 3e4, (10, 3)),
+             rng.normal(0.0, 1e-3, (10, 3))]
+    for raw in cases:
+        result = fit(raw, prior=old)
+        assert result.success in (True, False)
+        if not result.success:
+            assert result.message and "\n" not in result.message
+    assert not fit(cases[0], prior=old).success  # one pose: too few
