@@ -2,12 +2,16 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..core.errors import CalibrationError
-from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
+from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS, SPHERE_MODELS
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
-from ..core.units import STANDARD_GRAVITY
+from ..core.units import MG, STANDARD_GRAVITY
 from .options import UNIT_SCALE, add_local_gravity_options, local_gravity
+
+if TYPE_CHECKING:
+    from ..core.prior import Prior
 
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -35,6 +39,12 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         help="T_ref, degC (default: the poses' median temperature)")
     parser.add_argument("--min-span", type=float, default=defaults.min_span_degc,
                         help=f"smallest temperature span to fit a model, degC (default {defaults.min_span_degc:g})")
+    parser.add_argument("--prior", metavar="CAL.yaml", default=None,
+                        help="recalibrate against this calibration (same model, with its uncertainty): what the "
+                             "poses observe is fitted, the rest stays at the prior (poses near level suffice)")
+    parser.add_argument("--prior-bias-drift", type=float, default=None, metavar="MG",
+                        help="how far the bias may have drifted since the prior, 1 sigma in mg, added to its "
+                             "sigma (default 10, core.prior.DEFAULT_BIAS_DRIFT_MPS2)")
     parser.add_argument("--output", "-o", required=True, help="calibration YAML to write")
 
     return parser
@@ -67,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     if args.reference_temperature is not None and not low <= args.reference_temperature <= high:
         raise CalibrationError(f"--reference-temperature must be a sensor temperature within {low:g}..{high:g} degC, "
                                f"got {args.reference_temperature:g}")
-    check_outputs([("--output", args.output)], [args.poses])
+    check_outputs([("--output", args.output)], [args.poses, args.prior])
+    prior = None if args.prior is None else _prior(args, gravity)
     if args.model == DIVIDING_HEAD:
         from . import dividing_head as dividing_head_command
 
@@ -95,10 +106,39 @@ def run(args: argparse.Namespace) -> int:
         temperature_model=args.temperature_model,
         temperature_options=options,
         pose_sigma_mps2=table.pose_sigma_mps2,
+        prior=prior,
     )
     if not result.success or result.calibration is None:
         raise CalibrationError(f"fit failed: {result.message}")
-    save_calibration(result.calibration.replace(gravity_source=gravity_source), args.output)
+    if prior is not None:
+        # With a prior nothing else stops a loose one from standing in for the orientations not reached
+        # (the sigma gate) or poses far off the sphere from passing (the residual gate).
+        from ..core.gates import QualityGates
+
+        refusal = QualityGates().check_fit(result)
+        if refusal:
+            raise CalibrationError(f"fit refused with --prior {args.prior} ({refusal})")
+    save_calibration(result.calibration.replace(gravity_source=gravity_source), args.output,
+                     result.parameter_sources, args.prior)
     print(result.summary())
     print(f"written {args.output}")
     return 0
+
+
+def _prior(args: argparse.Namespace, gravity: float) -> Prior:
+    """--prior's calibration, checked against this fit (model, uncertainty) before any work: one line if not."""
+    from ..core.prior import DEFAULT_BIAS_DRIFT_MPS2, Prior, prior_terms
+    from ..io.calibration_file import load_calibration
+
+    if args.model not in SPHERE_MODELS or args.temperature_model != "none":
+        raise CalibrationError(f"--prior fits the sphere models ({', '.join(SPHERE_MODELS)}) without a "
+                               "temperature model")
+    drift = DEFAULT_BIAS_DRIFT_MPS2 if args.prior_bias_drift is None else args.prior_bias_drift * MG
+    if not (drift >= 0 and drift <= 1000 * MG):
+        raise CalibrationError(f"--prior-bias-drift must be a number of mg within 0..1000, got {args.prior_bias_drift}")
+    prior = Prior(load_calibration(args.prior), drift)
+    try:
+        prior_terms(prior, args.model, gravity)
+    except CalibrationError as error:
+        raise CalibrationError(f"--prior {args.prior}: {error}") from None
+    return prior

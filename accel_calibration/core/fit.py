@@ -22,6 +22,7 @@ from .fit_solvers import fit_without_temperature, numerical_failure, uncertainty
 from .fit_temperature import fit_with_temperature
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS
 from .pose import Pose
+from .prior import Prior, fit_sphere_with_prior, prior_terms
 from .temperature_models import (
     TEMPERATURE_MODELS,
     TemperatureOptions,
@@ -104,6 +105,7 @@ def fit(
     temperature_options: TemperatureOptions | None = None,
     outlier_options: OutlierOptions | None = None,
     pose_sigma_mps2: ArrayLike | None = None,
+    prior: Calibration | Prior | None = None,
 ) -> FitResult:
     """Fit a calibration to static pose means.
 
@@ -121,6 +123,9 @@ def fit(
     reference fits (without a temperature model) weight pose i by 1 / (s_i^2 + tau^2), tau the common extra
     error estimated so that chi^2/dof = 1, and report sigma from (J^T W J)^-1 rescaled by chi^2/dof; equal
     ones give the unweighted fit exactly. Also the floor under the outlier test's scale.
+    prior: a sphere calibration with its uncertainty (the one in force), or a Prior (bias drift allowed since):
+    Gaussian pseudo-measurements of b and M, for poses that cannot reach every orientation (core/prior.py);
+    poses weighted alike; the result's parameter_sources say what came from the poses, what from the prior.
     """
     if pose_sigma_mps2 is None and isinstance(accel_mps2, (list, tuple)) and accel_mps2 \
             and all(isinstance(p, Pose) for p in accel_mps2):
@@ -129,28 +134,11 @@ def fit(
     outlier_options = DEFAULT_OUTLIER_OPTIONS if outlier_options is None else outlier_options
     if not isinstance(outlier_options, OutlierOptions):
         raise CalibrationError("outlier_options must be an OutlierOptions or None")
-    pose_sigma = None
-    if pose_sigma_mps2 is not None:
-        try:
-            pose_sigma = np.array(pose_sigma_mps2, dtype=float).reshape(-1)
-        except (TypeError, ValueError):
-            pose_sigma = np.zeros(0)
-        if pose_sigma.shape != (len(accel),) or not np.all(np.isfinite(pose_sigma)) or np.any(pose_sigma < 0):
-            raise CalibrationError(f"pose_sigma_mps2 must be {len(accel)} finite numbers >= 0 (one per pose)")
-    if temperature_model not in TEMPERATURE_MODELS:
-        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
-                               f"got {temperature_model!r}")
-    if temperature_model != "none":
-        if temps is None:
-            raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
-        if model in REFERENCE_MODELS and temperature_model == "polynomial":
-            raise CalibrationError("the polynomial temperature model fits with the sphere models (six, sphere9); "
-                                   "with reference directions use the segmented one")
-        options = temperature_options or TemperatureOptions(model=temperature_model)
-        if options.model != temperature_model:
-            options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
-    else:
-        options = None
+    pose_sigma = None if pose_sigma_mps2 is None else _checked_pose_sigma(pose_sigma_mps2, len(accel))
+    options = _checked_temperature_options(temperature_model, temperature_options, temps, model)
+    if prior is not None and options is not None:
+        raise CalibrationError("a fit with a prior fits without a temperature model")
+    prior_values = None if prior is None else prior_terms(prior, model, gravity)
     # The arguments are good: from here on every problem is the data's, reported in the result. Overflow
     # and the like are expected on wild data (and checked for), so numpy is not to warn about them.
     def fit_poses(keep: np.ndarray | None) -> FitResult:
@@ -159,7 +147,10 @@ def fit(
         t = temps if temps is None or keep is None else temps[keep]
         r = ref if ref is None or keep is None else ref[keep]
         s = pose_sigma if pose_sigma is None or keep is None else pose_sigma[keep]
-        if options is not None:
+        if prior_values is not None:
+            result = fit_sphere_with_prior(a, model, gravity, *prior_values,
+                                           None if t is None else float(t.mean()), frame_id)
+        elif options is not None:
             assert t is not None  # checked above: a temperature model needs temperature_degc
             # The room-temperature fit inside takes the caller's outlier test and pose noise, as this one does.
             base_fit = functools.partial(fit, outlier_options=outlier_options)
@@ -176,6 +167,34 @@ def fit(
         text = error.args[-1] if error.args and isinstance(error.args[-1], str) else str(error)
         reason = text if isinstance(error, CalibrationError) else f"{type(error).__name__}: {text}"
         return numerical_failure(accel, temps, reason, model=model)
+
+
+def _checked_temperature_options(temperature_model: str, temperature_options: TemperatureOptions | None,
+                                 temps: np.ndarray | None, model: str) -> TemperatureOptions | None:
+    if temperature_model not in TEMPERATURE_MODELS:
+        raise CalibrationError(f"temperature_model must be one of {', '.join(TEMPERATURE_MODELS)}, "
+                               f"got {temperature_model!r}")
+    if temperature_model == "none":
+        return None
+    if temps is None:
+        raise CalibrationError(f"temperature_model {temperature_model} needs temperature_degc (one per pose)")
+    if model in REFERENCE_MODELS and temperature_model == "polynomial":
+        raise CalibrationError("the polynomial temperature model fits with the sphere models (six, sphere9); "
+                               "with reference directions use the segmented one")
+    options = temperature_options or TemperatureOptions(model=temperature_model)
+    if options.model != temperature_model:
+        options = TemperatureOptions(**{**options.__dict__, "model": temperature_model})
+    return options
+
+
+def _checked_pose_sigma(pose_sigma_mps2: ArrayLike, count: int) -> np.ndarray:
+    try:
+        pose_sigma = np.array(pose_sigma_mps2, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        pose_sigma = np.zeros(0)
+    if pose_sigma.shape != (count,) or not np.all(np.isfinite(pose_sigma)) or np.any(pose_sigma < 0):
+        raise CalibrationError(f"pose_sigma_mps2 must be {count} finite numbers >= 0 (one per pose)")
+    return pose_sigma
 
 
 def pose_mean_sigma(poses: Sequence[Pose]) -> np.ndarray:

@@ -49,6 +49,29 @@ class OutlierOptions:
 
 DEFAULT_OUTLIER_OPTIONS = OutlierOptions()  # frozen: one instance serves every fit that gives none
 
+# A parameter is said to come from the poses (the prior) when at least this share of its information
+# (1 - posterior variance / prior variance) came from the poses (the prior); from both in between.
+SOURCE_SHARE = 0.9
+
+
+@dataclass(frozen=True)
+class ParameterSource:
+    """Where one parameter of a fit with a prior came from: its posterior and prior 1-sigma and the share
+    of its information the poses gave, 1 - (sigma / prior_sigma)^2 (0: the prior alone, 1: the poses)."""
+
+    name: str  # b_x, M_zy, ... (SphereModel.parameter_names)
+    sigma: float
+    prior_sigma: float
+
+    @property
+    def share_from_poses(self) -> float:
+        return float(min(max(1.0 - (self.sigma / self.prior_sigma) ** 2, 0.0), 1.0))
+
+    @property
+    def source(self) -> str:
+        share = self.share_from_poses
+        return "poses" if share >= SOURCE_SHARE else "prior" if share <= 1.0 - SOURCE_SHARE else "poses+prior"
+
 
 @dataclass(frozen=True)
 class Outlier:
@@ -86,6 +109,8 @@ class FitResult:
     # Poses weighted by 1 / (s_i^2 + tau^2) (their own noise given, unequal): tau, the common extra error
     # per pose estimated so that chi^2/dof = 1 (raw units); None for an unweighted fit.
     pose_extra_sigma: float | None = None
+    # Fitted with a prior: each parameter's posterior and prior sigma, in the model's parameter order.
+    parameter_sources: tuple[ParameterSource, ...] = ()
 
     @property
     def outlier_indices(self) -> tuple[int, ...]:
@@ -145,6 +170,17 @@ class FitResult:
                                  + " ".join(f"{v * STANDARD_GRAVITY**2 / MG:+.3g}" for v in quad) + "  m "
                                  + " ".join(f"{v * 1e6:+.0f}" for v in lin) + "  n "
                                  + " ".join(f"{v / MG:+.2f}" for v in offset))
+        if self.parameter_sources:
+            lines += self._source_lines()
         if self.missing_directions:
             lines.append("not covered (fit still observable): " + ", ".join(self.missing_directions))
         return "\n".join(lines)
+
+    def _source_lines(self) -> list[str]:
+        """Which parameters the poses determined and which stayed at the prior."""
+        lines = ["with a prior: share of each parameter's information from the poses "
+                 "(1 - (sigma / prior sigma)^2), and where it came from:"]
+        for source in self.parameter_sources:
+            lines.append(f"  {source.name:5s} {source.share_from_poses:6.1%}  sigma {source.sigma:.2g} "
+                         f"(prior {source.prior_sigma:.2g})  from {source.source}")
+        return lines

@@ -57,6 +57,10 @@ class QualityGates:
         if result.poses < self.min_poses:
             left_out = f" ({len(result.outliers)} more left out as outliers)" if result.outliers else ""
             return f"gate poses: have {result.poses} poses{left_out}, need min_poses={self.min_poses}"
+        return self.check_fit(result)
+
+    def check_fit(self, result: FitResult) -> str | None:
+        """Every gate but the pose count: what a fit with a prior must meet, whose few poses are its point."""
         if not result.success:
             return f"gate fit: {result.message}"
         calibration = result.calibration
@@ -65,12 +69,18 @@ class QualityGates:
         rms = calibration.quality.residual_rms_mg
         if rms > self.max_residual_rms_mg:
             return f"gate residual: rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)"
+        return self.sigma_refusal(result) or self.plausibility(calibration)
+
+    def sigma_refusal(self, result: FitResult) -> str | None:
+        """The sigma gate alone (None when every parameter is known within its bound). With a prior the
+        sigma are of poses and prior together, so a prior too loose to hold what the poses do not see
+        is refused here, naming that parameter."""
         loosest = self.worst_sigma(result)
         if loosest is None or not loosest.ratio <= 1.0:
             advice = self.next_orientation(result)
             what = "no uncertainty from the fit" if loosest is None else str(loosest)
             return f"gate sigma: {what}; " + (f"{advice.text} would lower it most" if advice else "add poses")
-        return self.plausibility(calibration)
+        return None
 
     def worst_sigma(self, result: FitResult) -> ParameterSigma | None:
         """The parameter whose sigma is largest against its bound: from the fit's sigma, or for a fit

@@ -20,6 +20,9 @@ Layout (keys other tools read are the first six; the rest is ours):
       noise: {rate_hz: .., accel_density_mps2_per_sqrt_hz: .., gyro_density_radps_per_sqrt_hz: ..}
                                 # white noise measured at the poses (Kalibr's *_noise_density)
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
+      parameter_sources:        # fitted with a prior: where each parameter came from
+        prior: old.yaml
+        parameters: {b_x: {from: poses, share_from_poses: 0.998, sigma: .., prior_sigma: ..}, ..}
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ import yaml
 from ..core.calibration import Calibration, GyroQuality, MeasuredNoise, Quality
 from ..core.dividing_head import DividingHeadTerms
 from ..core.errors import CalibrationError
+from ..core.fit_result import ParameterSource
 from ..core.temperature_models import TemperatureModel
 from ..core.units import STANDARD_GRAVITY
 from .output_paths import stale_temp_files, write_bytes_atomically
@@ -200,8 +204,23 @@ def _check_segment_block(block: dict[str, Any]) -> None:
                                    f"got {units!r:.120}")
 
 
-def calibration_to_yaml(calibration: Calibration) -> str:
-    return str(yaml.safe_dump(calibration_to_dict(calibration), sort_keys=False, default_flow_style=None))
+def calibration_to_yaml(calibration: Calibration, parameter_sources: tuple[ParameterSource, ...] = (),
+                        prior: str | None = None) -> str:
+    """parameter_sources (a fit with a prior, named by `prior`): written as the parameter_sources block,
+    which says per parameter whether the poses or the prior set it (read by people; loading ignores it)."""
+    document = calibration_to_dict(calibration)
+    if parameter_sources:
+        document[ROOT_KEY]["parameter_sources"] = parameter_sources_block(parameter_sources, prior)
+    return str(yaml.safe_dump(document, sort_keys=False, default_flow_style=None))
+
+
+def parameter_sources_block(parameter_sources: tuple[ParameterSource, ...], prior: str | None) -> dict[str, Any]:
+    """Per parameter: from poses, prior or both, the share of its information from the poses
+    (1 - (sigma / prior_sigma)^2) and both sigma (raw units; M unitless)."""
+    parameters = {source.name: {"from": source.source, "share_from_poses": round(source.share_from_poses, 4),
+                                "sigma": source.sigma, "prior_sigma": source.prior_sigma}
+                  for source in parameter_sources}
+    return {"prior": prior or "", "parameters": parameters}
 
 
 def _number(value: object, name: str) -> float:
@@ -507,10 +526,11 @@ def remove_stale_temp_files(path: str | os.PathLike[str]) -> int:
     return removed
 
 
-def checked_calibration_text(calibration: Calibration, path: str | os.PathLike[str]) -> str:
+def checked_calibration_text(calibration: Calibration, path: str | os.PathLike[str],
+                             parameter_sources: tuple[ParameterSource, ...] = (), prior: str | None = None) -> str:
     """The file text of `calibration`, checked the way load_calibration will check it (size, then the
     whole parse), so that no file is put in place that its reader (the node at its next start) refuses."""
-    text = calibration_to_yaml(calibration)
+    text = calibration_to_yaml(calibration, parameter_sources, prior)
     size = len(text.encode("utf-8"))
     if size > MAX_CALIBRATION_BYTES:
         raise CalibrationFileError(f"{path}: not written: the calibration would take {size // 1024} KiB, "
@@ -522,6 +542,8 @@ def checked_calibration_text(calibration: Calibration, path: str | os.PathLike[s
     return text
 
 
-def save_calibration(calibration: Calibration, path: str | os.PathLike[str]) -> None:
-    """Write `calibration` whole (temp file + rename), only once its text loads back (checked_calibration_text)."""
-    write_text_atomically(path, checked_calibration_text(calibration, path))
+def save_calibration(calibration: Calibration, path: str | os.PathLike[str],
+                     parameter_sources: tuple[ParameterSource, ...] = (), prior: str | None = None) -> None:
+    """Write `calibration` whole (temp file + rename), only once its text loads back (checked_calibration_text);
+    with the parameter_sources of a fit with a prior (calibration_to_yaml)."""
+    write_text_atomically(path, checked_calibration_text(calibration, path, parameter_sources, prior))
