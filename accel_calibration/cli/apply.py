@@ -19,6 +19,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.correction import correct_rows
     from ..io.calibration_file import write_text_atomically
     from ..io.output_paths import check_outputs
     from ..io.pose_table import read_table, table_with_accel
@@ -29,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     scale = UNIT_SCALE[args.units]
     if calibration.temperature is not None and table.temperature_degc is None:
         raise CalibrationError(f"{args.input}: the calibration has a temperature model; add a temperature column")
-    corrected = calibration.apply(table.accel * scale, temperature=table.temperature_degc) / scale
+    corrected = correct_rows(calibration, table.accel * scale, table.temperature_degc) / scale
     write_text_atomically(args.output, table_with_accel(table, corrected))
     print(f"corrected {len(corrected)} rows -> {args.output}")
     clamped = int(np.count_nonzero(calibration.temperature_clamped(table.temperature_degc)))

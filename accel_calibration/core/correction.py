@@ -282,6 +282,27 @@ def correct_samples(calibration: Calibration, t_ns: np.ndarray, accel_mps2: np.n
     return CorrectedSamples(accel, gyro, cov, angular, finite)
 
 
+def correct_rows(calibration: Calibration, accel_mps2: np.ndarray,
+                 temperature_degc: np.ndarray | None = None) -> np.ndarray:
+    """Rows that are samples of their own (a table's rows, pose means), corrected as the node corrects a
+    message: each by the Correction at its own temperature rounded to TEMPERATURE_DECIMALS (no filter and
+    no step: the rows are not a stream), at the reference temperature without one. (N, 3); a row that is
+    not finite passes unchanged."""
+    accel = np.array(accel_mps2, dtype=float).reshape(-1, 3)
+    finite = np.all(np.isfinite(accel), axis=1)
+    if temperature_degc is None or calibration.temperature is None:
+        keys = np.full(len(accel), np.nan)
+    else:
+        keys = np.round(np.asarray(temperature_degc, dtype=float).reshape(-1), TEMPERATURE_DECIMALS)
+    for value in np.unique(keys[finite]).tolist():
+        rows = np.flatnonzero(finite & ((keys == value) | (np.isnan(keys) & np.isnan(value))))
+        correction = Correction.build(calibration, None if np.isnan(value) else value)
+        assert correction is not None  # a calibration always gives one
+        a = accel[rows]
+        accel[rows] = np.column_stack(correction.apply(a[:, 0], a[:, 1], a[:, 2]))
+    return accel
+
+
 def _floats3(values: object) -> Floats3:
     a, b, c = (float(v) for v in np.asarray(values, dtype=float).ravel())
     return a, b, c

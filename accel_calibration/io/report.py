@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..core.calibration import Calibration
+from ..core.correction import correct_rows
 from ..core.errors import CalibrationError
 from ..core.pose_map import holes
 from ..core.units import MG
@@ -33,7 +34,7 @@ def write_report(calibration: Calibration, accel_mps2: npt.ArrayLike, temperatur
     if temperature_degc is not None and all(t is not None for t in temperature_degc):
         temps = np.asarray(temperature_degc, dtype=float)
     g = calibration.gravity
-    corrected = calibration.apply(accel, temps) if temps is not None else calibration.apply(accel)
+    corrected = correct_rows(calibration, accel, temps)  # as the node corrects each pose's samples
     before = (np.linalg.norm(accel, axis=1) - g) / MG
     after = (np.linalg.norm(corrected, axis=1) - g) / MG
     directions = corrected / np.linalg.norm(corrected, axis=1)[:, None]
