@@ -351,6 +351,15 @@ def _pose_time_ns(pose: Pose) -> float:
     return 0.5 * (pose.start_ns + pose.end_ns)
 
 
+def interpolated_bias(poses: Sequence[Pose], k: int, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bias during motion k as gyro_fit takes it: linear in time between the gyro means of poses k and
+    k + 1 (their mid-times); (bias per sample (n, 3), the later pose's share per sample (n,))."""
+    before, after = _pose_time_ns(poses[k]), _pose_time_ns(poses[k + 1])
+    share = np.clip((stamps_ns - before) / (after - before), 0.0, 1.0)
+    earlier, later = (np.asarray(p.gyro_radps, dtype=float) for p in (poses[k], poses[k + 1]))
+    return (1.0 - share)[:, None] * earlier + share[:, None] * later, share
+
+
 def fit_gyro(
     poses: Sequence[Pose],
     motions: Sequence[Motion | None],
@@ -498,11 +507,9 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
         motion = motions[k]
         assert motion is not None  # used motions were checked
         t = np.asarray(motion.stamps_ns, dtype=np.int64)
-        before, after = _pose_time_ns(poses[k]), _pose_time_ns(poses[k + 1])
-        share = np.clip((t - before) / (after - before), 0.0, 1.0)
+        bias, share = interpolated_bias(poses, k, t)
         stamps.append(t)
-        rates.append(np.asarray(motion.gyro_radps, dtype=float)
-                     - ((1.0 - share)[:, None] * pose_gyro[k] + share[:, None] * pose_gyro[k + 1]))
+        rates.append(np.asarray(motion.gyro_radps, dtype=float) - bias)
         shares.append(share)
         sum_dt2.append(float(np.sum((np.diff(t) * 1e-9) ** 2)))
     intervals = IntervalSet(stamps, rates, shares)
