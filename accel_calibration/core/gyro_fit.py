@@ -31,6 +31,8 @@ from .calibration import Calibration, GyroQuality
 from .coverage import condition_and_inverse
 from .errors import CalibrationError
 from .gauss_newton import gauss_newton
+from .gyro_axes import gyro_axes_problem
+from .gyro_scoring import interpolated_bias
 from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
 from .rotation_integration import IntervalSet, skew
@@ -347,17 +349,17 @@ def _directions(poses: Sequence[Pose], accel: Calibration) -> tuple[np.ndarray, 
     return directions, sensitivity
 
 
+def _plain_directions(poses: Sequence[Pose], accel: Calibration) -> np.ndarray:
+    """The poses' unit gravity directions in the accelerometer's calibrated frame (no noise model)."""
+    raw = np.array([p.accel_mps2 for p in poses], dtype=float)
+    temps = [p.temperature_degc for p in poses]
+    corrected = accel.apply(raw, None if any(t is None for t in temps) else np.array(temps, dtype=float))
+    directions: np.ndarray = corrected / np.linalg.norm(corrected, axis=1)[:, None]
+    return directions
+
+
 def _pose_time_ns(pose: Pose) -> float:
     return 0.5 * (pose.start_ns + pose.end_ns)
-
-
-def interpolated_bias(poses: Sequence[Pose], k: int, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The bias during motion k as gyro_fit takes it: linear in time between the gyro means of poses k and
-    k + 1 (their mid-times); (bias per sample (n, 3), the later pose's share per sample (n,))."""
-    before, after = _pose_time_ns(poses[k]), _pose_time_ns(poses[k + 1])
-    share = np.clip((stamps_ns - before) / (after - before), 0.0, 1.0)
-    earlier, later = (np.asarray(p.gyro_radps, dtype=float) for p in (poses[k], poses[k + 1]))
-    return (1.0 - share)[:, None] * earlier + share[:, None] * later, share
 
 
 def fit_gyro(
@@ -391,6 +393,13 @@ def fit_gyro(
             used.append(k)
         else:
             refused.append(problem)
+    # A gyro in deg/s reads 57 times its rate and is refused as saturated: the check sees those motions too.
+    out_of_range = {m.index for m in refused if m.kind == "saturated" and m.reason.startswith("|w| reached")}
+    checked = [motion if k in used or k in out_of_range else None for k, motion in enumerate(motions)]
+    axes = gyro_axes_problem(poses, checked, _plain_directions(poses, accel), initial)
+    if axes is not None:
+        return GyroFitResult(False, f"gyro: {axes}", used=tuple(used), refused=tuple(refused),
+                             bias_fitted=options.fit_bias)
     parameters = 12 if options.fit_bias else 9
     need = parameters // 2 + 1  # two residual components per motion, one degree of freedom left
     if len(used) < need:

@@ -1,0 +1,56 @@
+"""A gyro whose axes or unit disagree with the accelerometer's (a board rotation or driver-frame mistake,
+deg/s given as rad/s) is named in one line before the gyro fit iterates, and the doomed fit is not run;
+a right gyro is never flagged."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from accel_calibration import fit
+from accel_calibration.core.gyro_fit import Motion, fit_gyro
+from msg_tools.synthetic_motion import simulate_session
+
+from helpers.gyro_sessions import poses_and_motions
+
+SWAP_XY = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+CASES = [
+    (-np.eye(3), "gyro axes look negated against the accelerometer's: x→−x, y→−y, z→−z"),
+    (np.diag([-1.0, -1.0, 1.0]), "gyro axes look negated against the accelerometer's: x→−x, y→−y"),
+    (np.diag([1.0, 1.0, -1.0]), "gyro axes look negated against the accelerometer's: z→−z"),
+    (SWAP_XY, "gyro axes look swapped against the accelerometer's: x↔y"),
+    (np.degrees(1.0) * np.eye(3), "gyro in deg/s given as rad/s"),
+]
+
+
+def session(seed, poses=14, rate_hz=200.0):
+    simulated = simulate_session(np.random.default_rng(seed), poses=poses, rate_hz=rate_hz)
+    pose_list, motions = poses_and_motions(simulated)
+    return simulated, pose_list, motions, fit(pose_list).calibration
+
+
+def recorded_as(wrong, poses, motions):
+    """The same session as a gyro reading raw' = wrong @ raw would record it."""
+    return ([replace(p, gyro_radps=wrong @ p.gyro_radps) for p in poses],
+            [Motion(m.stamps_ns, m.gyro_radps @ wrong.T) for m in motions])
+
+
+@pytest.mark.parametrize("wrong, said", CASES)
+def test_a_gyro_mapped_wrong_is_named_and_not_fitted(wrong, said):
+    simulated, poses, motions, accel = session(5)
+    poses, motions = recorded_as(wrong, poses, motions)
+    result = fit_gyro(poses, motions, accel, gyro_noise_radps=simulated.gyro_noise_radps)
+    assert not result.success and result.iterations == 0, result.message
+    assert result.message.startswith(f"gyro: {said} ("), result.message
+    assert "\n" not in result.message
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_right_gyro_is_never_flagged(seed):
+    rate_hz = (200.0, 400.0, 1000.0)[seed % 3]
+    simulated, poses, motions, accel = session(100 + seed, poses=12 + seed, rate_hz=rate_hz)
+    result = fit_gyro(poses, motions, accel, gyro_noise_radps=simulated.gyro_noise_radps)
+    assert result.success, result.message
+    difference = result.matrix - simulated.gyro.matrix
+    assert np.abs(difference).max() < 2e-3  # and the fit found the truth
