@@ -73,17 +73,22 @@ def gyro_axes_problem(poses: Sequence[Pose], motions: Sequence[GyroSamples | Non
     chosen: list[GyroSamples | None] = [motions[k] if k in kept else None for k in range(len(motions))]
     index = np.array(kept)
     start, end = directions[index], directions[index + 1]
+    def rms_mrad(matrix: np.ndarray, maps: np.ndarray) -> np.ndarray:
+        """Per map Q: the rms miss of the rate Q matrix w, from one integration (Q R Q^T is its rotation)."""
+        _, rotations = motion_rotations(poses, chosen, matrix)
+        turned = np.einsum("qab,kcb,qdc,kd->qka", maps, rotations, maps, start)  # Q R^T Q^T u
+        rms: np.ndarray = np.sqrt(np.mean(np.sum((turned - end) ** 2, axis=2), axis=1)) * 1e3
+        return rms
+
+    as_given = float(rms_mrad(initial, PROPER_MAPS[:1])[0])
+    if as_given < AS_GIVEN_FLOOR_MRAD:
+        return None  # the usual case, after one integration
     scores = []  # (rms mrad, factor index, sign, map index)
     for f, (factor, _) in enumerate(UNIT_FACTORS):
         for sign in (1.0, -1.0):
-            _, rotations = motion_rotations(poses, chosen, sign * factor * initial)
-            # Q R Q^T per map: R_map^T u = Q R^T Q^T u
-            turned = np.einsum("qab,kcb,qdc,kd->qka", PROPER_MAPS, rotations, PROPER_MAPS, start)
-            rms = np.sqrt(np.mean(np.sum((turned - end) ** 2, axis=2), axis=1)) * 1e3
-            scores += [(float(r), f, sign, q) for q, r in enumerate(rms)]
-    as_given = scores[0][0]  # factor 1, sign +, the identity map
+            scores += [(float(r), f, sign, q) for q, r in enumerate(rms_mrad(sign * factor * initial, PROPER_MAPS))]
     best, f, sign, q = min(scores)
-    if as_given < AS_GIVEN_FLOOR_MRAD or best * BETTER_BY > as_given:
+    if best * BETTER_BY > as_given:
         return None
     what = [text for text in (describe_map(sign * PROPER_MAPS[q]), UNIT_FACTORS[f][1]) if text]
     return (f"{'; '.join(what)} (the motions between poses miss the next pose by {as_given:.0f} mrad rms as "

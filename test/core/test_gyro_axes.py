@@ -54,3 +54,18 @@ def test_a_right_gyro_is_never_flagged(seed):
     assert result.success, result.message
     difference = result.matrix - simulated.gyro.matrix
     assert np.abs(difference).max() < 2e-3  # and the fit found the truth
+
+
+def test_through_the_session_the_accelerometer_is_applied_and_the_gyro_refused_in_one_line():
+    """The sample path (detector, motion recorder) of a session whose gyro reads -x, -y, -z: the
+    accelerometer calibration stands, the gyro's refusal names the negated axes and no fit iterated."""
+    from accel_calibration.core.session import CalibrationSession
+
+    simulated = simulate_session(np.random.default_rng(9), poses=16, rate_hz=400.0)
+    session = CalibrationSession()
+    for pose in session.add_recording(simulated.stamps_ns, simulated.accel_mps2, -simulated.gyro_radps):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    assert verdict.success and verdict.calibration.gyro_matrix is None, verdict.message
+    assert verdict.gyro_refusal.startswith("gyro: gate fit: gyro axes look negated against the accelerometer's: "
+                                           "x→−x, y→−y, z→−z ("), verdict.gyro_refusal
