@@ -66,28 +66,37 @@ def test_replay_names_the_limit_that_refused_the_sensor_and_how_to_allow_it(shar
                                [p.accel_mps2 for p in expected], rtol=0, atol=1e-9)
 
 
-def test_the_nodes_path_finds_the_same_poses_and_refuses_alike(shared, tmp_path):
+def fed_live(tmp_path, bag, parameters, period_ns):
     """LiveCalibration (the node without ROS) fed every message in the order it was logged, its worker
-    feeding every 200 ms of log time, with the limits the refusal gives."""
-    path = shared(f"real/bags/{STORAGES[1]}")
-    code, err, _ = replayed_poses(tmp_path, "default", path)
-    arguments = allowance(err)
-    parameters = {name: float(value) for name, value in (a.split(":=") for a in arguments[1::2])}
-    bag = read_imu_and_temperature(path)
+    feeding every `period_ns` of log time; (the poses it took, /calibrate's answer, the pose held at the end)."""
     live = LiveCalibration(Settings.from_parameters(parameters), tmp_path / "cal.yaml", LogLines())
     live.start()
-    poses, next_feed = [], bag.arrival[0][0] + FEED_PERIOD_NS
+    poses, next_feed = [], bag.arrival[0][0] + period_ns
     for log_ns, is_imu, row in bag.arrival:
         if log_ns >= next_feed:
             poses += live.feed()
-            next_feed = log_ns + FEED_PERIOD_NS
+            next_feed = log_ns + period_ns
         if is_imu:
             live.buffer_imu(int(bag.imu_stamps_ns[row]), *bag.imu[row].tolist())
         else:
             live.take_temperature(int(bag.temperature_stamps_ns[row]), float(bag.temperature[row]))
     poses += live.feed()
     success, message = live.calibrate()
-    held = live.session.detector.peek_open()  # the pose held when the recording stops: /calibrate counts it
+    return poses, success, message, live.session.detector.peek_open()
+
+
+def test_the_nodes_path_agrees_with_replay_at_the_defaults_and_once_allowed(shared, tmp_path):
+    """At the defaults the node's /calibrate refuses as replay does, with the same limits and values; with
+    them (the worker's 200 ms period), it takes the detector's poses: all but the last, which it holds
+    when the recording stops and /calibrate counts."""
+    path = shared(f"real/bags/{STORAGES[1]}")
+    code, err, _ = replayed_poses(tmp_path, "default", path)
+    arguments = allowance(err)
+    bag = read_imu_and_temperature(path)
+    poses, success, message, _ = fed_live(tmp_path, bag, {}, 5 * FEED_PERIOD_NS)  # a busy worker
+    assert not poses and not success and allowance(message) == arguments, message
+    parameters = {name: float(value) for name, value in (a.split(":=") for a in arguments[1::2])}
+    poses, success, message, held = fed_live(tmp_path, bag, parameters, FEED_PERIOD_NS)
     expected = detector_alone(bag)
     assert [(p.start_ns, p.end_ns) for p in poses] == [(p.start_ns, p.end_ns) for p in expected[:-1]]
     assert (held.start_ns, held.end_ns) == (expected[-1].start_ns, expected[-1].end_ns)

@@ -21,6 +21,11 @@ CASES = [
     (np.diag([1.0, 1.0, -1.0]), "gyro axes look negated against the accelerometer's: z→−z"),
     (SWAP_XY, "gyro axes look swapped against the accelerometer's: x↔y"),
     (np.degrees(1.0) * np.eye(3), "gyro in deg/s given as rad/s"),
+    # A board turned 90 deg about z: the gyro reads (y, -x, z) of the accelerometer's rate.
+    (np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+     "gyro axes look turned against the accelerometer's: x→y, y→−x, z→z"),
+    (-np.degrees(1.0) * np.eye(3),
+     "gyro axes look negated against the accelerometer's: x→−x, y→−y, z→−z; gyro in deg/s given as rad/s"),
 ]
 
 
