@@ -32,7 +32,7 @@ from .coverage import condition_and_inverse
 from .errors import CalibrationError
 from .gauss_newton import gauss_newton
 from .gyro_axes import gyro_axes_problem
-from .gyro_scoring import interpolated_bias
+from .gyro_scoring import motion_intervals
 from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
 from .rotation_integration import IntervalSet, skew
@@ -511,17 +511,8 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
     pose_gyro = np.array([p.gyro_radps for p in poses], dtype=float)
     samples = np.array([p.samples for p in poses], dtype=float)
     mean_bias = (samples / samples.sum()) @ pose_gyro
-    stamps, rates, shares, sum_dt2 = [], [], [], []
-    for k in used:
-        motion = motions[k]
-        assert motion is not None  # used motions were checked
-        t = np.asarray(motion.stamps_ns, dtype=np.int64)
-        bias, share = interpolated_bias(poses, k, t)
-        stamps.append(t)
-        rates.append(np.asarray(motion.gyro_radps, dtype=float) - bias)
-        shares.append(share)
-        sum_dt2.append(float(np.sum((np.diff(t) * 1e-9) ** 2)))
-    intervals = IntervalSet(stamps, rates, shares)
+    intervals = motion_intervals(poses, motions, used)
+    sum_dt2 = np.add.reduceat(intervals.dt_s**2, intervals.first)  # per motion
     later = [k + 1 for k in used]
     problem = _Problem(intervals, directions[used], directions[later], _tangent_basis(directions[later]), used,
                        options.fit_bias)
@@ -536,7 +527,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
             evaluations[key] = problem.evaluate(x)
         return evaluations[key]
 
-    known = None if noise is None else _Noise(direction_noise, noise, samples, np.array(sum_dt2))
+    known = None if noise is None else _Noise(direction_noise, noise, samples, sum_dt2)
     # Weights: the noise covariance at the start (whitened by its Cholesky factor); without the gyro's
     # noise, imu_tk's equal weights.
     whitening = None if known is None else _whitening(known.covariance(problem, evaluate(x0), initial))

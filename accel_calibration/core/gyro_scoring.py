@@ -34,13 +34,10 @@ def interpolated_bias(poses: Sequence[Pose], k: int, stamps_ns: np.ndarray) -> t
     return (1.0 - share)[:, None] * earlier + share[:, None] * later, share
 
 
-def motion_rotations(poses: Sequence[Pose], motions: Sequence[GyroSamples | None], matrix: ArrayLike,
-                     bias_radps: ArrayLike | None = None) -> tuple[list[int], np.ndarray]:
-    """(indices k of the motions given, not None; their rotations R_k (K, 3, 3) of w = matrix (w_raw - b)),
-    the bias as in motion_residuals_mrad."""
-    kept = [k for k, motion in enumerate(motions) if motion is not None]
-    if not kept:
-        return kept, np.zeros((0, 3, 3))
+def motion_intervals(poses: Sequence[Pose], motions: Sequence[GyroSamples | None], kept: Sequence[int],
+                     bias_radps: ArrayLike | None = None) -> IntervalSet:
+    """The sample intervals of motions[k] for k in `kept` (none of them None), the bias taken off: one
+    constant `bias_radps`, or (None) interpolated between the poses' gyro means."""
     stamps, rates, shares = [], [], []
     for k in kept:
         motion = motions[k]
@@ -53,7 +50,18 @@ def motion_rotations(poses: Sequence[Pose], motions: Sequence[GyroSamples | None
         stamps.append(t)
         rates.append(raw - bias)
         shares.append(share)
-    return kept, IntervalSet(stamps, rates, shares).rotations(np.asarray(matrix, dtype=float), np.zeros(3))
+    return IntervalSet(stamps, rates, shares)
+
+
+def motion_rotations(poses: Sequence[Pose], motions: Sequence[GyroSamples | None], matrix: ArrayLike,
+                     bias_radps: ArrayLike | None = None) -> tuple[list[int], np.ndarray]:
+    """(indices k of the motions given, not None; their rotations R_k (K, 3, 3) of w = matrix (w_raw - b)),
+    the bias as in motion_residuals_mrad."""
+    kept = [k for k, motion in enumerate(motions) if motion is not None]
+    if not kept:
+        return kept, np.zeros((0, 3, 3))
+    intervals = motion_intervals(poses, motions, kept, bias_radps)
+    return kept, intervals.rotations(np.asarray(matrix, dtype=float), np.zeros(3))
 
 
 def motion_residuals_mrad(poses: Sequence[Pose], motions: Sequence[GyroSamples | None], directions: ArrayLike,
