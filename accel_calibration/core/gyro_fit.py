@@ -394,8 +394,9 @@ def fit_gyro(
         else:
             refused.append(problem)
     # A gyro in deg/s reads 57 times its rate and is refused as saturated: the check sees those motions too.
-    out_of_range = {m.index for m in refused if m.kind == "saturated" and m.reason.startswith("|w| reached")}
-    checked = [motion if k in used or k in out_of_range else None for k, motion in enumerate(motions)]
+    saturated = {m.index for m in refused if m.kind == "saturated"}
+    checked = [motion if k in used or (k in saturated and motion is not None and not motion.saturated) else None
+               for k, motion in enumerate(motions)]
     axes = gyro_axes_problem(poses, checked, _plain_directions(poses, accel), initial)
     if axes is not None:
         return GyroFitResult(False, f"gyro: {axes}", used=tuple(used), refused=tuple(refused),
