@@ -74,3 +74,20 @@ def test_through_the_session_the_accelerometer_is_applied_and_the_gyro_refused_i
     assert verdict.success and verdict.calibration.gyro_matrix is None, verdict.message
     assert verdict.gyro_refusal.startswith("gyro: gate fit: gyro axes look negated against the accelerometer's: "
                                            "x→−x, y→−y, z→−z ("), verdict.gyro_refusal
+
+
+def test_a_gyro_in_deg_per_s_whose_noise_keeps_every_pose_out_is_named():
+    """In deg/s the gyro's noise reads 57.3 times larger, above the limit of a still window, so the session
+    finds no pose at all and never reaches the gyro fit; the accelerometer was quiet meanwhile, and the
+    refusal names the unit before offering to raise the limit."""
+    from accel_calibration.core.session import CalibrationSession
+
+    simulated = simulate_session(np.random.default_rng(9), poses=16, rate_hz=400.0)
+    session = CalibrationSession()
+    for pose in session.add_recording(simulated.stamps_ns, simulated.accel_mps2, np.degrees(simulated.gyro_radps)):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    assert not verdict.success and len(session.store) == 0
+    assert "static.max_gyro_noise_mradps refused every window" in verdict.message, verdict.message
+    assert "only the gyro was that noisy: is it in deg/s given as rad/s? (its quietest noise would then be 1." \
+        in verdict.message, verdict.message
