@@ -288,13 +288,13 @@ class CalibrationSession:
             allow.append(f"-p {name}:={_rounded_up(learned * scale, BY_NAME[name].high):.1f}")
         if not said:
             return ""
-        unit = ""
+        in_degrees = ""
         if learned_gyro is not None and quietest_accel is None and quietest_gyro is not None \
                 and math.radians(quietest_gyro) * 1e3 < self.settings.static_max_gyro_noise_mradps / 4:
             # A still accelerometer beside a gyro that in rad/s would be quiet: deg/s given as rad/s.
-            unit = (f"; only the gyro was that noisy: is it in deg/s given as rad/s? (its quietest "
+            in_degrees = (f"; only the gyro was that noisy: is it in deg/s given as rad/s? (its quietest "
                     f"noise would then be {math.radians(quietest_gyro) * 1e3:.1f} mrad/s)")
-        return f"; {' and '.join(said)}{unit}; to take this sensor as it is: {' '.join(allow)}"
+        return f"; {' and '.join(said)}{in_degrees}; to take this sensor as it is: {' '.join(allow)}"
 
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
