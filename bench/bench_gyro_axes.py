@@ -10,7 +10,7 @@ import numpy as np
 
 from accel_calibration import fit
 from accel_calibration.core.gyro_axes import gyro_axes_problem
-from accel_calibration.core.gyro_fit import _plain_directions, fit_gyro, motions_between
+from accel_calibration.core.gyro_fit import fit_gyro, motions_between
 from accel_calibration.core.session import CalibrationSession
 from msg_tools.synthetic_motion import simulate_session
 
@@ -31,8 +31,10 @@ def main() -> int:
         poses = session.store.poses
         accel = fit(poses).calibration
         motions = motions_between(poses, simulated.stamps_ns, gyro)
+        directions = accel.apply(np.array([p.accel_mps2 for p in poses]))
+        directions /= np.linalg.norm(directions, axis=1)[:, None]
         start = time.perf_counter()
-        gyro_axes_problem(poses, motions, _plain_directions(poses, accel), np.eye(3))
+        gyro_axes_problem(poses, motions, directions, np.eye(3))
         check = time.perf_counter() - start
         start = time.perf_counter()
         result = fit_gyro(poses, motions, accel)
