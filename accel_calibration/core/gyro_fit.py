@@ -31,6 +31,8 @@ from .calibration import Calibration, GyroQuality
 from .coverage import condition_and_inverse
 from .errors import CalibrationError
 from .gauss_newton import gauss_newton
+from .gyro_axes import gyro_axes_problem
+from .gyro_scoring import motion_intervals
 from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
 from .rotation_integration import IntervalSet, skew
@@ -347,6 +349,15 @@ def _directions(poses: Sequence[Pose], accel: Calibration) -> tuple[np.ndarray, 
     return directions, sensitivity
 
 
+def _plain_directions(poses: Sequence[Pose], accel: Calibration) -> np.ndarray:
+    """The poses' unit gravity directions in the accelerometer's calibrated frame (no noise model)."""
+    raw = np.array([p.accel_mps2 for p in poses], dtype=float)
+    temps = [p.temperature_degc for p in poses]
+    corrected = accel.apply(raw, None if any(t is None for t in temps) else np.array(temps, dtype=float))
+    directions: np.ndarray = corrected / np.linalg.norm(corrected, axis=1)[:, None]
+    return directions
+
+
 def _pose_time_ns(pose: Pose) -> float:
     return 0.5 * (pose.start_ns + pose.end_ns)
 
@@ -382,6 +393,14 @@ def fit_gyro(
             used.append(k)
         else:
             refused.append(problem)
+    # A gyro in deg/s reads 57 times its rate and is refused as saturated: the check sees those motions too.
+    saturated = {m.index for m in refused if m.kind == "saturated"}
+    checked = [motion if k in used or (k in saturated and motion is not None and not motion.saturated) else None
+               for k, motion in enumerate(motions)]
+    axes = gyro_axes_problem(poses, checked, _plain_directions(poses, accel), initial)
+    if axes is not None:
+        return GyroFitResult(False, f"gyro: {axes}", used=tuple(used), refused=tuple(refused),
+                             bias_fitted=options.fit_bias)
     parameters = 12 if options.fit_bias else 9
     need = parameters // 2 + 1  # two residual components per motion, one degree of freedom left
     if len(used) < need:
@@ -493,19 +512,8 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
     pose_gyro = np.array([p.gyro_radps for p in poses], dtype=float)
     samples = np.array([p.samples for p in poses], dtype=float)
     mean_bias = (samples / samples.sum()) @ pose_gyro
-    stamps, rates, shares, sum_dt2 = [], [], [], []
-    for k in used:
-        motion = motions[k]
-        assert motion is not None  # used motions were checked
-        t = np.asarray(motion.stamps_ns, dtype=np.int64)
-        before, after = _pose_time_ns(poses[k]), _pose_time_ns(poses[k + 1])
-        share = np.clip((t - before) / (after - before), 0.0, 1.0)
-        stamps.append(t)
-        rates.append(np.asarray(motion.gyro_radps, dtype=float)
-                     - ((1.0 - share)[:, None] * pose_gyro[k] + share[:, None] * pose_gyro[k + 1]))
-        shares.append(share)
-        sum_dt2.append(float(np.sum((np.diff(t) * 1e-9) ** 2)))
-    intervals = IntervalSet(stamps, rates, shares)
+    intervals = motion_intervals(poses, motions, used)
+    sum_dt2 = np.add.reduceat(intervals.dt_s**2, intervals.first)  # per motion
     later = [k + 1 for k in used]
     problem = _Problem(intervals, directions[used], directions[later], _tangent_basis(directions[later]), used,
                        options.fit_bias)
@@ -520,7 +528,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
             evaluations[key] = problem.evaluate(x)
         return evaluations[key]
 
-    known = None if noise is None else _Noise(direction_noise, noise, samples, np.array(sum_dt2))
+    known = None if noise is None else _Noise(direction_noise, noise, samples, sum_dt2)
     # Weights: the noise covariance at the start (whitened by its Cholesky factor); without the gyro's
     # noise, imu_tk's equal weights.
     whitening = None if known is None else _whitening(known.covariance(problem, evaluate(x0), initial))

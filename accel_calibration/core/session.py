@@ -10,6 +10,7 @@ whole) to mark each buffered sample.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
@@ -253,7 +254,8 @@ class CalibrationSession:
 
     def _too_noisy_text(self) -> str:
         """Why few poses were found when the sensor was hardly ever still (its quietest noise near or above
-        the most a still pose may have): what to do about it; "" otherwise."""
+        the most a still pose may have): what to do about it, which limit refused its windows and how to
+        allow it; "" otherwise."""
         accel, gyro = self.detector.noise_near_ceilings
         noisy = ([] if accel is None else [f"accel {accel / MG:.1f} mg rms per axis (static.max_noise_mg "
                                            f"{self.settings.static_max_noise_mg:g})"]) \
@@ -263,7 +265,36 @@ class CalibrationSession:
             return ""
         return (f"; the sensor was hardly ever still: its quietest noise, {' and '.join(noisy)}, is near or above "
                 "the most a still pose may have (hand-held, driving or vibrating): set it down on something firm "
-                "for each pose")
+                f"for each pose{self._refusing_limits_text()}")
+
+    def _refusing_limits_text(self) -> str:
+        """The noise limits that decided instead of the learned noise floor, and the `-p` values that let the
+        floor decide (the node takes the same parameters); "" when none did."""
+        quietest_accel, quietest_gyro = self.detector.noise_near_ceilings
+        learned_accel, learned_gyro = self.detector.learned_beyond_ceilings
+        said, allow = [], []
+        for name, limit, quietest, learned, unit, scale in (
+                ("static.max_noise_mg", self.settings.static_max_noise_mg, quietest_accel, learned_accel, "mg",
+                 1.0 / MG),
+                ("static.max_gyro_noise_mradps", self.settings.static_max_gyro_noise_mradps, quietest_gyro,
+                 learned_gyro, "mrad/s", 1e3)):
+            if learned is None:
+                continue
+            if quietest is not None and quietest * scale >= limit:
+                said.append(f"{name} refused every window (its quietest {quietest * scale:.1f} {unit})")
+            else:
+                said.append(f"{name} refused windows as still as the sensor's own noise floor allows (up to "
+                            f"{learned * scale:.0f} {unit})")
+            allow.append(f"-p {name}:={_rounded_up(learned * scale, BY_NAME[name].high):.1f}")
+        if not said:
+            return ""
+        in_degrees = ""
+        if learned_gyro is not None and quietest_accel is None and quietest_gyro is not None \
+                and math.radians(quietest_gyro) * 1e3 < self.settings.static_max_gyro_noise_mradps / 4:
+            # A still accelerometer beside a gyro that in rad/s would be quiet: deg/s given as rad/s.
+            in_degrees = (f"; only the gyro was that noisy: is it in deg/s given as rad/s? (its quietest "
+                    f"noise would then be {math.radians(quietest_gyro) * 1e3:.1f} mrad/s)")
+        return f"; {' and '.join(said)}{in_degrees}; to take this sensor as it is: {' '.join(allow)}"
 
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
@@ -414,3 +445,10 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
         accel = calibration.apply(accel)
     norms = np.linalg.norm(accel, axis=1)
     return accel / norms[:, None] if len(accel) else accel
+
+
+def _rounded_up(value: float, highest: float | None) -> float:
+    """`value` rounded up to two significant digits (a limit to type), at most `highest`."""
+    step = 10.0 ** (math.floor(math.log10(value)) - 1)
+    rounded = math.ceil(value / step) * step
+    return rounded if highest is None else min(rounded, highest)

@@ -85,6 +85,26 @@ class StaticDetector:
                 None if gyro is None or not gyro >= self.config.gyro_cap / 4 else math.sqrt(gyro / 3.0))
 
     @property
+    def learned_beyond_ceilings(self) -> tuple[float | None, float | None]:
+        """(accel m/s^2, gyro rad/s) rms per axis the learned threshold alone (k x the noise floor) would take,
+        where the ceiling (accel_noise_ceiling, gyro_noise_ceiling) is below it and so decides instead; None
+        where it does not, where an explicit threshold is set, or before warm-up."""
+        config, state = self.config, self.state
+        if state.full_time_ns < config.warmup_ns:
+            return None, None
+
+        def beyond(fixed: float | None, value: float | None, quietest: float, k: float, cap: float) -> float | None:
+            if fixed is not None or value is None or quietest == math.inf:
+                return None
+            learned = k * min(value, quietest * config.rise_var)
+            return math.sqrt(learned / 3.0) if learned > cap else None
+
+        return (beyond(config.accel_var_threshold, state.accel_floor.value, state.accel_quietest, config.k_sigma,
+                       config.accel_cap),
+                beyond(config.gyro_var_threshold, state.gyro_floor.value, state.gyro_quietest, config.gyro_k_sigma,
+                       config.gyro_cap))
+
+    @property
     def thresholds(self) -> tuple[float | None, float | None]:
         """(accel, gyro) window-variance thresholds in force; None where not yet known."""
         config, state = self.config, self.state
