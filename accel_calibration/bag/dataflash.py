@@ -27,6 +27,7 @@ import numpy as np
 from ..core.flight_state import FlightState
 from .bag_io import BagError, read_head
 from .flight_sources import dataflash_flight_state
+from .logged_correction import LoggedCorrection, ardupilot_correction
 
 if TYPE_CHECKING:
     from .progress import ProgressBar
@@ -70,6 +71,9 @@ class DataflashSamples:
     sensor_id: str
     flight_state: FlightState
     autopilot_calibration: AutopilotCalibration | None
+    # What ArduPilot did to these samples before logging them (its PARM records), to be undone; None when
+    # the log holds no calibration of this instance (the samples are then corrected by one not known).
+    logged_correction: LoggedCorrection | None = None
 
 
 def _parameter_names(instance: int) -> tuple[str, str, str]:
@@ -153,7 +157,8 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
     device = params.get("INS_ACC_ID" if wanted == 0 else f"INS_ACC{wanted + 1}_ID")
     sensor_id = f"ardupilot accel {int(device)}" if device else ""
     return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
-                            temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted))
+                            temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted),
+                            ardupilot_correction(params, wanted, str(path)))
 
 
 def _series(pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray] | None:

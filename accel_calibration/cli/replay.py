@@ -148,13 +148,15 @@ def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
 def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
     lines = []
+    if replay.calibration is not None and replay.calibration.fitted_to:
+        lines.append(f"fitted to {replay.calibration.fitted_to}")
     if replay.flight_state_line:
         lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
     if replay.autopilot_calibration is not None:
         lines.append(replay.autopilot_calibration.describe())
         if replay.autopilot_difference_mg is not None:
-            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} "
-                         "mg at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot_difference_mg:.1f} mg at 1 g "
+                         "(worst orientation)")
     return lines
 
 

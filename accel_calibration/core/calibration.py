@@ -213,6 +213,9 @@ class Calibration:
     gyro_matrix: np.ndarray | None = None
     gyro_quality: GyroQuality | None = None
     noise: MeasuredNoise | None = None  # white noise measured at the poses (the covariance's start)
+    # What the fit saw, where a recording says: "raw: ..." (the sensor's own output, or a log's stream with
+    # the log's correction undone) or a stream as logged, corrected by a calibration this one goes on top of.
+    fitted_to: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -410,6 +413,7 @@ class Calibration:
             and _same_temperature(self.temperature, other.temperature)
             and self.dividing_head == other.dividing_head
             and self.noise == other.noise
+            and self.fitted_to == other.fitted_to
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

@@ -20,6 +20,7 @@ Layout (keys other tools read are the first six; the rest is ours):
       noise: {rate_hz: .., accel_density_mps2_per_sqrt_hz: .., gyro_density_radps_per_sqrt_hz: ..}
                                 # white noise measured at the poses (Kalibr's *_noise_density)
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
+      fitted_to: what the fit saw, where a recording says (raw output, or a corrected stream as logged)
 """
 from __future__ import annotations
 
@@ -143,6 +144,8 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     body["created"] = c.created
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
+    if c.fitted_to:
+        body["fitted_to"] = c.fitted_to
     return {ROOT_KEY: body}
 
 
@@ -339,6 +342,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             created=str(body.get("created", "")),
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
+            fitted_to=str(body.get("fitted_to", "") or "")[:1024],
             reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),
             gyro_bias_radps=body.get("gyro_bias_radps"),
         )
