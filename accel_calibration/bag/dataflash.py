@@ -74,6 +74,7 @@ class DataflashSamples:
     # What ArduPilot did to these samples before logging them (its PARM records), to be undone; None when
     # the log holds no calibration of this instance (the samples are then corrected by one not known).
     logged_correction: LoggedCorrection | None = None
+    imu_instances: tuple[int, ...] = ()  # every IMU instance the log holds
 
 
 def _parameter_names(instance: int) -> tuple[str, str, str]:
@@ -158,7 +159,7 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
     sensor_id = f"ardupilot accel {int(device)}" if device else ""
     return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
                             temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted),
-                            ardupilot_correction(params, wanted, str(path)))
+                            ardupilot_correction(params, wanted, str(path)), tuple(sorted(instances)))
 
 
 def _series(pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray] | None:

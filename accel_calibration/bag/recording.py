@@ -67,6 +67,7 @@ class Recording:
     # corrected stream as logged (then a calibration goes on top of the one in force); "" for a bag or CSV.
     fitted_to: str = ""
     logged_correction: LoggedCorrection | None = None  # the correction undone (a log's own parameters)
+    imu_instances: tuple[int, ...] = ()  # a log's IMU instances (ULog sensor_accel, DataFlash IMU), when read
 
     @property
     def unit(self) -> str:
@@ -372,7 +373,8 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
                                              str(path), "CAL_ACCn parameters for the selected sensor")
     return Recording(str(path), "ulog", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, vehicle=log.vehicle,
-                     flight_state=log.flight_state, fitted_to=fitted_to, logged_correction=log.logged_correction)
+                     flight_state=log.flight_state, fitted_to=fitted_to, logged_correction=log.logged_correction,
+                     imu_instances=log.imu_instances)
 
 
 def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
@@ -393,7 +395,7 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
     return Recording(str(path), "dataflash", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
                      autopilot_calibration=log.autopilot_calibration, fitted_to=fitted_to,
-                     logged_correction=log.logged_correction)
+                     logged_correction=log.logged_correction, imu_instances=log.imu_instances)
 
 
 def _read_csv(path: str | os.PathLike[str], time_unit: str | None, units: str, counts_per_g: float | None,

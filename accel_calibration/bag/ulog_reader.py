@@ -66,6 +66,7 @@ class UlogSamples:
     # the log holds none for it); `raw` says the stream is a sensor's own output (sensor_accel).
     logged_correction: LoggedCorrection | None = None
     raw: bool = False
+    imu_instances: tuple[int, ...] = ()  # the sensor_accel instances the log holds (read with instance=N)
 
 
 def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
@@ -406,7 +407,7 @@ def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
         temperature = _temperature_of(path, data)
         temperature_stream = f"sensor_accel instance {instance} temperature"
     return UlogSamples(f"sensor_accel instance {instance}", stamp_us * 1000, accel, gyro, temperature,
-                       temperature_stream, _device(data), raw=True)
+                       temperature_stream, _device(data), raw=True, imu_instances=tuple(sorted(accels)))
 
 
 def _record(kind: bytes, body: bytes) -> bytes:

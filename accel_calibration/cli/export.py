@@ -57,7 +57,7 @@ def _device_id(args: argparse.Namespace, calibration: Calibration) -> int | None
         if not 0 < args.device_id < 2**32:
             raise CalibrationError(f"--device-id must be a 32-bit device ID above 0, got {args.device_id}")
         return int(args.device_id)
-    text = calibration.sensor_id.strip()
+    text = calibration.sensor_id.strip().removeprefix("px4 device ")  # as replay names a ULog's device
     return int(text) if text.isdigit() and 0 < int(text) < 2**32 else None
 
 

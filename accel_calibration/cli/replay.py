@@ -41,6 +41,9 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--instance", type=int, default=None, metavar="N",
                         help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
                              "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
+    parser.add_argument("--all-imus", action="store_true",
+                        help="ULog, DataFlash: calibrate every IMU of the log, one file each in --output DIR "
+                             "(imu<N>_dev<ID>.yaml), and give the rotation between them")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
                         help="CSV: unit of the time column (default: s for t, ns for t_ns)")
     parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
@@ -182,6 +185,10 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     settings = dataclasses.replace(replay_settings(args), format=args.format, instance=args.instance,
                                    time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    if args.all_imus:
+        from .all_imus import run_all_imus
+
+        return run_all_imus(args, settings)
     several = len(args.bags) > 1
     first_seen: dict[str, str] = {}
     for bag in args.bags:
