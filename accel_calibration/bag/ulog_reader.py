@@ -335,7 +335,8 @@ def _from_combined(path: Path, log: Any) -> UlogSamples:
         gyro = None if gyro is None else gyro[has_accel]
     temperature, temperature_stream, sensor_id = _selected_accel_temperature(path, log)
     return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id,
-                       logged_correction=_combined_correction(path, log))
+                       logged_correction=_combined_correction(path, log),
+                       imu_instances=tuple(sorted({d.multi_id for d in _datasets(log, ACCEL)})))
 
 
 def _combined_correction(path: Path, log: Any) -> LoggedCorrection | None:

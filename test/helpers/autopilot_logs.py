@@ -53,7 +53,7 @@ def simulate(seed: int, misaligned: bool = False, mounting_mrad: tuple[float, fl
              ) -> Board:
     """IMU 1 is mounted turned by `mounting_mrad` (a rotation vector) from IMU 0: it reads R u for u."""
     rng = np.random.default_rng(seed)
-    motion = SyntheticImu(SensorErrors(), spread_orientations(14, rng), dwell_s=2.5, move_s=1.0, rate_hz=200.0,
+    motion = SyntheticImu(SensorErrors(), spread_orientations(14, rng), dwell_s=2.5, move_s=1.0, rate_hz=100.0,
                           seed=seed).samples()
     imus = []
     mounting = Rotation.from_rotvec(np.array(mounting_mrad) / 1e3).as_matrix()
@@ -113,5 +113,5 @@ def write_px4_log(path, board: Board) -> None:
         topics.append(("sensor_gyro", k, sensor_triplet_array(board.t_us, imu.gyro_raw, DEVICES[k], board.temperature)))
     accel, gyro = logged(board.imus[0])
     topics.append(("sensor_combined", 0, sensor_combined_array(board.t_us, accel, gyro)))
-    topics.append(("sensor_selection", 0, sensor_selection_array(board.t_us[::200], DEVICES[0], DEVICES[0])))
+    topics.append(("sensor_selection", 0, sensor_selection_array(board.t_us[::100], DEVICES[0], DEVICES[0])))
     write_ulog(path, topics, parameters=params)
