@@ -16,11 +16,13 @@ from accel_calibration.cli.main import main
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import load_calibration
 from msg_tools.dataflash_writer import FORMATS_4X, imu_records, parameter_records, write_dataflash
+from msg_tools.ulog_writer import sensor_combined_array, sensor_selection_array, write_ulog
 
 from helpers.autopilot_logs import (
     DEVICES,
     MG,
     START_US,
+    YAW_90,
     Imu,
     ardupilot_parameters,
     logged,
@@ -126,3 +128,56 @@ def test_the_rotation_table_matches_the_autopilots_rotate():
     np.testing.assert_allclose(rotation_matrix(8) @ v, [1.0, -2.0, -3.0], atol=1e-12)
     np.testing.assert_allclose(rotation_matrix(24) @ v, [3.0, 2.0, -1.0], atol=1e-12)
     assert Rotation.from_matrix(rotation_matrix(17)).magnitude() > 0
+
+
+def ardupilot_tcal(params: dict[str, float], instance: int, temperature: np.ndarray) -> np.ndarray:
+    """AP_InertialSensor::TCal::correct_sensor's offset: P(clamp(T) - 35) - P(clamp(CALTEMP) - 35),
+    P(d) = (c1 + (c2 + c3 d) d) d * 1e-6, clamped to TMIN..TMAX (what v -= ... subtracts)."""
+    n = instance + 1
+    low, high = params[f"INS_TCAL{n}_TMIN"], params[f"INS_TCAL{n}_TMAX"]
+    c = [np.array([params[f"INS_TCAL{n}_ACC{k}_{a}"] for a in "XYZ"]) for k in (1, 2, 3)]
+
+    def polynomial(d):
+        d = d[:, None]
+        return (c[0] + (c[1] + c[2] * d) * d) * d * 1e-6
+
+    at = polynomial(np.clip(temperature, low, high) - 35.0)
+    return at - polynomial(np.clip(np.array([params[f"INS_ACC{n}_CALTEMP"]]), low, high) - 35.0)
+
+
+def test_an_ardupilot_temperature_calibration_is_undone_at_each_samples_temperature(tmp_path, capsys):
+    board = simulate(13)
+    board.temperature = np.linspace(18.0, 47.0, len(board.t_us))  # warming through the session
+    params = {**ardupilot_parameters(board), "INS_TCAL1_ENABLE": 1.0, "INS_TCAL1_TMIN": 20.0,
+              "INS_TCAL1_TMAX": 45.0, "INS_ACC1_CALTEMP": 30.0}
+    for k, coefficient in enumerate((20000.0, -40.0, 2.0), start=1):  # tens of mg across the range
+        for a, sign in zip("XYZ", (1.0, -0.5, 0.8)):
+            params[f"INS_TCAL1_ACC{k}_{a}"] = coefficient * sign
+    imu = board.imus[0]
+    accel, gyro = logged(imu)
+    thermal = ardupilot_tcal(params, 0, board.temperature)
+    accel = accel - (thermal * imu.stale_scale) @ YAW_90.T  # R ((x - tcal(T) - offset) * scale)
+    assert np.ptp(thermal, axis=0).max() / MG > 20
+    log = tmp_path / "warm.bin"
+    write_dataflash(log, FORMATS_4X, parameter_records(START_US - 1000, params)
+                    + imu_records(board.t_us, accel, gyro, board.temperature))
+    exported, said, _ = replay_and_export(log, tmp_path, "ardupilot", 0, [], capsys)
+    assert "INS_TCAL1" in said
+    assert worst_error_mg(ardupilot_correct(exported, 0, imu.raw), imu) < 0.5
+
+
+def test_a_px4_thermal_offset_without_a_temperature_is_one_line(tmp_path, capsys):
+    board = simulate(14)
+    accel, gyro = logged(board.imus[0])
+    params = {"SENS_BOARD_ROT": 2, "TC_A_ENABLE": 1, "TC_A0_ID": DEVICES[0], "TC_A0_TREF": 25.0,
+              "TC_A0_TMIN": 0.0, "TC_A0_TMAX": 60.0, "TC_A0_X1_0": 0.001, "CAL_ACC0_ID": DEVICES[0],
+              **{f"CAL_ACC0_{a}OFF": 0.1 for a in "XYZ"}, **{f"CAL_ACC0_{a}SCALE": 1.0 for a in "XYZ"}}
+    log = tmp_path / "no_temperature.ulg"
+    write_ulog(log, [("sensor_combined", 0, sensor_combined_array(board.t_us, accel, gyro)),
+                     ("sensor_selection", 0, sensor_selection_array(board.t_us[::100], DEVICES[0], DEVICES[0]))],
+               parameters=params)
+    out = tmp_path / "cal.yaml"
+    assert main(["replay", str(log), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "thermal compensation is enabled but the log gives no temperature" in err
+    assert not out.exists()
