@@ -97,7 +97,7 @@ def undo(correction: LoggedCorrection, accel: np.ndarray, gyro: np.ndarray | Non
 def rotation_of(params: dict[str, float], name: str, what: str) -> np.ndarray:
     """The board rotation parameter `name` (absent: none) as a matrix, or one line saying it is not known."""
     value = params.get(name, 0.0)
-    if value != int(value) or not 0 <= int(value) < len(_ROTATIONS_RPY):
+    if not np.isfinite(value) or value != int(value) or not 0 <= int(value) < len(_ROTATIONS_RPY):
         raise LoggedCorrectionError(f"{what}: {name} = {value:g} is not a rotation this reader knows "
                                     f"(0..{len(_ROTATIONS_RPY) - 1}): cannot undo the logged correction")
     return rotation_matrix(int(value))
@@ -137,12 +137,15 @@ def px4_correction(params: dict[str, float], accel_device: int | None, gyro_devi
                    what: str) -> LoggedCorrection | None:
     """PX4's correction of the selected accelerometer (by device ID) from the log's parameters; None when
     the log holds no calibration slot for it."""
-    from ..io.autopilot_params import px4_calibration
+    from ..io.autopilot_params import ParameterFileError, px4_calibration
 
     slot = px4_slot(params, "ACC", accel_device)
     if slot is None:
         return None
-    axis_wise = px4_calibration(params, slot)
+    try:
+        axis_wise = px4_calibration(params, slot)
+    except ParameterFileError:  # a slot with an ID and no offsets: nothing known to undo
+        return None
     if np.any(axis_wise.scale == 0):
         raise LoggedCorrectionError(f"{what}: a logged accelerometer scale of 0: cannot undo the logged correction")
     # An external sensor carries its own rotation (CAL_ACCn_ROT >= 0); an internal one the board's.

@@ -77,6 +77,10 @@ def test_ardupilot_export_corrects_the_raw_sensor(tmp_path, capsys, old_style):
         assert error < 0.5, f"IMU {k}: {error:.2f} mg"
         assert stated < 0.5  # a diagonal truth: the autopilot holds it whole (sphere9 sees a little noise)
         assert "fitted to raw: DataFlash IMU instance" in said and "AHRS_ORIENTATION 2" in said
+        # The gyro's offsets too: ArduPilot subtracts INS_GYR*OFFS before the board rotation.
+        n = "" if k == 0 else str(k + 1)
+        gyro_offset = np.array([params[f"INS_GYR{n}OFFS_{a}"] for a in "XYZ"])
+        assert np.max(np.abs(gyro_offset - imu.gyro_bias)) < 3e-4
         assert "raw: " in load_calibration(tmp_path / f"ardupilot{k}.yaml").fitted_to
 
 

@@ -39,6 +39,7 @@ class Imu:
     stale_offset: np.ndarray  # the calibration in force while logging, long out of date
     stale_scale: np.ndarray
     gyro_offset: np.ndarray
+    gyro_bias: np.ndarray  # the gyro's true bias (rad/s, its own axes)
 
 
 @dataclass
@@ -68,7 +69,7 @@ def simulate(seed: int, misaligned: bool = False, mounting_mrad: tuple[float, fl
         imus.append(Imu(truth, truth.raw_from_true(motion.accel_true @ turn.T) + noise,
                         motion.gyro_raw @ turn.T + gyro_bias + rng.normal(0.0, 0.001, motion.gyro_raw.shape),
                         stale_offset=rng.uniform(-0.3, 0.3, 3), stale_scale=1.0 + rng.uniform(-0.03, 0.03, 3),
-                        gyro_offset=gyro_bias + rng.normal(0.0, 0.005, 3)))
+                        gyro_offset=gyro_bias + rng.normal(0.0, 0.005, 3), gyro_bias=gyro_bias))
     return Board(START_US + motion.t_ns // 1000, motion.temperature_degc, imus, motion.accel_true)
 
 
