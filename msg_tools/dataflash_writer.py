@@ -41,6 +41,29 @@ FORMATS_4X = {
 }
 
 
+# ArduPilot before 4.0: one message type per instance (IMU, IMU2, IMU3), no instance field.
+FORMATS_3X = {
+    "PARM": ("QNf", "TimeUS,Name,Value"),
+    **{name: ("QffffffIIfBBHH", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+       for name in ("IMU", "IMU2", "IMU3")},
+    "ARM": ("QBIBB", "TimeUS,ArmState,ArmChecks,Forced,Method"),
+    "EV": ("QB", "TimeUS,Id"),
+}
+
+
+def parameter_records(time_us: int, parameters: dict[str, float]) -> list[tuple[str, tuple]]:
+    """PARM records, as AP_Logger writes the parameters at the start of a log."""
+    return [("PARM", (int(time_us), name, float(value))) for name, value in parameters.items()]
+
+
+def imu_records_3x(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, temperature_degc: np.ndarray,
+                   instance: int = 0) -> list[tuple[str, tuple]]:
+    """IMU/IMU2/IMU3 records of one instance in the FORMATS_3X layout."""
+    name = ("IMU", "IMU2", "IMU3")[instance]
+    return [(name, (int(t), *map(float, g), *map(float, a), 0, 0, float(c), 1, 1, 1000, 1000))
+            for t, a, g, c in zip(t_us.tolist(), accel_mps2, gyro_radps, temperature_degc)]
+
+
 def imu_records(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, temperature_degc: np.ndarray,
                 instance: int = 0) -> list[tuple[str, tuple]]:
     """IMU records of one instance in the FORMATS_4X layout."""

@@ -17,10 +17,11 @@ def _record(kind: bytes, body: bytes) -> bytes:
 
 
 def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0,
-               info: dict[str, str] | None = None) -> int:
+               info: dict[str, str] | None = None, parameters: dict[str, float | int] | None = None) -> int:
     """Write a minimal ULog: `topics` are (name, multi_id, structured array with a uint64 `timestamp` field
     first and scalar fields of the C types ULog knows). Messages of all topics are interleaved by timestamp,
     as the PX4 logger writes them. `info`: the info messages (key: text; default sys_name only).
+    `parameters`: the parameters the log starts with (int: int32_t, float: float), as 'P' records.
     Returns the data messages written."""
     out = [MAGIC + b"\x01" + struct.pack("<Q", start_us),
            _record(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
@@ -34,6 +35,11 @@ def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 
         value = text.encode()
         field = f"char[{len(value)}] {key}".encode()
         out.append(_record(b"I", bytes([len(field)]) + field + value))
+    for name, value in (parameters or {}).items():
+        kind, packed = ("int32_t", struct.pack("<i", value)) if isinstance(value, int) else \
+            ("float", struct.pack("<f", value))
+        key = f"{kind} {name}".encode()
+        out.append(_record(b"P", bytes([len(key)]) + key + packed))
     keys, blocks = [], []
     for msg_id, (name, multi_id, array) in enumerate(topics):
         out.append(_record(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))
@@ -77,4 +83,30 @@ def sensor_combined_array(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: 
     for i in range(3):
         out[f"gyro_rad[{i}]"] = gyro_radps[:, i]
         out[f"accelerometer_m_s2[{i}]"] = accel_mps2[:, i]
+    return out
+
+
+def sensor_triplet_array(t_us: np.ndarray, values: np.ndarray, device_id: int, temperature_degc: float | np.ndarray,
+                         ) -> np.ndarray:
+    """A sensor_accel or sensor_gyro dataset (PX4 v1.14 fields the readers use: timestamp, timestamp_sample,
+    device_id, x, y, z, temperature) for write_ulog: one sensor's own output."""
+    dtype = np.dtype([("timestamp", "<u8"), ("timestamp_sample", "<u8"), ("device_id", "<u4"), ("x", "<f4"),
+                      ("y", "<f4"), ("z", "<f4"), ("temperature", "<f4"), ("error_count", "<u4")])
+    out = np.zeros(len(t_us), dtype=dtype)
+    out["timestamp"] = t_us
+    out["timestamp_sample"] = t_us
+    out["device_id"] = device_id
+    for i, axis in enumerate("xyz"):
+        out[axis] = values[:, i]
+    out["temperature"] = temperature_degc
+    return out
+
+
+def sensor_selection_array(t_us: np.ndarray, accel_device_id: int, gyro_device_id: int) -> np.ndarray:
+    """sensor_selection: the devices sensor_combined is fed from."""
+    dtype = np.dtype([("timestamp", "<u8"), ("accel_device_id", "<u4"), ("gyro_device_id", "<u4")])
+    out = np.zeros(len(t_us), dtype=dtype)
+    out["timestamp"] = t_us
+    out["accel_device_id"] = accel_device_id
+    out["gyro_device_id"] = gyro_device_id
     return out

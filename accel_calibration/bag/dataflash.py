@@ -8,13 +8,12 @@
   autopilot's own calibration in force while logging. ArduPilot logs IMU values already corrected by it
   (offsets subtracted, then scaled), so a calibration fitted to them is what would change on top of it.
 
-Errors are `DataflashError` (one line naming the file); pymavlink's prints are kept off stdout/stderr.
+Errors are `DataflashError` (one line naming the file); pymavlink's prints are kept off stdout/stderr, its C
+indexer's too (io/captured_output.py), and a log it had to skip damage in is refused.
 `write_dataflash` writes a minimal log in the documented format (tests, benchmarks).
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import struct
 from collections.abc import Mapping
@@ -25,8 +24,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.flight_state import FlightState
+from ..io.captured_output import captured_output, damage_said
 from .bag_io import BagError, read_head
 from .flight_sources import dataflash_flight_state
+from .logged_correction import LoggedCorrection, ardupilot_correction
 
 if TYPE_CHECKING:
     from .progress import ProgressBar
@@ -70,6 +71,10 @@ class DataflashSamples:
     sensor_id: str
     flight_state: FlightState
     autopilot_calibration: AutopilotCalibration | None
+    # What ArduPilot did to these samples before logging them (its PARM records), to be undone; None when
+    # the log holds no calibration of this instance (the samples are then corrected by one not known).
+    logged_correction: LoggedCorrection | None = None
+    imu_instances: tuple[int, ...] = ()  # every IMU instance the log holds
 
 
 def _parameter_names(instance: int) -> tuple[str, str, str]:
@@ -101,13 +106,13 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
     if head[:2] != HEAD:
         raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
     wanted = 0 if instance is None else instance
-    chatter = io.StringIO()
     rows: list[tuple[Any, ...]] = []  # pymavlink's message fields (it ships no types)
     instances: set[int] = set()
     arm: list[tuple[int, int]] = []
     events: list[tuple[int, int]] = []
+    failure: str | None = None
     try:
-        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+        with captured_output() as chatter:
             log = DFReader.DFReader_binary(str(path), zero_time_base=False)
             try:
                 while True:
@@ -130,11 +135,16 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
             finally:
                 log.close()
     except (AttributeError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError) as error:
-        raise DataflashError(f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})") from None
+        failure = f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})"
     except OSError as error:
-        raise DataflashError(f"{path}: cannot read ({error.strerror or error})") from None
+        failure = f"{path}: cannot read ({error.strerror or error})"
     except Exception as error:  # noqa: BLE001 - pymavlink raises bare Exception on a bad FMT record
-        raise DataflashError(f"{path}: unreadable DataFlash log ({str(error)[:80]})") from None
+        failure = f"{path}: unreadable DataFlash log ({str(error)[:80]})"
+    damage = damage_said(chatter)
+    if damage is not None:  # what pymavlink skipped explains any failure that followed
+        raise DataflashError(f"{path}: {damage}")
+    if failure is not None:
+        raise DataflashError(failure)
     if progress is not None:
         progress.update(offset_end)
     if not rows:
@@ -143,24 +153,35 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
         raise DataflashError(f"{path}: no IMU instance {wanted}; the log has instance(s) "
                              f"{', '.join(map(str, sorted(instances)))}")
     table = np.array(rows, dtype=float)
-    t_ns = np.array([row[0] for row in rows], dtype=np.int64) * 1000
+    t_ns = _stamps_ns(path, [row[0] for row in rows], "IMU")
     temperature = None
     temperature_stream = None
     if np.any(np.isfinite(table[:, 7])):
         temperature = (t_ns.copy(), table[:, 7].copy())
         temperature_stream = f"IMU instance {wanted} T"
-    flight = dataflash_flight_state(_series(arm), _series(events))
+    flight = dataflash_flight_state(_series(path, arm, "ARM"), _series(path, events, "EV"))
     device = params.get("INS_ACC_ID" if wanted == 0 else f"INS_ACC{wanted + 1}_ID")
     sensor_id = f"ardupilot accel {int(device)}" if device else ""
     return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
-                            temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted))
+                            temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted),
+                            ardupilot_correction(params, wanted, str(path)), tuple(sorted(instances)))
 
 
-def _series(pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray] | None:
+def _series(path: Path, pairs: list[tuple[int, int]], what: str) -> tuple[np.ndarray, np.ndarray] | None:
     if not pairs:
         return None
-    stamps = np.array([p[0] for p in pairs], dtype=np.int64) * 1000
-    return stamps, np.array([p[1] for p in pairs], dtype=np.int64)
+    return _stamps_ns(path, [p[0] for p in pairs], what), np.array([p[1] for p in pairs], dtype=np.int64)
+
+
+def _stamps_ns(path: Path, stamps_us: list[Any], what: str) -> np.ndarray:
+    """Logged TimeUS (uint64 us) as int64 ns, or one DataflashError where the ns would wrap."""
+    from .ulog_reader import MAX_STAMP_US
+
+    top = max((int(v) for v in stamps_us), default=0)
+    if top > MAX_STAMP_US or min((int(v) for v in stamps_us), default=0) < 0:
+        raise DataflashError(f"{path}: {what} TimeUS reaches {top} us, beyond the {MAX_STAMP_US} us (292 years) a "
+                             "nanosecond stamp holds: a corrupt log")
+    return np.array([int(v) for v in stamps_us], dtype=np.int64) * 1000
 
 
 def correction_on_top_mg(matrix: np.ndarray, bias_mps2: np.ndarray, gravity: float, points: int = 4000) -> float:

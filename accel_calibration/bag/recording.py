@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from .csv_stream import CsvLayout
     from .dataflash import AutopilotCalibration
     from .imu_messages import ImuData, Temperatures
+    from .logged_correction import LoggedCorrection
     from .mcap_scan import PackedMessages
     from .progress import ClosableProgressBar
 
@@ -62,6 +63,11 @@ class Recording:
     source: CsvLayout | None = None  # what writing a corrected copy needs: a CSV's layout
     flight_state: FlightState | None = None  # what a log carries (ULog, DataFlash); None: none read
     autopilot_calibration: AutopilotCalibration | None = None  # in force while logging (DataFlash)
+    # What the samples are: raw sensor output, a log's corrected stream with its correction undone, or a
+    # corrected stream as logged (then a calibration goes on top of the one in force); "" for a bag or CSV.
+    fitted_to: str = ""
+    logged_correction: LoggedCorrection | None = None  # the correction undone (a log's own parameters)
+    imu_instances: tuple[int, ...] = ()  # a log's IMU instances (ULog sensor_accel, DataFlash IMU), when read
 
     @property
     def unit(self) -> str:
@@ -344,6 +350,7 @@ def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, tempe
 
 
 def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
+    from .logged_correction import raw_or_said
     from .ulog_reader import read_ulog
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
@@ -354,13 +361,25 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
     finally:
         if bar is not None:
             bar.close()
-    return Recording(str(path), "ulog", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
+    accel, gyro = log.accel_mps2, log.gyro_radps
+    if log.raw:
+        fitted_to = f"raw: {log.stream}" + (f" ({log.sensor_id})" if log.sensor_id else "") + "; sensor axes"
+    else:
+        temperature_at_samples = None
+        if log.temperature is not None and len(log.temperature[0]):
+            order = np.argsort(log.temperature[0], kind="stable")
+            temperature_at_samples = np.interp(log.t_ns, log.temperature[0][order], log.temperature[1][order])
+        accel, gyro, fitted_to = raw_or_said(log.logged_correction, accel, gyro, temperature_at_samples, log.stream,
+                                             str(path), "CAL_ACCn parameters for the selected sensor")
+    return Recording(str(path), "ulog", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, vehicle=log.vehicle,
-                     flight_state=log.flight_state)
+                     flight_state=log.flight_state, fitted_to=fitted_to, logged_correction=log.logged_correction,
+                     imu_instances=log.imu_instances)
 
 
 def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
     from .dataflash import read_dataflash
+    from .logged_correction import raw_or_said
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
@@ -370,9 +389,13 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
     finally:
         if bar is not None:
             bar.close()
-    return Recording(str(path), "dataflash", log.stream, log.t_ns, log.accel_mps2, log.gyro_radps, log.temperature,
+    temperature_at_samples = None if log.temperature is None else log.temperature[1]  # T of each IMU record
+    accel, gyro, fitted_to = raw_or_said(log.logged_correction, log.accel_mps2, log.gyro_radps, temperature_at_samples,
+                                         f"DataFlash {log.stream}", str(path), "INS_ACC*OFFS/SCAL PARM records")
+    return Recording(str(path), "dataflash", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
-                     autopilot_calibration=log.autopilot_calibration)
+                     autopilot_calibration=log.autopilot_calibration, fitted_to=fitted_to,
+                     logged_correction=log.logged_correction, imu_instances=log.imu_instances)
 
 
 def _read_csv(path: str | os.PathLike[str], time_unit: str | None, units: str, counts_per_g: float | None,

@@ -248,11 +248,14 @@ def _with_flight_state(result: ReplayResult, flight: FlightState | None, first_n
     recording = result.recording
     autopilot = getattr(recording, "autopilot_calibration", None)
     difference = None
+    logged = getattr(recording, "logged_correction", None)
     if autopilot is not None and result.calibration is not None:
         from .dataflash import correction_on_top_mg
+        from .logged_correction import difference_mg
 
         calibration = result.calibration
-        difference = correction_on_top_mg(calibration.matrix, calibration.bias, calibration.gravity)
+        difference = (correction_on_top_mg(calibration.matrix, calibration.bias, calibration.gravity) if logged is None
+                      else difference_mg(calibration.matrix, calibration.bias, calibration.gravity, logged))
     line = None if flight is None else report_line(flight, first_ns, last_ns, s.armed_margin_s)
     return dataclasses.replace(result, flight_state_line=line, flight_state_found=flight is not None and flight.found,
                                autopilot_calibration=autopilot, autopilot_difference_mg=difference)
@@ -294,6 +297,9 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
             calibration = calibration.replace(gyro_bias_radps=None)
         if recording.sensor_id and not calibration.sensor_id:
             calibration = calibration.replace(sensor_id=recording.sensor_id)
+        fitted_to = getattr(recording, "fitted_to", "")  # a log's (Recording); a bag's messages say nothing
+        if fitted_to:
+            calibration = calibration.replace(fitted_to=fitted_to)
         result = dataclasses.replace(verdict.result, calibration=calibration)
     # Poses the fit left out (fit.FitResult.outliers: each with its index into the store's poses).
     outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}

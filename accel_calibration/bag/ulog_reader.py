@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .bag_io import BagError, read_head
+from .logged_correction import LoggedCorrection, px4_correction
 
 if TYPE_CHECKING:
     from ..core.flight_state import FlightState
@@ -61,6 +62,11 @@ class UlogSamples:
     sensor_id: str  # "px4 device <id>" when the log says which device
     flight_state: FlightState | None = None  # armed or airborne (flight_sources)
     vehicle: str = ""  # the flight controller the log names (logged_vehicle), "" when it does not
+    # sensor_combined is corrected: PX4's correction of the selected sensor from the log's parameters (None:
+    # the log holds none for it); `raw` says the stream is a sensor's own output (sensor_accel).
+    logged_correction: LoggedCorrection | None = None
+    raw: bool = False
+    imu_instances: tuple[int, ...] = ()  # the sensor_accel instances the log holds (read with instance=N)
 
 
 def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
@@ -328,7 +334,21 @@ def _from_combined(path: Path, log: Any) -> UlogSamples:
         accel, stamp_us = accel[has_accel], stamp_us[has_accel]
         gyro = None if gyro is None else gyro[has_accel]
     temperature, temperature_stream, sensor_id = _selected_accel_temperature(path, log)
-    return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id)
+    return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id,
+                       logged_correction=_combined_correction(path, log),
+                       imu_instances=tuple(sorted({d.multi_id for d in _datasets(log, ACCEL)})))
+
+
+def _combined_correction(path: Path, log: Any) -> LoggedCorrection | None:
+    """PX4's correction of the sensors sensor_selection names, from the parameters the log starts with."""
+    selection = _datasets(log, SELECTION)
+    params = {str(k): float(v) for k, v in log.initial_parameters.items()}
+    if not selection or not params:
+        return None
+    data = selection[0].data
+    accel = int(data["accel_device_id"][-1]) if "accel_device_id" in data else None
+    gyro = int(data["gyro_device_id"][-1]) if "gyro_device_id" in data else None
+    return px4_correction(params, accel, gyro, str(path))
 
 
 def _selected_accel_temperature(path: Path, log: Any
@@ -388,7 +408,7 @@ def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
         temperature = _temperature_of(path, data)
         temperature_stream = f"sensor_accel instance {instance} temperature"
     return UlogSamples(f"sensor_accel instance {instance}", stamp_us * 1000, accel, gyro, temperature,
-                       temperature_stream, _device(data))
+                       temperature_stream, _device(data), raw=True, imu_instances=tuple(sorted(accels)))
 
 
 def _record(kind: bytes, body: bytes) -> bytes:

@@ -12,10 +12,11 @@ Dask and SQLAlchemy are imported only when a command needs them (the CLI starts 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -88,6 +89,8 @@ class RecordingOutcome:
     summary: str  # one line
     peak_rss_mb: float | None  # the worker process's peak resident memory so far
     elapsed_s: float
+    # The other IMUs of an autopilot log, one row each (the first IMU's is this one): empty otherwise.
+    others: tuple[RecordingOutcome, ...] = ()
 
 
 def _package_version() -> str:
@@ -230,6 +233,52 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
                                status="failed", reason=reason)
         return outcome("failed", reason, record, _line(record, where.name))
 
+    first_row = _described(replay, identity, vehicle, vehicle_source, where, outcome)
+    other_rows = tuple(
+        _described(other, {**identity, "recording_id": _imu_identity(identity["recording_id"], instance)},
+                   vehicle, vehicle_source, where, outcome)
+        for instance, other in _other_imus(path, settings, replay))
+    return dataclasses.replace(first_row, others=other_rows)
+
+
+def _imu_identity(recording_id: str, instance: int) -> str:
+    """The row key of a log's further IMU: the log's content identity and the instance, digested alike."""
+    import hashlib
+
+    return hashlib.blake2b(f"{recording_id}:imu{instance}".encode(), digest_size=32).hexdigest()
+
+
+def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult) -> list[tuple[int, ReplayResult]]:
+    """Each further IMU of an autopilot log, replayed alone (ULog sensor_accel N, DataFlash IMU N): those
+    whose device the first replay did not read. A replay that fails is left out (the first row stands)."""
+    from ..bag.recording import Recording
+    from ..bag.replay import ReplaySettings
+
+    recording = replay.recording
+    if not isinstance(recording, Recording) or recording.format not in ("ulog", "dataflash"):
+        return []
+    s = settings or ReplaySettings()
+    found = []
+    for instance in recording.imu_instances:
+        if recording.format == "dataflash" and instance == (s.instance or 0):
+            continue  # the first row's IMU
+        try:
+            other = _replay(path, dataclasses.replace(s, instance=instance))
+        except AccelCalibrationError:
+            continue
+        # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
+        if recording.format == "dataflash" or not other.sensor_id or other.sensor_id != replay.sensor_id:
+            found.append((instance, other))
+    return found
+
+
+def _described(replay: ReplayResult, identity: dict[str, Any], vehicle: str, vehicle_source: str, where: Path,
+               outcome: Callable[[str, str | None, HistoryRecord | None, str], RecordingOutcome]
+               ) -> RecordingOutcome:
+    """One replay as a history row and its outcome."""
+    from ..io.history import HistoryRecord
+
+    path = str(where)
     result = replay.result
     calibration = replay.calibration if replay.calibration is not None else getattr(result, "calibration", None)
     temperatures = [p.temperature_degc for p in replay.poses if p.temperature_degc is not None]
@@ -301,10 +350,28 @@ def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutco
                             outcome.peak_rss_mb, outcome.elapsed_s)
 
 
-def run(args: argparse.Namespace) -> int:
+def _record_outcome(outcome: RecordingOutcome, history: Any, rows: dict[str, list[str]], counts: dict[str, int]
+                    ) -> None:
+    """One row into the history (it stands or fails alone), counted and said."""
     from tqdm import tqdm
 
-    from ..io.history import HistoryError, open_history, printable_text, vehicle_from_rule
+    from ..io.history import HistoryError, printable_text
+
+    if outcome.record is not None:
+        try:
+            history.write([outcome.record])
+            rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
+        except HistoryError as history_error:
+            outcome = _unwritten(outcome, history_error)
+    counts[outcome.status] += 1
+    if outcome.status == "calibrated":  # printable whatever bytes a file name holds
+        tqdm.write(printable_text(outcome.summary))
+    else:
+        tqdm.write(f"accel-calib: error: {printable_text(str(outcome.reason))}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io.history import open_history, printable_text, vehicle_from_rule
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
@@ -325,28 +392,22 @@ def run(args: argparse.Namespace) -> int:
         with dask_client(workers=workers, scheduler=args.scheduler) as client:
             cores = sum(client.nthreads().values()) or 1
             jobs = [(path, settings, args.vehicle) for path in recordings]
-            for i, outcome, error in run_tasks(client, calibrate_recording, jobs):
+            for i, task_outcome, error in run_tasks(client, calibrate_recording, jobs):
                 if error is not None:  # the worker itself was lost: no row (nothing known of it)
-                    outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
-                                               None, f"failed     {recordings[i]}: worker lost ({error})", None, 0.0)
-                if outcome.record is not None:
-                    try:  # each row stands or fails alone
-                        history.write([outcome.record])
-                        rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
-                    except HistoryError as history_error:
-                        outcome = _unwritten(outcome, history_error)
-                counts[outcome.status] += 1
-                if outcome.status == "calibrated":  # printable whatever bytes a file name holds
-                    tqdm.write(printable_text(outcome.summary))
-                else:
-                    tqdm.write(f"accel-calib: error: {printable_text(str(outcome.reason))}", file=sys.stderr)
+                    task_outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
+                                                    None, f"failed     {recordings[i]}: worker lost ({error})", None,
+                                                    0.0)
+                for outcome in (task_outcome, *task_outcome.others):  # an autopilot log: a row per IMU
+                    _record_outcome(outcome, history, rows, counts)
     elapsed = time.perf_counter() - started
     per_minute = 60.0 * len(recordings) / elapsed if elapsed > 0 else float("inf")
     shared = sum(len(paths) - 1 for paths in rows.values())
     same = f" ({shared} recording{'s' if shared != 1 else ''} with the content of another: one row each)" \
         if shared else ""
-    print(f"{len(recordings)} recordings: {counts['calibrated']} calibrated, {counts['refused']} refused, "
+    total = sum(counts.values())
+    sensors = f" ({total} sensors: a row per IMU of an autopilot log)" if total != len(recordings) else ""
+    print(f"{len(recordings)} recordings{sensors}: {counts['calibrated']} calibrated, {counts['refused']} refused, "
           f"{counts['failed']} failed; {len(rows)} row{'s' if len(rows) != 1 else ''} written{same} "
           f"to {history.name}; {elapsed:.1f} s "
           f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
-    return 0 if counts["calibrated"] == len(recordings) and not problems else 1
+    return 0 if counts["calibrated"] == total and not problems else 1

@@ -41,6 +41,9 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--instance", type=int, default=None, metavar="N",
                         help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
                              "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
+    parser.add_argument("--all-imus", action="store_true",
+                        help="ULog, DataFlash: calibrate every IMU of the log, one file each in --output DIR "
+                             "(imu<N>_dev<ID>.yaml), and give the rotation between them")
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
                         help="CSV: unit of the time column (default: s for t, ns for t_ns)")
     parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
@@ -148,13 +151,15 @@ def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
 def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the flight state it kept out, and of the autopilot's calibration logged with it."""
     lines = []
+    if replay.calibration is not None and replay.calibration.fitted_to:
+        lines.append(f"fitted to {replay.calibration.fitted_to}")
     if replay.flight_state_line:
         lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
     if replay.autopilot_calibration is not None:
         lines.append(replay.autopilot_calibration.describe())
         if replay.autopilot_difference_mg is not None:
-            lines.append(f"ours moves the autopilot's corrected output by up to {replay.autopilot_difference_mg:.1f} "
-                         "mg at 1 g (worst orientation): how far ours is from the autopilot's calibration")
+            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot_difference_mg:.1f} mg at 1 g "
+                         "(worst orientation)")
     return lines
 
 
@@ -180,6 +185,10 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     settings = dataclasses.replace(replay_settings(args), format=args.format, instance=args.instance,
                                    time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    if args.all_imus:
+        from .all_imus import run_all_imus
+
+        return run_all_imus(args, settings)
     several = len(args.bags) > 1
     first_seen: dict[str, str] = {}
     for bag in args.bags:

@@ -216,6 +216,9 @@ class Calibration:
     # Where `gravity` came from: "standard", "given", "WGS84 normal gravity, latitude .. deg, height .. m";
     # "" when not recorded (files written before it was).
     gravity_source: str = ""
+    # What the fit saw, where a recording says: "raw: ..." (the sensor's own output, or a log's stream with
+    # the log's correction undone) or a stream as logged, corrected by a calibration this one goes on top of.
+    fitted_to: str = ""
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -414,6 +417,7 @@ class Calibration:
             and self.dividing_head == other.dividing_head
             and self.noise == other.noise
             and self.gravity_source == other.gravity_source
+            and self.fitted_to == other.fitted_to
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

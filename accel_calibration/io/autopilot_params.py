@@ -365,17 +365,23 @@ def read_dataflash_parameters(path: str | Path) -> ParameterSet:
         from pymavlink import DFReader
     except ModuleNotFoundError:
         raise ParameterFileError(f"{path}: reading DataFlash logs needs pymavlink: pip install pymavlink") from None
+    from .captured_output import captured_output, damage_said
+
+    failure = None
+    values: dict[str, float] = {}
     try:
-        reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
-        values: dict[str, float] = {}
-        while True:
-            message = reader.recv_match(type=["PARM"])
-            if message is None:
-                break
-            values[str(message.Name)] = float(message.Value)
+        with captured_output() as chatter:  # pymavlink prints, its C indexer on descriptor 2
+            reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
+            while True:
+                message = reader.recv_match(type=["PARM"])
+                if message is None:
+                    break
+                values[str(message.Name)] = float(message.Value)
     except Exception as error:  # pymavlink raises what it meets in a damaged log
-        raise ParameterFileError(f"{path}: not a readable DataFlash log ({type(error).__name__}: "
-                                 f"{str(error)[:80]})") from None
+        failure = f"{path}: not a readable DataFlash log ({type(error).__name__}: {str(error)[:80]})"
+    damage = damage_said(chatter)
+    if damage is not None or failure is not None:
+        raise ParameterFileError(f"{path}: {damage}" if damage is not None else str(failure))
     if not values:
         raise ParameterFileError(f"{path}: no PARM records in this log")
     return ParameterSet(_autopilot_of(set(values), str(path)), values, str(path))

@@ -23,6 +23,7 @@ Layout (keys other tools read are the first six; the rest is ours):
       parameter_sources:        # fitted with a prior: where each parameter came from
         prior: old.yaml
         parameters: {b_x: {from: poses, share_from_poses: 0.998, sigma: .., prior_sigma: ..}, ..}
+      fitted_to: what the fit saw, where a recording says (raw output, or a corrected stream as logged)
 """
 from __future__ import annotations
 
@@ -148,6 +149,8 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     body["created"] = c.created
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
+    if c.fitted_to:
+        body["fitted_to"] = c.fitted_to
     return {ROOT_KEY: body}
 
 
@@ -360,6 +363,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
             gravity_source=str(body.get("gravity_source", "") or ""),  # absent from older files
+            fitted_to=str(body.get("fitted_to", "") or "")[:1024],
             reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),
             gyro_bias_radps=body.get("gyro_bias_radps"),
         )

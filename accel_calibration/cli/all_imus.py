@@ -1,0 +1,121 @@
+"""accel-calib replay LOG --all-imus -o DIR: every IMU of an autopilot log in one run (PX4 ULog sensor_accel
+instances, DataFlash IMU instances), one calibration file each, named by instance and device ID, and the
+rotation between the IMUs from the poses they held together."""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core.errors import CalibrationError
+
+if TYPE_CHECKING:
+    from ..bag.replay import ReplayResult, ReplaySettings
+
+LOG_FORMATS = ("ulog", "dataflash")
+
+
+def file_name(instance: int, sensor_id: str) -> str:
+    """imu<N>_dev<ID>.yaml (imu<N>.yaml where the log names no device)."""
+    device = re.search(r"(\d+)$", sensor_id)
+    return f"imu{instance}" + (f"_dev{device.group(1)}" if device and int(device.group(1)) else "") + ".yaml"
+
+
+def _check_arguments(args: argparse.Namespace) -> str:
+    """The one log to read; every option that does not fit --all-imus refused before any work."""
+    from ..bag.recording import detect_format
+
+    if len(args.bags) != 1:
+        raise CalibrationError("--all-imus reads one log at a time")
+    if args.instance is not None:
+        raise CalibrationError("--all-imus reads every instance: leave out --instance")
+    if args.output is None:
+        raise CalibrationError("--all-imus needs --output DIR: one calibration file per IMU goes there")
+    for flag, value in (("--corrected", args.corrected_bag), ("--report", args.report),
+                        ("--poses-out", args.poses_out)):
+        if value is not None:
+            raise CalibrationError(f"--all-imus writes calibrations only: leave out {flag}")
+    bag = str(args.bags[0])
+    kind = args.format or detect_format(bag)
+    if kind not in LOG_FORMATS:
+        raise CalibrationError(f"--all-imus applies to autopilot logs (PX4 ULog, ArduPilot DataFlash); "
+                               f"{bag} is {kind}")
+    return bag
+
+
+def replay_every_imu(bag: str, settings: ReplaySettings) -> dict[int, ReplayResult]:
+    """Instance 0 first (it says which instances the log holds), then each other one."""
+    from ..bag.recording import Recording
+    from ..bag.replay import replay_bag
+
+    first = replay_bag(bag, dataclasses.replace(settings, instance=0))
+    instances = first.recording.imu_instances if isinstance(first.recording, Recording) else (0,)
+    replays = {0: first}
+    for instance in instances:
+        if instance != 0:
+            replays[instance] = replay_bag(bag, dataclasses.replace(settings, instance=instance))
+    return replays
+
+
+def alignment_lines(replays: dict[int, ReplayResult]) -> list[str]:
+    """The rotation of every calibrated IMU relative to the first calibrated one, from their common poses."""
+    from ..bag.imu_alignment import common_directions, frame_sigma_mrad, relative_rotation
+
+    calibrated = {n: r for n, r in sorted(replays.items()) if r.calibration is not None}
+    if len(calibrated) < 2:
+        return []
+    reference, *others = calibrated
+    lines = []
+    base = calibrated[reference]
+    assert base.calibration is not None, "calibrated only"
+    for other in others:
+        replay = calibrated[other]
+        assert replay.calibration is not None, "calibrated only"
+        ua, ub = common_directions(base.poses, base.calibration, replay.poses, replay.calibration)
+        frames = float(np.hypot(frame_sigma_mrad(base.calibration), frame_sigma_mrad(replay.calibration)))
+        rotation = relative_rotation(ua, ub, frames)
+        if rotation is None:
+            lines.append(f"rotation IMU {reference} -> IMU {other}: fewer than 2 poses held by both at once")
+        else:
+            lines.append(rotation.describe(f"IMU {reference}", f"IMU {other}"))
+    return lines
+
+
+def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
+    import sys
+
+    from ..io.calibration_file import checked_calibration_text, write_text_atomically
+    from ..io.output_paths import check_outputs
+    from .options import PROG
+
+    bag = _check_arguments(args)
+    check_outputs([("--output", args.output)], [bag, args.params_file], directories=("--output",))
+    replays = replay_every_imu(bag, settings)
+    directory = Path(args.output)
+    texts: dict[Path, str] = {}
+    lines, errors = [], []
+    for instance, replay in sorted(replays.items()):
+        if replay.calibration is None or replay.result is None:
+            errors.append(f"{bag}: IMU {instance}: {replay.problem}")
+            continue
+        target = directory / file_name(instance, replay.sensor_id)
+        texts[target] = checked_calibration_text(replay.calibration, str(target))
+        lines += [f"IMU {instance} ({replay.sensor_id or 'no device ID'}): {len(replay.poses)} static poses; "
+                  f"{replay.result.summary()}", f"fitted to {replay.calibration.fitted_to}"]
+    lines += alignment_lines(replays)
+    if texts:  # every file's text made: now the files
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise CalibrationError(f"cannot make output directory {directory}: {error.strerror}") from None
+        for target, text in texts.items():
+            write_text_atomically(str(target), text)
+            lines.append(f"written {target}")
+    print("\n".join(lines))
+    for message in errors:
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 1 if errors else 0
