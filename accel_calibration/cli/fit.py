@@ -7,7 +7,7 @@ from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from ..core.units import STANDARD_GRAVITY
-from .options import UNIT_SCALE
+from .options import UNIT_SCALE, check_table_units
 
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     table = read_table(args.poses)
     if args.model in REFERENCE_MODELS and table.reference is None:
         raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
+    check_table_units(table.accel, UNIT_SCALE[args.units], args.units, args.gravity, args.poses)
     accel = table.accel * UNIT_SCALE[args.units]
     options = None
     if args.temperature_model != "none":

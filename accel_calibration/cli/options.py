@@ -23,6 +23,33 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
 DEFAULT_MARGIN_S = 2.0
 
 
+def units_hint(typical_raw: float) -> str:
+    """What the typical |a| of a still table or stream, as written in the file, looks like."""
+    if 0.7 * STANDARD_GRAVITY <= typical_raw <= 1.3 * STANDARD_GRAVITY:
+        return "the file looks like m/s^2: use --units mps2"
+    if 0.7 <= typical_raw <= 1.3:
+        return "the file looks like g: use --units g"
+    if typical_raw > 30.0:
+        return f"the file looks like raw counts (~{typical_raw:.0f} per g): convert them to g or m/s^2"
+    return "check the file's units and scaling"
+
+
+def check_table_units(raw: Any, unit_mps2: float, units: str, gravity: float, source: str) -> None:
+    """A pose table's ax,ay,az (as written, read with --units) must be gravity at rest: else one line,
+    before any fit (as replay refuses a stream in other units)."""
+    import numpy as np
+
+    from ..core.units import units_problem
+
+    raw = np.asarray(raw, dtype=float).reshape(-1, 3)
+    if units_problem(raw * unit_mps2, gravity) is None:
+        return
+    typical_raw = float(np.median(np.linalg.norm(raw, axis=1)))
+    typical = typical_raw * unit_mps2
+    raise CalibrationError(f"{source}: read with --units {units} the poses' median |a| is {typical:.4g} "
+                           f"m/s^2, implausible for poses at rest (expected ~{gravity:.2f}): {units_hint(typical_raw)}")
+
+
 def add_flight_state_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--armed-topic", default=None, metavar="TOPIC",
                         help="bag: topic saying the vehicle is armed or flying (std_msgs/Bool, mavros_msgs/msg/State, "
