@@ -6,6 +6,7 @@ passes before it is put in force (`apply`, `report`)."""
 from __future__ import annotations
 
 import argparse
+import re
 from typing import Any
 
 from ..core.errors import CalibrationError
@@ -21,6 +22,18 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
                    "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
 
 DEFAULT_MARGIN_S = 2.0
+# rcl's rules for a node's fully qualified name: tokens of letters, digits and underscores, none starting
+# with a digit, joined by single slashes; a leading slash optional here (the params file's keys drop it).
+_NODE_NAME = re.compile(r"/?(?:[A-Za-z_][A-Za-z0-9_]*/)*[A-Za-z_][A-Za-z0-9_]*", re.ASCII)
+MAX_NODE_NAME = 255  # rcl's limit on a node name
+
+
+def check_node_name(name: str) -> None:
+    """One line when `name` (--node) is no node name rcl would accept: it could match no block."""
+    if len(name) > MAX_NODE_NAME or _NODE_NAME.fullmatch(name) is None:
+        shown = repr(name) if len(name) <= 60 else f"{name[:60]!r}... ({len(name)} characters)"
+        raise CalibrationError(f"--node {shown} is not a ROS node name: write /NAMESPACE/NAME or NAME, each part "
+                               "letters, digits and underscores, not starting with a digit")
 
 
 def units_hint(typical_raw: float) -> str:
@@ -120,6 +133,8 @@ def replay_settings(args: argparse.Namespace) -> Any:
     from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
     values: dict[str, Any] = {}
+    if args.node is not None:
+        check_node_name(args.node)
     if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
         values.update(params_file_parameters(args.params_file, args.node or DEFAULT_NODE, error=CalibrationError))
         values.pop("calibration_file", None)  # the node's file; replay writes --output
