@@ -31,9 +31,9 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 
 from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import LOG_THROTTLE_S, LiveCalibration
+from ..io.live_calibration import LiveCalibration
 from .boundary import Boundary, failed_service
-from .diagnostics import StreamHealth, diagnostic_status
+from .diagnostics import SilenceReminders, StreamHealth, diagnostic_status
 from .parameters import NODE_PARAMETERS, NodeParameters
 from .process import run_node, spin_until
 
@@ -69,6 +69,7 @@ class CalibrationNode(Node):
         self._started = time.monotonic()
         self._last_imu: float | None = None
         self._last_temperature: float | None = None
+        self._silence_reminders = SilenceReminders()
         self._feed_pending = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accel_calibration_worker")
         self._live.start()
@@ -182,8 +183,8 @@ class CalibrationNode(Node):
                               None if self._last_imu is None else now - self._last_imu,
                               None if self._last_temperature is None else now - self._last_temperature,
                               self._stream_timeout_s, now - self._started)
-        for problem in health.problems():
-            self.get_logger().warning(problem, throttle_duration_sec=LOG_THROTTLE_S)
+        for line in self._silence_reminders.due(health.problem_by_input(), now):
+            self.get_logger().warning(line)
         level, message = self._live.status
         calibration = self._in_force.calibration
         status = diagnostic_status(f"accel_calibration: {self.get_fully_qualified_name()}", _LEVELS[level], message,
