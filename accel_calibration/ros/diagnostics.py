@@ -102,3 +102,19 @@ def diagnostic_status(name: str, level: bytes, message: str, progress: Progress,
     text = "; ".join([message, *silent, advice]) + paused
     return DiagnosticStatus(level=level, name=name, message=text, hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in entries.items()])
+
+
+# Seconds after start at which the node looks for another node of its own name: discovery takes a few
+# seconds, and a namesake started later is seen at a later look. Never on the stream's path.
+NAMESAKE_CHECKS_S = (2, 5, 10, 20, 40, 80)
+
+
+def namesake_problem(fully_qualified_name: str, names_and_namespaces: list[tuple[str, str]]) -> str | None:
+    """One line when the graph holds this node's fully qualified name more than once (rclpy's
+    get_node_names_and_namespaces, which lists this node too)."""
+    count = sum(1 for name, namespace in names_and_namespaces
+                if f"{namespace.rstrip('/')}/{name}" == fully_qualified_name)
+    if count < 2:
+        return None
+    return (f"{count} nodes are named {fully_qualified_name}: they share its services and parameters, and by "
+            "default its calibration file; give each its own name or namespace (-r __node:=... or -r __ns:=...)")
