@@ -92,14 +92,30 @@ _COMPARISONS: dict[str, Callable[[Any, Any], object]] = {
 _EXPRESSION = re.compile(r"^\s*(not\s+)?([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)\s*(?:(==|!=|<=|>=|<|>)\s*(\S+))?\s*$")
 
 
+QUOTED_CHARACTERS = 60  # of an expression echoed in an error: enough to recognise it, never a screenful
+
+
+def quoted(text: str) -> str:
+    """`text` as an error quotes it: repr, cut to QUOTED_CHARACTERS with its length said."""
+    if len(text) <= QUOTED_CHARACTERS:
+        return repr(text)
+    return f"{text[:QUOTED_CHARACTERS]!r}... ({len(text)} characters)"
+
+
 def field_test(expression: str) -> Callable[[object], bool]:
     """A message -> bool test from `FIELD`, `not FIELD` or `FIELD OP VALUE` (OP one of == != < <= > >=,
     VALUE a number, true or false; FIELD may be dotted: header.frame_id). No code is evaluated."""
     match = _EXPRESSION.match(expression)
     if match is None:
-        raise FlightStateError(f"--armed-field {expression!r}: write FIELD, 'not FIELD' or 'FIELD OP VALUE' "
+        raise FlightStateError(f"--armed-field {quoted(expression)}: write FIELD, 'not FIELD' or 'FIELD OP VALUE' "
                                "(OP: == != < <= > >=), e.g. armed or 'arming_state == 2'")
     negate, path, op, text = match.groups()
+    private = [name for name in path.split(".") if name.startswith("_")]
+    if private:
+        # Message fields never start with an underscore; such a name reaches Python's own attributes
+        # (__class__ is truthy for every message: the whole recording would count as armed).
+        raise FlightStateError(f"--armed-field {quoted(expression)}: {quoted(private[0])} starts with an underscore: "
+                               "name a field of the message (e.g. armed, arming_state)")
     value: object = None
     if op is not None:
         lowered = text.lower()
@@ -112,8 +128,8 @@ def field_test(expression: str) -> Callable[[object], bool]:
                 try:
                     value = float(text)
                 except ValueError:
-                    raise FlightStateError(f"--armed-field {expression!r}: {text!r} is not a number, true or "
-                                           "false") from None
+                    raise FlightStateError(f"--armed-field {quoted(expression)}: {quoted(text)} is not a number, "
+                                           "true or false") from None
     names = path.split(".")
     compare = _COMPARISONS[op] if op is not None else None
 
@@ -196,10 +212,10 @@ def _read_states(path: str | os.PathLike[str], reader: Any, connection: Any, tes
         try:
             state = test(message)
         except AttributeError as error:
-            raise FlightStateError(f"{path}: --armed-field {expression!r}: {connection.topic} "
+            raise FlightStateError(f"{path}: --armed-field {quoted(expression)}: {connection.topic} "
                                    f"({connection.msgtype}) has no field {error.name!r}") from None
         except TypeError:
-            raise FlightStateError(f"{path}: --armed-field {expression!r}: cannot compare that field of "
+            raise FlightStateError(f"{path}: --armed-field {quoted(expression)}: cannot compare that field of "
                                    f"{connection.topic} ({connection.msgtype})") from None
         stamps.append(_stamp_ns(message, recorded_ns))
         flying.append(state)

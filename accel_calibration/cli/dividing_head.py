@@ -10,6 +10,7 @@ from ..core.dividing_head_fit import fit_dividing_head
 from ..core.errors import CalibrationError
 from ..io.calibration_file import save_calibration
 from ..io.head_table import read_head_table
+from .options import check_table_units
 
 
 def fit_table(args: argparse.Namespace, unit_mps2: float, gravity: float) -> int:
@@ -18,6 +19,7 @@ def fit_table(args: argparse.Namespace, unit_mps2: float, gravity: float) -> int
     if args.temperature_model != "none":
         raise CalibrationError("model dividing-head has no temperature model: fit it with --temperature-model none")
     table = read_head_table(args.poses)
+    check_table_units(table.accel, unit_mps2, args.units, gravity, args.poses)
     result = fit_dividing_head(np.radians(table.alpha_deg), np.radians(table.beta_deg),
                                table.accel * unit_mps2, gravity=gravity, frame_id=args.frame_id)
     if not result.success or result.calibration is None or result.calibration.dividing_head is None:

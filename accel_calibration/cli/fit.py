@@ -8,7 +8,7 @@ from ..core.errors import CalibrationError
 from ..core.models import DIVIDING_HEAD, MODELS, REFERENCE_MODELS, SPHERE_MODELS
 from ..core.temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from ..core.units import MG, STANDARD_GRAVITY
-from .options import UNIT_SCALE, add_local_gravity_options, local_gravity
+from .options import UNIT_SCALE, add_local_gravity_options, check_table_units, local_gravity
 
 if TYPE_CHECKING:
     from ..core.prior import Prior
@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     table = read_table(args.poses)
     if args.model in REFERENCE_MODELS and table.reference is None:
         raise CalibrationError(f"{args.poses}: model {args.model} needs columns ref_x,ref_y,ref_z")
+    check_table_units(table.accel, UNIT_SCALE[args.units], args.units, gravity, args.poses)
     accel = table.accel * UNIT_SCALE[args.units]
     options = None
     if args.temperature_model != "none":

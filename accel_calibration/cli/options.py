@@ -6,6 +6,7 @@ passes before it is put in force (`apply`, `report`)."""
 from __future__ import annotations
 
 import argparse
+import re
 from typing import Any
 
 from ..core.errors import CalibrationError
@@ -22,6 +23,48 @@ FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "
                    "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
 
 DEFAULT_MARGIN_S = 2.0
+# rcl's rules for a node's fully qualified name: tokens of letters, digits and underscores, none starting
+# with a digit, joined by single slashes; a leading slash optional here (the params file's keys drop it).
+_NODE_NAME = re.compile(r"/?(?:[A-Za-z_][A-Za-z0-9_]*/)*[A-Za-z_][A-Za-z0-9_]*", re.ASCII)
+MAX_NODE_NAME = 255  # rcl's limit on a node name
+
+
+def check_node_name(name: str) -> None:
+    """One line when `name` (--node) is no node name rcl would accept: it could match no block."""
+    if len(name) > MAX_NODE_NAME or _NODE_NAME.fullmatch(name) is None:
+        shown = repr(name) if len(name) <= 60 else f"{name[:60]!r}... ({len(name)} characters)"
+        raise CalibrationError(f"--node {shown} is not a ROS node name: write /NAMESPACE/NAME or NAME, each part "
+                               "letters, digits and underscores, not starting with a digit")
+
+
+def units_hint(typical_raw: float) -> str:
+    """What the typical |a| of a still table or stream, as written in the file, looks like."""
+    if 0.7 * STANDARD_GRAVITY <= typical_raw <= 1.3 * STANDARD_GRAVITY:
+        return "the file looks like m/s^2: use --units mps2"
+    if 0.7 <= typical_raw <= 1.3:
+        return "the file looks like g: use --units g"
+    if typical_raw > 30.0:
+        return f"the file looks like raw counts (~{typical_raw:.0f} per g): fit them with --units mps2"
+    return "check the file's units and scaling"
+
+
+def check_table_units(raw: Any, unit_mps2: float, units: str, gravity: float, source: str) -> None:
+    """A pose table's ax,ay,az (as written, read with --units) must be gravity at rest: else one line,
+    before any fit (as replay refuses a stream in other units)."""
+    import numpy as np
+
+    from ..core.units import units_problem
+
+    raw = np.asarray(raw, dtype=float).reshape(-1, 3)
+    if units_problem(raw * unit_mps2, gravity) is None:
+        return
+    largest = float(np.abs(raw).max()) or 1.0  # the norm of 1e-300s underflows unless scaled first
+    typical_raw = float(np.median(np.linalg.norm(raw / largest, axis=1))) * largest
+    if units == "mps2" and typical_raw > 30 * gravity:
+        return  # raw counts, fitted as they are: M then maps counts to m/s^2 (docs/models.md)
+    typical = typical_raw * unit_mps2
+    raise CalibrationError(f"{source}: read with --units {units} the poses' median |a| is {typical:.4g} "
+                           f"m/s^2, implausible for poses at rest (expected ~{gravity:.2f}): {units_hint(typical_raw)}")
 
 
 def add_flight_state_options(parser: argparse.ArgumentParser) -> None:
@@ -152,6 +195,8 @@ def replay_settings(args: argparse.Namespace) -> Any:
     from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
     values: dict[str, Any] = {}
+    if args.node is not None:
+        check_node_name(args.node)
     if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
         values.update(params_file_parameters(args.params_file, args.node or DEFAULT_NODE, error=CalibrationError))
         values.pop("calibration_file", None)  # the node's file; replay writes --output

@@ -270,6 +270,8 @@ def comparison_table(bags: Sequence[str], outcomes: Sequence[Outcome]) -> str:
 def gyro_lines(replay: ReplayResult) -> list[str]:
     """What replay says of the gyro: its calibration from the motions, or why it keeps its bias only."""
     gyro, calibration = replay.gyro, replay.calibration
+    if calibration is not None and calibration.gyro_bias_radps is None and replay.gyro_refusal:
+        return [replay.gyro_refusal]  # the whole gyro part left out (core/plausibility.loadable_part)
     if gyro is None:
         return []
     if calibration is not None and calibration.gyro_matrix is not None:

@@ -11,6 +11,7 @@ from .calibration import Calibration
 from .coverage import NextOrientation, ParameterSigma, SigmaBounds, next_orientation, parameter_sigmas, worst
 from .errors import CalibrationError
 from .fit import FitResult
+from .plausibility import loadable_part
 from .settings import Settings
 
 
@@ -114,3 +115,8 @@ class QualityGates:
         if outside:
             return f"gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g}"
         return None
+
+    def loadable(self, calibration: Calibration) -> tuple[Calibration | None, str | None]:
+        """What of a calibration that passed the gates may be saved: core/plausibility.loadable_part at
+        these bounds, the check the file's readers (the node, `apply`, `report`) make before using it."""
+        return loadable_part(calibration, max_bias_mps2=self.max_bias_mps2, scale_band=self.scale_band)

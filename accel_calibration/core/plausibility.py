@@ -154,3 +154,23 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
             return f"quadratic term {worst * 100:.3g} % of g at 1 g: implausible for an accelerometer"
     return None
 
+
+
+def without_gyro(calibration: Calibration) -> Calibration:
+    """The accelerometer part alone: no gyro bias, matrix or quality."""
+    return calibration.replace(gyro_bias_radps=None, gyro_matrix=None, gyro_quality=None)
+
+
+def loadable_part(calibration: Calibration, **bounds: object) -> tuple[Calibration | None, str | None]:
+    """What of `calibration` may be saved so that `apply`, `report` and the node will put it in force:
+    (the calibration, None) when all of it; (the accelerometer part, why the gyro part was left out) when
+    only that; (None, why) when not even that. `bounds` are plausibility_problem's keywords."""
+    problem = plausibility_problem(calibration, **bounds)  # type: ignore[arg-type]
+    if problem is None:
+        return calibration, None
+    has_gyro = calibration.gyro_bias_radps is not None or calibration.gyro_matrix is not None
+    if has_gyro:
+        accel_only = without_gyro(calibration)
+        if plausibility_problem(accel_only, **bounds) is None:  # type: ignore[arg-type]
+            return accel_only, f"gyro left out: {problem}"
+    return None, problem

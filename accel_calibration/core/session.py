@@ -329,8 +329,14 @@ class CalibrationSession:
         said = "" if gyro_text is None and gyro is None else (
             f"; gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms"
             if gyro_text is None and gyro is not None else f"; {gyro_text} (the gyro keeps its bias only)")
-        return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=calibration),
-                       calibration, gyro, gyro_text)
+        # Never hand on what the file's readers would refuse: every writer (node, replay, fleet) saves this.
+        loadable, left_aside = self.gates.loadable(calibration)
+        if loadable is None:
+            return Verdict(False, f"gate plausibility: {left_aside}" + left_out, result)
+        if left_aside is not None:
+            said, gyro_text = f"; {left_aside}; the accelerometer calibration is kept", left_aside
+        return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=loadable),
+                       loadable, gyro, gyro_text)
 
     def measured_noise(self) -> MeasuredNoise | None:
         """The white noise measured at the still poses, as a density at the poses' sample rate (None

@@ -10,7 +10,11 @@ correction is never built from one calibration and written back over a newer one
 """
 from __future__ import annotations
 
+import hashlib
+import os
+import stat
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,9 +25,41 @@ from ..core.errors import CalibrationError
 from ..core.plausibility import plausibility_problem
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
-from .calibration_file import load_calibration, remove_stale_temp_files, save_calibration
+from .calibration_file import MAX_CALIBRATION_BYTES, load_calibration, remove_stale_temp_files, save_calibration
 
 OK, WARN, ERROR = "ok", "warn", "error"
+
+
+@dataclass(frozen=True)
+class FileIdentity:
+    """What a calibration file was when this node last read or wrote it: its stat, and its content's
+    digest (a rewrite of the same bytes is no change)."""
+
+    device: int
+    inode: int
+    size: int
+    mtime_ns: int
+    digest: bytes
+
+    @classmethod
+    def of(cls, path: Path) -> FileIdentity | None:
+        """None when there is no file (or it cannot be read: then nothing of it is known)."""
+        try:
+            info = os.stat(path)
+            if not stat.S_ISREG(info.st_mode):  # a FIFO would block the open: its stat must do
+                return cls(info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, b"")
+            with open(path, "rb") as file:  # the node's file is at most 1 MiB (checked before it is loaded)
+                digest = hashlib.sha256(file.read(MAX_CALIBRATION_BYTES + 1)).digest()
+        except OSError:
+            return None
+        return cls(info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, digest)
+
+    def same_content(self, other: FileIdentity | None) -> bool:
+        return other is not None and (self == other or (self.size == other.size and self.digest == other.digest))
+
+
+def _same(known: FileIdentity | None, now: FileIdentity | None) -> bool:
+    return now is None if known is None else known.same_content(now)
 
 
 class CalibrationInForce:
@@ -39,6 +75,11 @@ class CalibrationInForce:
         self._gyro_noise_var: float | None = None
         self._filter = TemperatureFilter(timeout_s=settings.temperature_timeout_s)
         self._lock = threading.Lock()
+        # The file as this node last loaded or saved it (None: no file), and a change it already reported:
+        # the same call again overwrites that change on purpose.
+        self._file: FileIdentity | None = None
+        self._reported: tuple[FileIdentity | None] | None = None
+        self.changed_underneath: str | None = None  # why the last save was refused, while it holds
 
     # ------------------------------------------------------------------ the file
     def remove_stale_temp_files(self) -> int:
@@ -46,6 +87,7 @@ class CalibrationInForce:
 
     def load(self) -> tuple[str, str]:
         """Load the file at start: (level, what happened, one line)."""
+        self._file = FileIdentity.of(self.path)
         if not self.path.exists():
             return WARN, f"no calibration file at {self.path}: raw acceleration passes through until calibrated"
         try:
@@ -63,9 +105,11 @@ class CalibrationInForce:
             "no quality recorded"
         return OK, f"loaded calibration from {self.path} ({calibration.model}, {text})"
 
-    def save_then_apply(self, calibration: Calibration) -> tuple[bool, str]:
-        """Save first, then put in force: a calibration that could not be saved is not applied."""
-        refusal = self._unwritable()
+    def save_then_apply(self, calibration: Calibration, asked: bool = True) -> tuple[bool, str]:
+        """Save first, then put in force: a calibration that could not be saved is not applied. `asked`:
+        a person's call (a file changed underneath is overwritten when the call is repeated), not
+        auto_calibrate (which never overwrites a change it did not make)."""
+        refusal = self._unwritable(asked)
         if refusal is not None:
             return False, refusal
         try:
@@ -80,7 +124,7 @@ class CalibrationInForce:
         calibration = self.calibration
         if calibration is None:
             return False, "no calibration in force to save"
-        refusal = self._unwritable()
+        refusal = self._unwritable(asked=True)
         if refusal is not None:
             return False, refusal
         try:
@@ -93,11 +137,28 @@ class CalibrationInForce:
         return "previous calibration kept in force" if self.calibration is not None else \
             "no calibration in force: raw passes through"
 
-    def _unwritable(self) -> str | None:
+    def _unwritable(self, asked: bool = True) -> str | None:
         if self.file_unreadable:
             return (f"{self.path} holds a file this node could not read (foreign or corrupt); it is left "
                     "untouched: move it away or set calibration_file")
-        return None
+        return self._changed_since(asked)
+
+    def _changed_since(self, asked: bool) -> str | None:
+        """Another writer of this file (a node with the same calibration_file, a replay's -o) would be
+        overwritten unnoticed, and the calibration in force would no longer be the file's: refuse once.
+        A file removed meanwhile holds nothing to lose: it is written again."""
+        now = FileIdentity.of(self.path)
+        if now is None or _same(self._file, now) or (
+                asked and self._reported is not None and _same(self._reported[0], now)):
+            self.changed_underneath = None
+            return None
+        if asked:
+            self._reported = (now,)
+        again = "the same call again overwrites it" if asked else "call /calibrate to overwrite it"
+        self.changed_underneath = (f"not saved: {self.path} changed since this node loaded or saved it (another node "
+                                   "or a replay writing the same file?), so the calibration in force is no longer "
+                                   f"the file's; the file is left as it is, {self.kept()}; {again}")
+        return self.changed_underneath
 
     def _save(self, calibration: Calibration) -> None:
         try:
@@ -105,6 +166,7 @@ class CalibrationInForce:
         except OSError as error:
             raise CalibrationError(f"cannot create {self.path.parent}: {error.strerror}") from None
         save_calibration(calibration, self.path)
+        self._file, self._reported, self.changed_underneath = FileIdentity.of(self.path), None, None
 
     # ------------------------------------------------------------------ the correction
     def install(self, calibration: Calibration | None) -> None:

@@ -234,7 +234,7 @@ class LiveCalibration:
         self._log_refit(result, progress)
         verdict = self.session.auto_verdict(result)
         if verdict is not None and verdict.calibration is not None:
-            applied, message = self._apply(verdict.calibration)
+            applied, message = self._apply(verdict.calibration, asked=False)
             (log.info if applied else log.warning)(("auto-calibrated: " if applied
                                                     else "auto-calibration not applied: ") + message)
 
@@ -248,15 +248,24 @@ class LiveCalibration:
         self._log.debug(f"refit: bias {np.round(calibration.bias, 6).tolist()} m/s^2, "
                         f"M {np.round(calibration.matrix, 7).tolist()}, {result.iterations} iterations")
 
-    def _apply(self, calibration: Calibration) -> tuple[bool, str]:
-        applied, message = self.in_force.save_then_apply(calibration)
+    def _apply(self, calibration: Calibration, asked: bool = True) -> tuple[bool, str]:
+        applied, message = self.in_force.save_then_apply(calibration, asked)
         if applied:
             self._on_applied(calibration)
             self.check_frame()
             self.status = (OK, "calibrated")
+        else:
+            self._say_unsaved(message)
+        return applied, message
+
+    def _say_unsaved(self, message: str) -> None:
+        """A save refused because the file changed underneath is a WARN (nothing is broken: two writers
+        share the file); any other failed save an ERROR (a file we could not read keeps its own)."""
+        if self.in_force.changed_underneath is not None:
+            self.status = (WARN, message)
+            self._log.warning(message)
         elif not self.in_force.file_unreadable:
             self.status = (ERROR, f"save failed: {message}")
-        return applied, message
 
     def calibrate(self) -> tuple[bool, str]:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
@@ -286,4 +295,9 @@ class LiveCalibration:
         return True, message
 
     def save(self) -> tuple[bool, str]:
-        return self.in_force.save()
+        saved, message = self.in_force.save()
+        if saved and self.status[0] == WARN and self.status[1].startswith("not saved: "):
+            self.status = (OK, "calibrated")  # the change underneath is overwritten on purpose
+        elif not saved and self.in_force.changed_underneath is not None:
+            self._say_unsaved(message)
+        return saved, message

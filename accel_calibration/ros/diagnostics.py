@@ -23,16 +23,45 @@ class StreamHealth:
     timeout_s: float
     uptime_s: float
 
-    def problems(self) -> list[str]:
-        out = []
+    def problem_by_input(self) -> dict[str, str]:
+        """Each silent input ("imu", "temperature") and what to say of it, one line."""
+        out = {}
         if self.imu_silent_s is None and self.uptime_s >= self.timeout_s:
-            out.append(f"no messages on {self.imu_topic} since start ({self.uptime_s:.0f} s)")
+            out["imu"] = f"no messages on {self.imu_topic} since start ({self.uptime_s:.0f} s)"
         elif self.imu_silent_s is not None and self.imu_silent_s >= self.timeout_s:
-            out.append(f"no messages on {self.imu_topic} for {self.imu_silent_s:.0f} s")
+            out["imu"] = f"no messages on {self.imu_topic} for {self.imu_silent_s:.0f} s"
         if self.temperature_silent_s is not None and self.temperature_silent_s >= self.timeout_s:
-            out.append(f"no messages on {self.temperature_topic} for {self.temperature_silent_s:.0f} s "
-                       "(temperature stale)")
+            out["temperature"] = (f"no messages on {self.temperature_topic} for {self.temperature_silent_s:.0f} s "
+                                  "(temperature stale)")
         return out
+
+    def problems(self) -> list[str]:
+        return list(self.problem_by_input().values())
+
+
+FIRST_REMINDER_S = 10.0
+MAX_REMINDER_S = 320.0  # a silence of hours is still said every few minutes, not every few seconds
+
+
+class SilenceReminders:
+    """When the log says again that an input is still silent: at once, then after FIRST_REMINDER_S,
+    each interval twice the last, up to MAX_REMINDER_S. An input that speaks again starts over, so a new
+    silence is said at once. /diagnostics says it every second regardless."""
+
+    def __init__(self) -> None:
+        self._next: dict[str, tuple[float, float]] = {}  # input -> (when due, the interval after that)
+
+    def due(self, problems: dict[str, str], now: float) -> list[str]:
+        """The lines to log now, from problem_by_input()."""
+        for gone in set(self._next) - set(problems):
+            del self._next[gone]
+        lines = []
+        for key, text in problems.items():
+            when, interval = self._next.get(key, (now, FIRST_REMINDER_S))
+            if now >= when:
+                lines.append(f"{text} (said again in {interval:.0f} s if it lasts)")
+                self._next[key] = (now + interval, min(2.0 * interval, MAX_REMINDER_S))
+        return lines
 
 
 def diagnostic_status(name: str, level: bytes, message: str, progress: Progress, values: dict[str, str],
@@ -45,7 +74,9 @@ def diagnostic_status(name: str, level: bytes, message: str, progress: Progress,
     if silent and level == DiagnosticStatus.OK:
         level = DiagnosticStatus.WARN
     advice = progress.advice
-    if calibration is not None and not progress.ready and progress.poses < progress.min_poses:
+    if health.imu_silent_s is None:  # nothing to turn yet: the sensor is not heard at all
+        advice = f"no Imu message on {health.imu_topic} yet"
+    elif calibration is not None and not progress.ready and progress.poses < progress.min_poses:
         # Calibrated (from a file, or earlier): the missing faces only refine it.
         advice = f"calibration in force; more poses would refine it ({advice})"
     entries = {
@@ -71,3 +102,19 @@ def diagnostic_status(name: str, level: bytes, message: str, progress: Progress,
     text = "; ".join([message, *silent, advice]) + paused
     return DiagnosticStatus(level=level, name=name, message=text, hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in entries.items()])
+
+
+# Seconds after start at which the node looks for another node of its own name: discovery takes a few
+# seconds, and a namesake started later is seen at a later look. Never on the stream's path.
+NAMESAKE_CHECKS_S = (2, 5, 10, 20, 40, 80)
+
+
+def namesake_problem(fully_qualified_name: str, names_and_namespaces: list[tuple[str, str]]) -> str | None:
+    """One line when the graph holds this node's fully qualified name more than once (rclpy's
+    get_node_names_and_namespaces, which lists this node too)."""
+    count = sum(1 for name, namespace in names_and_namespaces
+                if f"{namespace.rstrip('/')}/{name}" == fully_qualified_name)
+    if count < 2:
+        return None
+    return (f"{count} nodes are named {fully_qualified_name}: they share its services and parameters, and by "
+            "default its calibration file; give each its own name or namespace (-r __node:=... or -r __ns:=...)")

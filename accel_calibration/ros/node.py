@@ -32,9 +32,9 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import LOG_THROTTLE_S, LiveCalibration
+from ..io.live_calibration import LiveCalibration
 from .boundary import Boundary, failed_service
-from .diagnostics import StreamHealth, diagnostic_status
+from .diagnostics import NAMESAKE_CHECKS_S, SilenceReminders, StreamHealth, diagnostic_status, namesake_problem
 from .markers import pose_markers
 from .parameters import NODE_PARAMETERS, NodeParameters
 from .process import run_node, spin_until
@@ -74,6 +74,7 @@ class CalibrationNode(Node):
         self._started = time.monotonic()
         self._last_imu: float | None = None
         self._last_temperature: float | None = None
+        self._silence_reminders = SilenceReminders()
         self._feed_pending = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="accel_calibration_worker")
         self._live.start()
@@ -106,6 +107,9 @@ class CalibrationNode(Node):
             self.create_service(srv_type, name, guard(name, answer, failed_service), qos_profile=SERVICE_QOS)
         self.create_timer(FEED_PERIOD_S, guard("feed", self._schedule_feed))
         self.create_timer(1.0, guard("diagnostics", self._publish_diagnostics))
+        self._namesake: str | None = None
+        self._namesake_looks = 0  # of NAMESAKE_CHECKS_S done
+        self._namesake_timer = self.create_timer(1.0, guard("namesakes", self._look_for_namesakes))
 
     def _submit(self, job: Callable[[], tuple[bool, str]], request: Any) -> Future[tuple[bool, str]]:
         return self._worker.submit(job)
@@ -183,15 +187,30 @@ class CalibrationNode(Node):
         """Everything set aside or gone wrong, by name: the session's screening, the node's, the callbacks'."""
         return {**self._live.counters(), "callback_errors": sum(self._boundary.errors.values())}
 
+    def _look_for_namesakes(self) -> None:
+        """At NAMESAKE_CHECKS_S after start: another node of this fully qualified name is a WARN (once)."""
+        looks_due = sum(1 for at in NAMESAKE_CHECKS_S if time.monotonic() - self._started >= at)
+        if looks_due <= self._namesake_looks:
+            return
+        self._namesake_looks = looks_due
+        if looks_due == len(NAMESAKE_CHECKS_S):
+            self._namesake_timer.cancel()
+        problem = namesake_problem(self.get_fully_qualified_name(), self.get_node_names_and_namespaces())
+        if problem is not None and self._namesake is None:
+            self.get_logger().warning(problem)
+        self._namesake = problem or self._namesake
+
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         health = StreamHealth(self._imu_topic, self._temperature_topic,
                               None if self._last_imu is None else now - self._last_imu,
                               None if self._last_temperature is None else now - self._last_temperature,
                               self._stream_timeout_s, now - self._started)
-        for problem in health.problems():
-            self.get_logger().warning(problem, throttle_duration_sec=LOG_THROTTLE_S)
+        for line in self._silence_reminders.due(health.problem_by_input(), now):
+            self.get_logger().warning(line)
         level, message = self._live.status
+        if self._namesake is not None:
+            level, message = (WARN if level == OK else level), f"{message}; {self._namesake}".lstrip("; ")
         calibration = self._in_force.calibration
         status = diagnostic_status(f"accel_calibration: {self.get_fully_qualified_name()}", _LEVELS[level], message,
                                    self._live.progress, self._live.diagnostic_values(), self.counters(),

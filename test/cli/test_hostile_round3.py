@@ -40,10 +40,11 @@ def test_a_calibration_whose_file_would_be_refused_is_not_written(tmp_path, monk
     before = path.read_bytes()
     text = calibration_file.calibration_to_yaml(Calibration.identity())
     monkeypatch.setattr(calibration_file, "calibration_to_yaml",
-                        lambda c: text + "#" + "x" * calibration_file.MAX_CALIBRATION_BYTES + "\n")
+                        lambda c, *sources: text + "#" + "x" * calibration_file.MAX_CALIBRATION_BYTES + "\n")
     with pytest.raises(CalibrationError, match="not written.*KiB"):
         save_calibration(Calibration.identity(frame_id="new"), path)
-    monkeypatch.setattr(calibration_file, "calibration_to_yaml", lambda c: text.replace("model: sphere9", "model: x"))
+    monkeypatch.setattr(calibration_file, "calibration_to_yaml",
+                        lambda c, *sources: text.replace("model: sphere9", "model: x"))
     with pytest.raises(CalibrationError, match="not written.*would not load back"):
         save_calibration(Calibration.identity(frame_id="new"), path)
     assert path.read_bytes() == before
