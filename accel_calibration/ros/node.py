@@ -191,7 +191,7 @@ class CalibrationNode(Node):
                               self._stream_timeout_s, now - self._started)
         for problem in health.problems():
             self.get_logger().warning(problem, throttle_duration_sec=LOG_THROTTLE_S)
-        level, message = self._live.status
+        level, message = self._live.reported_status()
         calibration = self._in_force.calibration
         status = diagnostic_status(f"accel_calibration: {self.get_fully_qualified_name()}", _LEVELS[level], message,
                                    self._live.progress, self._live.diagnostic_values(), self.counters(),
