@@ -18,6 +18,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.correction import Correction, correction_temperatures
 from ..core.errors import CalibrationError
+from ..core.fit_result import ParameterSource
 from ..core.plausibility import plausibility_problem
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
@@ -63,13 +64,15 @@ class CalibrationInForce:
             "no quality recorded"
         return OK, f"loaded calibration from {self.path} ({calibration.model}, {text})"
 
-    def save_then_apply(self, calibration: Calibration) -> tuple[bool, str]:
-        """Save first, then put in force: a calibration that could not be saved is not applied."""
+    def save_then_apply(self, calibration: Calibration, parameter_sources: tuple[ParameterSource, ...] = (),
+                        prior: str | None = None) -> tuple[bool, str]:
+        """Save first, then put in force: a calibration that could not be saved is not applied. A fit with a
+        prior: the file says which parameters came from the poses and which from `prior`."""
         refusal = self._unwritable()
         if refusal is not None:
             return False, refusal
         try:
-            self._save(calibration)
+            self._save(calibration, parameter_sources, prior)
         except CalibrationError as error:
             return False, f"not applied: {error}; {self.kept()}"
         self.install(calibration)
@@ -99,12 +102,13 @@ class CalibrationInForce:
                     "untouched: move it away or set calibration_file")
         return None
 
-    def _save(self, calibration: Calibration) -> None:
+    def _save(self, calibration: Calibration, parameter_sources: tuple[ParameterSource, ...] = (),
+              prior: str | None = None) -> None:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise CalibrationError(f"cannot create {self.path.parent}: {error.strerror}") from None
-        save_calibration(calibration, self.path)
+        save_calibration(calibration, self.path, parameter_sources, prior)
 
     # ------------------------------------------------------------------ the correction
     def install(self, calibration: Calibration | None) -> None:
