@@ -89,16 +89,16 @@ class LiveCalibration:
         self.refresh_progress()
 
     def _take_prior(self) -> None:
-        """With prior.use_calibration_in_force: /calibrate fits against the calibration in force now (at
+        """With use_calibration_in_force_as_prior: /calibrate fits against the calibration in force now (at
         start, at calibration/reset), not one fitted from the poses since (that would count them twice)."""
-        if not self.session.settings.prior_use_calibration_in_force:
+        if not self.session.settings.use_calibration_in_force_as_prior:
             return
         calibration = self.in_force.calibration
         refusal = self.session.use_prior(calibration)
         if calibration is None:
-            self._log.info("prior.use_calibration_in_force: no calibration in force, /calibrate fits without a prior")
+            self._log.info("use_calibration_in_force_as_prior: no calibration in force; /calibrate fits without one")
         elif refusal is not None:
-            self._log.warning(f"prior.use_calibration_in_force: the calibration in force cannot serve as the "
+            self._log.warning(f"use_calibration_in_force_as_prior: the calibration in force cannot serve as the "
                               f"prior ({refusal}); /calibrate fits without one")
 
     # ------------------------------------------------------------------ stream side (per message)

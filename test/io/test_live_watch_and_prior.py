@@ -1,7 +1,7 @@
 """The node's work without ROS (LiveCalibration) watching the calibration in force and recalibrating with
 it as the prior, fed as the node's Imu callback feeds it. Against a simulated truth: a calibration file of
 the sensor, then a session whose bias moved 5 mg on y warns naming bias y; the same sensor unchanged
-holds at OK; with prior.use_calibration_in_force a z bias moved 8 mg comes back within 1 mg from 8 poses
+holds at OK; with use_calibration_in_force_as_prior a z bias moved 8 mg comes back within 1 mg from 8 poses
 near level, and the file says which parameters came from the poses and which from the prior."""
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def test_with_the_prior_parameter_a_moved_z_bias_comes_back_from_eight_level_pos
     feed_in_parts(plain, samples)
     success, message = plain.calibrate()
     assert not success and "gate poses" in message  # without the parameter: as before
-    live = LiveCalibration(Settings(prior_use_calibration_in_force=True), tmp_path / "cal.yaml", LogLines())
+    live = LiveCalibration(Settings(use_calibration_in_force_as_prior=True), tmp_path / "cal.yaml", LogLines())
     live.start()
     feed_in_parts(live, samples)
     # The watch warned first. Which term it names it cannot say from level poses alone (bias z and scale z
