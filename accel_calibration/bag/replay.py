@@ -23,6 +23,7 @@ from .bag_io import BagError, missing_module
 if TYPE_CHECKING:
     from ..core.flight_state import FlightState
     from ..core.gyro_fit import GyroFitResult
+    from ..core.prior import Prior
     from .dataflash import AutopilotCalibration
     from .recording import BagStream, Recording
 
@@ -45,6 +46,8 @@ class ReplaySettings:
     armed_field: str | None = None  # its field or test, e.g. "arming_state == 2" (flight_sources.field_test)
     armed_margin_s: float = 2.0
     ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
+    prior: Prior | None = None  # recalibrate against it (--prior): the poses fit what they observe
+    prior_path: str | None = None  # where it came from, written beside the parameters' sources
 
     def reader_options(self) -> dict[str, Any]:
         return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
@@ -278,13 +281,14 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
         if event.replaced_oldest:
             slots = [None if slot == event.index else slot for slot in slots]
         slots.append(event.index)
+    session.prior = s.prior
     verdict = session.calibrate()
     counts = session.counters.as_dict()
     problem = None
     if not verdict.success:
         problem = verdict.message
         need = max(session.settings.min_poses, parameter_count(session.settings.model) + 1)
-        if len(session.store) < need:
+        if len(session.store) < need and s.prior is None:
             problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
                        f"{session.settings.model} needs {need} orientations): " + problem)
         problem = (f"found {len(poses)} static pose{'' if len(poses) == 1 else 's'} ({len(session.store)} distinct) "

@@ -23,6 +23,8 @@ from .report import render_report
 if TYPE_CHECKING:
     from ..bag.replay import ReplayResult, ReplaySettings
     from ..core.calibration import Calibration
+    from ..core.prior import Prior
+    from ..core.settings import Settings
 
 # What replay_one gives: (summary text, calibration, error), each None where there is none.
 Outcome = tuple["str | None", "Calibration | None", "str | None"]
@@ -62,6 +64,10 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                              "(several recordings: a directory)")
     parser.add_argument("--report", default=None,
                         help="also write a report figure (PNG; several bags: a directory)")
+    parser.add_argument("--prior", metavar="CAL.yaml", default=None,
+                        help="recalibrate with this calibration (with its uncertainty) as the prior: what the "
+                             "poses observe is fitted, the rest stays at the prior (poses near level suffice; the "
+                             "pose count is then no gate); the file written says which came from where")
     add_settings_options(parser, detector=True)
     parser.add_argument("--jobs", "-j", type=int, default=1,
                         help="bags processed in parallel, on a local Dask cluster of N worker processes")
@@ -107,7 +113,8 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
         lines.append("skipped: " + ", ".join(f"{k} {v}" for k, v in bad.items()))
     copy = None
     try:
-        calibration_text = checked_calibration_text(calibration, output) if output else ""
+        calibration_text = checked_calibration_text(calibration, output, replay.result.parameter_sources,
+                                                    settings.prior_path) if output else ""
         if corrected_bag:
             copy = stage_corrected_copy(replay, calibration, corrected_bag)
         figure = (render_report(calibration, [p.accel_mps2 for p in replay.poses],
@@ -133,6 +140,19 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
         if copy is not None:
             copy.discard()
     return "\n".join(lines), calibration, None
+
+
+def replay_prior(path: str, session: Settings) -> Prior:
+    """--prior's calibration, checked against the session's model and gravity before any work: one line if not."""
+    from ..core.prior import Prior, prior_terms
+    from ..io.calibration_file import load_calibration
+
+    prior = Prior(load_calibration(path))
+    try:
+        prior_terms(prior, session.model, session.gravity)
+    except CalibrationError as error:
+        raise CalibrationError(f"--prior {path}: {error}") from None
+    return prior
 
 
 def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
@@ -185,6 +205,9 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     settings = dataclasses.replace(replay_settings(args), format=args.format, instance=args.instance,
                                    time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    if args.prior is not None:
+        settings = dataclasses.replace(settings, prior=replay_prior(args.prior, settings.session),
+                                       prior_path=args.prior)
     if args.all_imus:
         from .all_imus import run_all_imus
 
@@ -210,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
              target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
             for bag, label in zip(args.bags, labels)]
     # Before any work: no output may be an input (a bag, a file inside one, the params file) or another output.
-    inputs = [*args.bags, args.params_file]
+    inputs = [*args.bags, args.params_file, args.prior]
     check_outputs([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected-bag", 3),
                                                                     ("--report", 4), ("--poses-out", 6))],
                   inputs, directories=("--corrected-bag",))

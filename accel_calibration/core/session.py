@@ -25,6 +25,7 @@ from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
+from .prior import Prior, prior_terms
 from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
@@ -103,6 +104,9 @@ class CalibrationSession:
         # Means of the latest still intervals dropped as implausible for gravity (the stream side writes,
         # /calibrate reads: a tuple replaced whole): a stream in g says so instead of "0 poses".
         self.implausible_means: tuple[np.ndarray, ...] = ()
+        # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
+        # rest at the prior; set it with `use_prior`.
+        self.prior: Prior | None = None
 
     @property
     def model(self) -> str:
@@ -296,9 +300,26 @@ class CalibrationSession:
                     f"noise would then be {math.radians(quietest_gyro) * 1e3:.1f} mrad/s)")
         return f"; {' and '.join(said)}{in_degrees}; to take this sensor as it is: {' '.join(allow)}"
 
+    def use_prior(self, prior: Prior | Calibration | None) -> str | None:
+        """Fit /calibrate's verdicts with this prior (None: without one). Returns why it cannot serve as
+        this session's prior (then none is used), None when it can."""
+        if prior is None:
+            self.prior = None
+            return None
+        given = prior if isinstance(prior, Prior) else Prior(prior)
+        try:
+            prior_terms(given, self.model, self.settings.gravity)
+        except CalibrationError as error:
+            self.prior = None
+            return str(error)
+        self.prior = given
+        return None
+
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
         extra = () if holding is None else (holding,)
+        if self.prior is not None:
+            return self._calibrate_with_prior(self.store.poses + list(extra), self.prior)
         poses = self.store.poses + list(extra)
         need = max(self.settings.min_poses, parameter_count(self.model) + 1)
         if len(poses) < need:
@@ -320,6 +341,27 @@ class CalibrationSession:
         left_out = "" if result is None else "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result is None or result.calibration is None or refusal is not None:
             return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+        return self._passed(result, left_out)
+
+    def _calibrate_with_prior(self, poses: list[Pose], prior: Prior) -> Verdict:
+        """With a prior the pose count is no gate: what poses and prior support together decides (the fit's
+        own checks, then every gate but the count). No temperature model: a prior fits b and M alone."""
+        if not poses:
+            return Verdict(False, "gate poses: no pose held (a fit with a prior still needs poses)")
+        problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
+        if problem is not None:
+            return Verdict(False, "gate " + problem)
+        result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.settings.gravity,
+                     outlier_options=self.settings.outliers, pose_sigma_mps2=pose_mean_sigma(poses), prior=prior)
+        refusal = self.gates.check_fit(result)
+        left_out = "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
+        if result.calibration is None or refusal is not None:
+            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+        return self._passed(result, left_out)
+
+    def _passed(self, result: FitResult, left_out: str) -> Verdict:
+        """A fit that passed the gates: the calibration with what the session adds, and the gyro's fit."""
+        assert result.calibration is not None
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id,
             noise=self.measured_noise(), gravity_source=self.settings.gravity_source)

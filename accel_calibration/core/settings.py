@@ -133,6 +133,10 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("static.max_floor_rise", 1.5,
               "static detector: the learned noise floors may rise at most this factor (rms) above the quietest "
               "floor seen since start, so flight vibration is never learned as noise", 1.0, 1000.0),
+    Parameter("use_calibration_in_force_as_prior", False,
+              "at /calibrate fit with the calibration in force at start-up (or at calibration/reset) as the prior: "
+              "what the poses observe is fitted, the rest kept at the prior (poses near level suffice); the pose "
+              "count is then no gate, the fit's own checks and the other gates decide"),
     Parameter("gyro.calibrate", True,
               "fit the gyro's scale and misalignment from the motions between poses at /calibrate (and in replay) "
               "when they pass the gyro.* gates; false: the gyro gets its bias only", dynamic=True),
@@ -246,6 +250,7 @@ class Settings:
     static_max_gyro_noise_mradps: float = _default("static.max_gyro_noise_mradps")
     static_max_floor_rise: float = _default("static.max_floor_rise")
     merge_tolerance_mg: float = _default("merge_tolerance_mg")
+    use_calibration_in_force_as_prior: bool = _default("use_calibration_in_force_as_prior")
     gyro_calibrate: bool = _default("gyro.calibrate")
     gyro_max_motion_s: float = _default("gyro.max_motion_s")
     gyro_min_motions: int = _default("gyro.min_motions")

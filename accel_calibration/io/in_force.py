@@ -22,6 +22,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.correction import Correction, correction_temperatures
 from ..core.errors import CalibrationError
+from ..core.fit_result import ParameterSource
 from ..core.plausibility import plausibility_problem
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
@@ -105,15 +106,18 @@ class CalibrationInForce:
             "no quality recorded"
         return OK, f"loaded calibration from {self.path} ({calibration.model}, {text})"
 
-    def save_then_apply(self, calibration: Calibration, asked: bool = True) -> tuple[bool, str]:
+    def save_then_apply(self, calibration: Calibration, asked: bool = True,
+                        parameter_sources: tuple[ParameterSource, ...] = (), prior: str | None = None
+                        ) -> tuple[bool, str]:
         """Save first, then put in force: a calibration that could not be saved is not applied. `asked`:
         a person's call (a file changed underneath is overwritten when the call is repeated), not
-        auto_calibrate (which never overwrites a change it did not make)."""
+        auto_calibrate (which never overwrites a change it did not make). A fit with a prior: the file says
+        which parameters came from the poses and which from `prior`."""
         refusal = self._unwritable(asked)
         if refusal is not None:
             return False, refusal
         try:
-            self._save(calibration)
+            self._save(calibration, parameter_sources, prior)
         except CalibrationError as error:
             return False, f"not applied: {error}; {self.kept()}"
         self.install(calibration)
@@ -160,12 +164,13 @@ class CalibrationInForce:
                                    f"the file's; the file is left as it is, {self.kept()}; {again}")
         return self.changed_underneath
 
-    def _save(self, calibration: Calibration) -> None:
+    def _save(self, calibration: Calibration, parameter_sources: tuple[ParameterSource, ...] = (),
+              prior: str | None = None) -> None:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as error:
             raise CalibrationError(f"cannot create {self.path.parent}: {error.strerror}") from None
-        save_calibration(calibration, self.path)
+        save_calibration(calibration, self.path, parameter_sources, prior)
         self._file, self._reported, self.changed_underneath = FileIdentity.of(self.path), None, None
 
     # ------------------------------------------------------------------ the correction

@@ -24,6 +24,7 @@ from ..core.pose import Pose
 from ..core.pose_map import pose_map
 from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
+from ..core.watch import CalibrationWatch
 from .calibration_file import calibration_to_yaml
 from .in_force import ERROR, OK, WARN, CalibrationInForce
 
@@ -67,6 +68,7 @@ class LiveCalibration:
         self._latest_imu_ns = -1  # the latest IMU header stamp: temperature stamps are judged against it
         self.progress = self.session.progress(None, calibrate_service)
         self.pose_map = pose_map(self.session, None, self.progress)  # the worker's latest, replaced whole
+        self.watch = CalibrationWatch()  # the calibration in force against the poses found since
 
     def start(self) -> None:
         """Clear what an interrupted save left, and put the file's calibration in force."""
@@ -82,7 +84,22 @@ class LiveCalibration:
                        "uncalibrated: raw passes through" if level == WARN else f"calibration file unusable: {text}")
         if self.in_force.calibration is not None:
             self._on_applied(self.in_force.calibration)
+        self.watch.restart(self.in_force.calibration)
+        self._take_prior()
         self.refresh_progress()
+
+    def _take_prior(self) -> None:
+        """With use_calibration_in_force_as_prior: /calibrate fits against the calibration in force now (at
+        start, at calibration/reset), not one fitted from the poses since (that would count them twice)."""
+        if not self.session.settings.use_calibration_in_force_as_prior:
+            return
+        calibration = self.in_force.calibration
+        refusal = self.session.use_prior(calibration)
+        if calibration is None:
+            self._log.info("use_calibration_in_force_as_prior: no calibration in force; /calibrate fits without one")
+        elif refusal is not None:
+            self._log.warning(f"use_calibration_in_force_as_prior: the calibration in force cannot serve as the "
+                              f"prior ({refusal}); /calibrate fits without one")
 
     # ------------------------------------------------------------------ stream side (per message)
     def buffer_imu(self, stamp_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> None:
@@ -144,6 +161,15 @@ class LiveCalibration:
         self.enabled = on
         return "correction on" if on else "correction off: raw passes through"
 
+    def reported_status(self) -> tuple[str, str]:
+        """The diagnostics' level and first words: the node's status, warned when the watch says the
+        calibration in force moved (nothing is applied for it)."""
+        level, message = self.status
+        watch = self.watch.state
+        if watch.moved and level == OK:
+            return WARN, f"{message}; calibration moved: {watch.text}"
+        return level, message
+
     def calibration_text(self) -> tuple[bool, str]:
         calibration = self.in_force.calibration
         if calibration is None:
@@ -167,6 +193,7 @@ class LiveCalibration:
             "calibration_file": str(self.in_force.path),
             "frame_id": self.frame_id or "",
             "temperature_degc": "" if temperature is None else f"{temperature:.2f}",
+            "calibration_watch": self.watch.state.text,
             **self._noise_values(),
         }
 
@@ -229,12 +256,13 @@ class LiveCalibration:
         # The covariances follow the noise measured at the still poses.
         self.in_force.set_noise(self.session.detector.noise_floor_accel_var, self.session.gyro_noise_var())
         self.noise = self.session.measured_noise()  # read by the diagnostics' thread: set whole
+        self.watch.add(poses)
         result = self.session.refit()
         progress = self.refresh_progress()
         self._log_refit(result, progress)
         verdict = self.session.auto_verdict(result)
         if verdict is not None and verdict.calibration is not None:
-            applied, message = self._apply(verdict.calibration, asked=False)
+            applied, message = self._apply(verdict.calibration, verdict.result, asked=False)
             (log.info if applied else log.warning)(("auto-calibrated: " if applied
                                                     else "auto-calibration not applied: ") + message)
 
@@ -248,10 +276,14 @@ class LiveCalibration:
         self._log.debug(f"refit: bias {np.round(calibration.bias, 6).tolist()} m/s^2, "
                         f"M {np.round(calibration.matrix, 7).tolist()}, {result.iterations} iterations")
 
-    def _apply(self, calibration: Calibration, asked: bool = True) -> tuple[bool, str]:
-        applied, message = self.in_force.save_then_apply(calibration, asked)
+    def _apply(self, calibration: Calibration, result: FitResult | None = None, asked: bool = True
+               ) -> tuple[bool, str]:
+        sources = () if result is None else result.parameter_sources
+        prior = f"the calibration in force before ({self.in_force.path})" if sources else None
+        applied, message = self.in_force.save_then_apply(calibration, asked, sources, prior)
         if applied:
             self._on_applied(calibration)
+            self.watch.restart(calibration)
             self.check_frame()
             self.status = (OK, "calibrated")
         else:
@@ -271,15 +303,17 @@ class LiveCalibration:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
         self.feed()
         self._live.drain()
-        for pose in self._live.take_poses():
+        last = self._live.take_poses()
+        for pose in last:
             self.session.add_pose(pose)
+        self.watch.add(last)
         verdict = self.session.calibrate(self._live.holding())
         self.refresh_progress()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
-        applied, saved = self._apply(verdict.calibration)
+        applied, saved = self._apply(verdict.calibration, verdict.result)
         if not applied:
             self._log.warning(f"{self._calibrate_service}: {saved}")
             return False, saved
@@ -289,6 +323,7 @@ class LiveCalibration:
     def reset(self) -> tuple[bool, str]:
         self.feed()
         dropped = self.session.reset()
+        self._take_prior()
         self.refresh_progress()
         message = f"dropped {dropped} poses; the calibration in force is unchanged"
         self._log.info("calibration/reset: " + message)

@@ -208,7 +208,7 @@ class CalibrationNode(Node):
                               self._stream_timeout_s, now - self._started)
         for line in self._silence_reminders.due(health.problem_by_input(), now):
             self.get_logger().warning(line)
-        level, message = self._live.status
+        level, message = self._live.reported_status()
         if self._namesake is not None:
             level, message = (WARN if level == OK else level), f"{message}; {self._namesake}".lstrip("; ")
         calibration = self._in_force.calibration

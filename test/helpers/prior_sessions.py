@@ -38,3 +38,12 @@ def level_poses(errors, rng, count=8):
     """Pose means (m/s^2) of `errors` at `count` orientations within 30 deg of level."""
     d = near_level(count, 30.0, rng)
     return errors.raw_from_true(G * d) + rng.normal(0.0, POSE_NOISE_MG * MG, (count, 3))
+
+
+def level_stream(errors, rng, count=8, seed=0):
+    """The samples of a session of `count` still poses within 30 deg of level (3 s each, 100 Hz), as a
+    recording or the node's Imu topic carries them."""
+    from msg_tools.synthetic_imu import SyntheticImu, rotation_with_up
+
+    rotations = [rotation_with_up(d) for d in near_level(count, 30.0, rng)]
+    return SyntheticImu(errors, rotations, dwell_s=3.0, move_s=1.0, rate_hz=100.0, seed=seed).samples()
