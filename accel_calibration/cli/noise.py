@@ -93,7 +93,9 @@ def sample_rate_hz(t_ns: np.ndarray) -> float:
     return float(len(steps) * 1e9 / (t_ns[-1] - t_ns[0]))
 
 
-def _figure_text(figure: Figure, scale: float = 1.0) -> str:
+def _figure_text(figure: Figure, scale: float = 1.0, absent: str = "not present") -> str:
+    if not figure.present:
+        return absent
     if not figure.resolved and figure.needs_s is not None:
         return f"< {figure.high * scale:.3g} (not resolved: needs {figure.needs_s / 3600:.1f} h still)"
     text = f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
@@ -107,8 +109,11 @@ def noise_table(fits: dict[str, list[NoiseFit]]) -> str:
                     f"bias instability {UNITS[sensor]} (95 % intervals)")
         for axis, fit in zip("xyz", axes):
             n = fit.noise
-            bias = _figure_text(n.bias_instability) + f" at {n.bias_instability.at_tau_s:.3g} s"
-            rows.append(f"  {sensor[0]}{axis:6s} {_figure_text(n.white_density):>34s} "
+            bias = _figure_text(n.bias_instability, absent="not present (no flat floor)")
+            if n.bias_instability.present:
+                bias += f" at {n.bias_instability.at_tau_s:.3g} s"
+            white = _figure_text(n.white_density, absent="not resolved (no -1/2 slope)")
+            rows.append(f"  {sensor[0]}{axis:6s} {white:>34s} "
                         f"{_figure_text(n.random_walk):>34s} {bias:>40s}")
     return "\n".join(rows)
 
@@ -139,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     fits: dict[str, list[NoiseFit]] = {}
     for sensor, values in channels.items():
         tau, adev, relative = overlapping_adev(values, rate)
-        fits[sensor] = [fit_noise(tau, adev[:, axis], relative, duration_s) for axis in range(3)]
+        fits[sensor] = [fit_noise(tau, adev[:, axis], relative, duration_s, tau0_s=1.0 / rate) for axis in range(3)]
     print(f"{args.recording}: {recording.stream}, still {t_ns[first] * 1e-9:.1f}..{t_ns[last - 1] * 1e-9:.1f} s "
           f"({duration_s / 60:.1f} min, {len(t)} samples at {rate:.1f} Hz)")
     print(noise_table(fits))
@@ -147,6 +152,11 @@ def run(args: argparse.Namespace) -> int:
         if "gyroscope" not in fits:
             raise CalibrationError(f"{args.recording}: no gyroscope in the recording: Kalibr's imu.yaml needs its "
                                    "figures too")
+        absent = [f"{sensor} {axis}" for sensor, axes in fits.items() for axis, f in zip("xyz", axes)
+                  if not f.noise.white_density.present]
+        if absent:
+            raise CalibrationError(f"{args.recording}: no white-noise region (-1/2 slope) in the Allan curve of "
+                                   f"{', '.join(absent)}: no noise density for Kalibr; record longer or faster")
         figures = NoiseFigures(  # the largest axis of each: Kalibr takes one figure per sensor
             accelerometer_noise_density=max(f.noise.white_density.value for f in fits["accelerometer"]),
             accelerometer_random_walk=max(f.noise.random_walk.value for f in fits["accelerometer"]),
