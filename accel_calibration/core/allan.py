@@ -102,7 +102,8 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
 
 SLOPE_TOLERANCE = 0.15  # the white region: local log-log slope within -1/2 +- this
 MIN_WHITE_POINTS = 3  # a white line needs this many taus from the region's start on
-FILTER_SKIP_OCTAVES = 1  # the filter's deficit down to ~5 %, the fit's weight spread over later octaves
+FILTER_DEFICIT = 0.05  # what the filter may still take off the density there: added to its interval's top
+FILTER_SKIP_OCTAVES = 2  # the filter's deficit down to ~3 % (one octave: ~5 %, and the random walk's interval held less often)
 
 
 def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> int | None:
@@ -159,12 +160,16 @@ class NoiseFit:
 def _fit_lines(tau: np.ndarray, variance: np.ndarray,
                relative_error: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N^2, C, K^2), their covariance and the model of sigma^2 = N^2 / tau + C + K^2 tau / 3 by weighted
-    non-negative least squares, each equation weighted by 1 / its standard error."""
-    weight = 1.0 / (2.0 * relative_error * variance)  # sigma^2's relative error is twice sigma's
+    non-negative least squares, each equation weighted by 1 / its standard error: first as measured, then
+    as the first fit's model says (a point's own value in its weight favours the points that fell low)."""
     design = np.column_stack([1.0 / tau, np.ones_like(tau), tau / 3.0])
-    weighted = design * weight[:, None]
-    solution = nonnegative_least_squares(weighted, variance * weight)
-    model = design @ solution
+    level = variance
+    for _ in range(2):
+        weight = 1.0 / (2.0 * relative_error * level)  # sigma^2's relative error is twice sigma's
+        weighted = design * weight[:, None]
+        solution = nonnegative_least_squares(weighted, variance * weight)
+        model = design @ solution
+        level = np.where(model > 0, model, variance)
     # Scaled by the fit's own scatter when worse than the stated errors (chi^2 per degree of freedom > 1).
     chi2 = float(np.sum(((variance - model) * weight) ** 2)) / max(len(tau) - 3, 1)
     return solution, np.linalg.pinv(weighted.T @ weighted) * max(chi2, 1.0), model
@@ -175,6 +180,23 @@ BOOTSTRAP_MAX_SAMPLES = 1 << 13  # longer records are simulated decimated (taus 
 FLOOR_QUANTILE = 0.99  # a flat floor is present when C exceeds this quantile of C fitted to no-floor noise
 
 
+def nonnegative_least_squares_many(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """nonnegative_least_squares for many right-hand sides (T, R) at once: (columns, R)."""
+    a, b = np.asarray(matrix, dtype=float), np.asarray(rhs, dtype=float)
+    columns = a.shape[1]
+    best, best_cost = np.zeros((columns, b.shape[1])), np.einsum("tr,tr->r", b, b)
+    for mask in range(1, 1 << columns):
+        chosen = [j for j in range(columns) if mask >> j & 1]
+        x = np.linalg.pinv(a[:, chosen]) @ b
+        full = np.zeros_like(best)
+        full[chosen] = x
+        residual = a @ full - b
+        cost = np.einsum("tr,tr->r", residual, residual)
+        better = np.all(x >= 0, axis=0) & (cost < best_cost)
+        best[:, better], best_cost[better] = full[:, better], cost[better]
+    return best
+
+
 def bootstrap_lines(white2: float, walk2: float, clusters: np.ndarray, tau0_s: float, samples: int,
                     replicates: int = BOOTSTRAP_REPLICATES, seed: int = 0) -> np.ndarray | None:
     """(replicates, 3): (N^2, C, K^2) fitted to white noise + random walk simulated from the fitted lines
@@ -182,7 +204,8 @@ def bootstrap_lines(white2: float, walk2: float, clusters: np.ndarray, tau0_s: f
     overlapping points' correlation and their few degrees of freedom at long tau included (treating the
     points as independent gave random-walk intervals that held the truth in 23 of 32 cases).
     A long record is simulated at a decimated rate (cluster sizes below the decimation left out: they
-    carry nothing of the random walk). None when fewer than 3 cluster sizes remain."""
+    carry nothing of the random walk). The replicates are weighted by the simulated model's errors (one
+    solve for all). None when fewer than 3 cluster sizes remain."""
     decimation = 1
     while samples // decimation > BOOTSTRAP_MAX_SAMPLES:
         decimation *= 2
@@ -196,7 +219,9 @@ def bootstrap_lines(white2: float, walk2: float, clusters: np.ndarray, tau0_s: f
     simulated = np.sqrt(white2 / dt) * rng.standard_normal((length, replicates))
     simulated += np.cumsum(np.sqrt(walk2 * dt) * rng.standard_normal((length, replicates)), axis=0)
     tau, adev, relative = overlapping_adev(simulated, 1.0 / dt, clusters=kept)
-    return np.array([_fit_lines(tau, adev[:, r] ** 2, relative)[0] for r in range(replicates)])
+    design = np.column_stack([1.0 / tau, np.ones_like(tau), tau / 3.0])
+    weight = 1.0 / (2.0 * relative * (design @ np.array([white2, 0.0, walk2])))
+    return nonnegative_least_squares_many(design * weight[:, None], adev**2 * weight[:, None]).T
 
 
 def _scale_interval(value: float, ratios: np.ndarray) -> tuple[float, float]:
@@ -253,7 +278,8 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
     clusters = np.rint(tau[used] / period).astype(np.int64)
     boot = (bootstrap_lines(white2, walk2, clusters, period, samples, replicates)
             if white2 > 0 and replicates > 0 else None)
-    white = _white_figure(white2, covariance, boot, present=start is not None)
+    white = _white_figure(white2, covariance, boot, present=start is not None,
+                          filtered=start is not None and bool(np.any(slopes_before(tau, sigma, start) > -0.5)))
     walk = _walk_figure(walk2, floor, white2, tau[used], model, covariance, boot, duration_s, target_relative)
     bias = _bias_instability(tau[used], sigma[used], floor, model, samples, period,
                              None if boot is None else boot[:, 1])
@@ -267,7 +293,14 @@ def _analytic_interval(value2: float, variance: float) -> tuple[float, float]:
     return math.sqrt(max(value2 - spread, 0.0)), math.sqrt(value2 + spread)
 
 
-def _white_figure(white2: float, covariance: np.ndarray, boot: np.ndarray | None, present: bool) -> Figure:
+def slopes_before(tau: np.ndarray, sigma: np.ndarray, start: int) -> np.ndarray:
+    """Local log-log slopes of the curve below `start`."""
+    slopes: np.ndarray = np.diff(np.log(sigma[:start + 1])) / np.diff(np.log(tau[:start + 1]))
+    return slopes
+
+
+def _white_figure(white2: float, covariance: np.ndarray, boot: np.ndarray | None, present: bool,
+                  filtered: bool) -> Figure:
     value = math.sqrt(max(white2, 0.0))
     if not present or value == 0.0:
         return Figure(value=value, low=0.0, high=math.inf, resolved=False, at_tau_s=1.0, present=False)
@@ -275,6 +308,8 @@ def _white_figure(white2: float, covariance: np.ndarray, boot: np.ndarray | None
         low, high = _analytic_interval(white2, float(covariance[0, 0]))
     else:
         low, high = _scale_interval(value, np.sqrt(np.maximum(boot[:, 0], 0.0)) / value)
+    if filtered:  # the bootstrap knows nothing of the filter's remaining deficit, which only lowers the value
+        high /= 1.0 - FILTER_DEFICIT
     return Figure(value=value, low=low, high=high, resolved=low > 0, at_tau_s=1.0)
 
 
