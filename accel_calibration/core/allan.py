@@ -103,7 +103,7 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
 SLOPE_TOLERANCE = 0.15  # the white region: local log-log slope within -1/2 +- this
 MIN_WHITE_POINTS = 3  # a white line needs this many taus from the region's start on
 FILTER_DEFICIT = 0.05  # what the filter may still take off the density there: added to its interval's top
-FILTER_SKIP_OCTAVES = 2  # the filter's deficit down to ~3 % (one octave: ~5 %, and the random walk's interval held less often)
+FILTER_SKIP_OCTAVES = 2  # leaves ~3 % of the filter's deficit (one octave left ~5 %: intervals held less)
 
 
 def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> int | None:
