@@ -34,6 +34,10 @@ def nonnegative_least_squares(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray
     feasible kept. scipy.optimize.nnls gives the same; importing scipy.optimize costs 0.75 s, a seventh
     of the noise command on a 3-hour recording."""
     a, b = np.asarray(matrix, dtype=float), np.asarray(rhs, dtype=float)
+    # Columns scaled to unit norm (the solution unscaled at the end): the Allan fit's 1/tau, 1 and tau
+    # columns span many decades, and unscaled the SVD of lstsq could fail to converge.
+    scale = _column_scale(a)
+    a = a / scale
     columns = a.shape[1]
     best, best_cost = np.zeros(columns), float(b @ b)
     for mask in range(1, 1 << columns):
@@ -47,7 +51,15 @@ def nonnegative_least_squares(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray
         cost = float(residual @ residual)
         if cost < best_cost:
             best, best_cost = full, cost
-    return best
+    unscaled: np.ndarray = best / scale
+    return unscaled
+
+
+def _column_scale(matrix: np.ndarray) -> np.ndarray:
+    norms = np.sqrt(np.einsum("ij,ij->j", matrix, matrix))
+    if not np.all(np.isfinite(norms)):
+        raise CalibrationError("the Allan curve has values out of floating-point range: no fit")
+    return np.where(norms > 0, norms, 1.0)
 
 
 BIAS_INSTABILITY_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.664
@@ -183,6 +195,8 @@ FLOOR_QUANTILE = 0.99  # a flat floor is present when C exceeds this quantile of
 def nonnegative_least_squares_many(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """nonnegative_least_squares for many right-hand sides (T, R) at once: (columns, R)."""
     a, b = np.asarray(matrix, dtype=float), np.asarray(rhs, dtype=float)
+    scale = _column_scale(a)
+    a = a / scale
     columns = a.shape[1]
     best, best_cost = np.zeros((columns, b.shape[1])), np.einsum("tr,tr->r", b, b)
     for mask in range(1, 1 << columns):
@@ -194,7 +208,8 @@ def nonnegative_least_squares_many(matrix: np.ndarray, rhs: np.ndarray) -> np.nd
         cost = np.einsum("tr,tr->r", residual, residual)
         better = np.all(x >= 0, axis=0) & (cost < best_cost)
         best[:, better], best_cost[better] = full[:, better], cost[better]
-    return best
+    unscaled: np.ndarray = best / scale[:, None]
+    return unscaled
 
 
 def bootstrap_lines(white2: float, walk2: float, clusters: np.ndarray, tau0_s: float, samples: int,
@@ -269,11 +284,16 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
     if not np.all(sigma > 0):
         raise CalibrationError("the Allan deviation is 0 at some tau: no noise measurable (constant or quantized "
                                "samples)")
+    if not (np.all(np.isfinite(sigma)) and np.all(np.isfinite(tau)) and np.all(tau > 0)):
+        raise CalibrationError("the Allan curve must be finite, at taus > 0")
     period = float(tau[0]) if tau0_s is None else float(tau0_s)
     samples = int(round(duration_s / period)) + 1
     start = white_region_start(tau, sigma)
     used = slice(0 if start is None else start, None)
-    solution, covariance, model = _fit_lines(tau[used], sigma[used] ** 2, relative[used])
+    try:
+        solution, covariance, model = _fit_lines(tau[used], sigma[used] ** 2, relative[used])
+    except np.linalg.LinAlgError as error:
+        raise CalibrationError(f"the Allan curve could not be fitted ({error}): is the stretch still?") from None
     white2, floor, walk2 = (float(v) for v in solution)
     clusters = np.rint(tau[used] / period).astype(np.int64)
     boot = (bootstrap_lines(white2, walk2, clusters, period, samples, replicates)
