@@ -79,13 +79,16 @@ def still_stretch(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None) 
     return first, last
 
 
-GAP_PERIODS = 2.5  # a step longer than this many sample periods breaks the stream
+DROPOUT_PERIODS = 2.5  # a step longer than this many sample periods lost samples ...
+GAP_PERIODS = 20.0  # ... and one longer than this breaks the stream (shorter ones: a few samples dropped)
+MAX_DROPOUT_SHARE = 1e-3  # dropped-sample steps tolerated per sample (an autopilot's log drops a few)
 
 
 def unbroken_stretch(t_ns: np.ndarray) -> tuple[int, int, float, int]:
     """([first, last) of the longest stretch without a gap, its rate from the sample period (the median
     step), the number of gaps): Allan deviation assumes one sample per period, and a rate from samples /
-    span would take a gap's length for slower sampling."""
+    span would take a gap's length for slower sampling. A few dropped samples (steps of up to GAP_PERIODS)
+    are borne; more than MAX_DROPOUT_SHARE of them are refused."""
     steps = np.diff(t_ns.astype(np.int64))
     if len(steps) < 2 or np.any(steps <= 0):
         raise CalibrationError("stamps must increase: Allan deviation needs samples in time order")
@@ -94,14 +97,20 @@ def unbroken_stretch(t_ns: np.ndarray) -> tuple[int, int, float, int]:
     breaks = np.flatnonzero(np.greater(steps, GAP_PERIODS * period_ns)) + 1
     edges = np.concatenate([[0], breaks, [len(t_ns)]])
     longest = int(np.argmax(np.diff(edges)))
-    return int(edges[longest]), int(edges[longest + 1]), 1e9 / period_ns, len(breaks)
+    first, last = int(edges[longest]), int(edges[longest + 1])
+    dropouts = int(np.count_nonzero(np.greater(steps[first:last - 1], DROPOUT_PERIODS * period_ns)))
+    if dropouts > max(1, int(MAX_DROPOUT_SHARE * (last - first))):
+        raise CalibrationError(f"{dropouts} steps of more than {DROPOUT_PERIODS:g} sample periods in "
+                               f"{last - first} samples: Allan deviation needs an unbroken stream")
+    return first, last, 1e9 / period_ns, len(breaks)
 
 
 def _figure_text(figure: Figure, scale: float = 1.0, absent: str = "not present") -> str:
     if not figure.present:
         return absent
     if not figure.resolved and figure.needs_s is not None:
-        return f"< {figure.high * scale:.3g} (not resolved: needs {figure.needs_s / 3600:.1f} h still)"
+        needs = (f"{figure.needs_s / 3600:.1f} h" if figure.needs_s >= 3600 else f"{figure.needs_s / 60:.0f} min")
+        return f"< {figure.high * scale:.3g} (not resolved: needs {needs} still)"
     text = f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
     return text + ("" if figure.resolved else " (curve still falling: a bound)")
 
@@ -143,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         whole = float(t_ns[last - 1] - t_ns[first]) * 1e-9
         first, last = first + within, first + beyond
         print(f"{gaps} gap(s) of more than {GAP_PERIODS:g} sample periods in the {whole:.1f} s taken: the longest "
-              f"unbroken stretch is used")
+              "unbroken stretch is used")
     t = t_ns[first:last]
     duration_s = float(t[-1] - t[0]) * 1e-9 if len(t) > 1 else 0.0
     if duration_s < MIN_STILL_S:
