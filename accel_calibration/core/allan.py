@@ -9,12 +9,17 @@ The figures, per axis, from the three regions of the log-log curve (IEEE Std 952
   Units: m/s^2/sqrt(Hz) (accelerometer), rad/s/sqrt(Hz) (gyroscope) -- Kalibr's *_noise_density.
 - random walk K (the +1/2 slope, sigma = K sqrt(tau / 3)): the +1/2 line read at tau = 3 s.
   Units: m/s^3/sqrt(Hz), rad/s^2/sqrt(Hz) -- Kalibr's *_random_walk.
-- bias instability B: the curve's minimum / sqrt(2 ln 2 / pi) (= 0.664), at the tau of the minimum.
-The two lines are fitted together with a flat floor (sigma^2 = N^2 / tau + C + K^2 tau / 3, weighted
-non-negative least squares on sigma^2), so each is read where it dominates without picking points by
-hand. Each point's relative 1-sigma error is 1 / sqrt(2 (N / m - 1)) (IEEE 952's cluster count; the
-overlapping estimator does better, so the intervals are conservative); a figure's interval is the fit's
-95 % interval under those errors. A figure the recording cannot resolve (its line never dominates) is
+- bias instability B: the curve's minimum / sqrt(2 ln 2 / pi) (= 0.664), at the tau of the minimum; "not
+  present" unless the fitted flat floor carries half of sigma^2 somewhere and exceeds what white noise +
+  random walk alone fit as a floor (99th percentile of the bootstrap below).
+The lines are fitted together with a flat floor (sigma^2 = N^2 / tau + C + K^2 tau / 3, non-negative least
+squares on sigma^2 weighted by the model's relative errors 1 / sqrt(2 (N / m - 1))) from where the curve
+first has the -1/2 slope (white_region_start): every real IMU low-pass filters (a DLPF, an autopilot's
+integrator), which pulls the short-tau points below the white line, and those points carry most weight.
+Intervals (95 %): a parametric bootstrap of the whole fit (white noise + random walk simulated from the
+fitted lines at the same cluster sizes), so the overlapping points' correlation and the few degrees of
+freedom at long tau are in them; bias instability's from chi^2 with the overlapping estimator's
+equivalent degrees of freedom. A figure the recording cannot resolve (its line never dominates) is
 reported as an upper bound with the recording length its +-25 % would need.
 """
 from __future__ import annotations
@@ -112,7 +117,7 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
     return m * tau0, adev, relative
 
 
-SLOPE_TOLERANCE = 0.15  # the white region: local log-log slope within -1/2 +- this
+SLOPE_TOLERANCE = 0.08  # the white region: local log-log slope within -1/2 +- this
 MIN_WHITE_POINTS = 3  # a white line needs this many taus from the region's start on
 FILTER_DEFICIT = 0.05  # what the filter may still take off the density there: added to its interval's top
 FILTER_SKIP_OCTAVES = 2  # leaves ~3 % of the filter's deficit (one octave left ~5 %: intervals held less)
