@@ -65,3 +65,42 @@ def test_noise_kalibr_refuses_in_one_line_where_there_is_no_white_density(tmp_pa
     assert "not resolved (no -1/2 slope)" in captured.out
     assert captured.err.count("\n") == 1 and "no white-noise region" in captured.err
     assert not (tmp_path / "imu.yaml").exists()
+
+
+def test_noise_kalibr_writes_the_density_of_filtered_noise(tmp_path, capsys):
+    """At 250 Hz through a 20 Hz Butterworth, imu.yaml had 1.2e-4 for 1e-3 (8x too low)."""
+    import yaml
+
+    from accel_calibration.cli.main import main
+
+    rate, seconds = 250.0, 120.0
+    rng = np.random.default_rng(12)
+    columns = [filtered_white(rng, rate, 20.0, seconds) for _ in range(6)]
+    data = np.column_stack(columns) + [0.0, 0.0, 9.80665, 0.0, 0.0, 0.0]
+    with open(tmp_path / "dlpf.csv", "w") as stream:
+        stream.write("t,ax,ay,az,gx,gy,gz\n")
+        np.savetxt(stream, np.column_stack([np.arange(len(data)) / rate, data]), delimiter=",", fmt="%.9g")
+    assert main(["noise", str(tmp_path / "dlpf.csv"), "--whole", "--kalibr", str(tmp_path / "imu.yaml")]) == 0
+    figures = yaml.safe_load((tmp_path / "imu.yaml").read_text())
+    # The largest of three axes: at most ~+5 % above the truth by chance, never 8x below.
+    assert figures["accelerometer_noise_density"] == pytest.approx(DENSITY, rel=0.1)
+    assert figures["gyroscope_noise_density"] == pytest.approx(DENSITY, rel=0.1)
+
+
+def test_the_px4_sample_density_is_the_plateau_not_the_filtered_short_taus(shared, capsys):
+    """PX4 sample.ulg's still minute: sigma(1 s) is 1.2-1.9e-3 per axis; the density read 4.3-6.9e-4 from
+    the filtered short taus. Now the plateau after them: at least 0.6 sigma(1 s) (sigma(1 s) carries the
+    other noises already rising there, so it is an upper bound, not the density)."""
+    from accel_calibration.bag.recording import open_recording
+    from accel_calibration.cli.noise import channel_fits, still_stretch, unbroken_stretch
+
+    recording = open_recording(str(shared("real/px4_ulog/sample.ulg")), None)
+    first, last = still_stretch(recording.t_ns, recording.accel_mps2, recording.gyro_radps)
+    within, beyond, rate, _ = unbroken_stretch(recording.t_ns[first:last])
+    accel = recording.accel_mps2[first + within:first + beyond]
+    fits = channel_fits(accel, rate, len(accel) / rate)
+    assert fits is not None
+    one_second = overlapping_adev(accel, rate, clusters=[int(round(rate))])[1][0]
+    for fit, sigma_1s in zip(fits, one_second):
+        assert fit.noise.white_density.present
+        assert 0.6 * sigma_1s <= fit.noise.white_density.value <= 1.05 * sigma_1s, (fit.noise.white_density, sigma_1s)
