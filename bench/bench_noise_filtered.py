@@ -12,7 +12,10 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import butter, lfilter
 
-from accel_calibration.core.allan import fit_noise, overlapping_adev
+from accel_calibration.core.allan import BIAS_INSTABILITY_FACTOR, fit_noise, overlapping_adev
+
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / "test" / "core")]
+from test_noise_intervals import flicker  # noqa: E402
 
 DENSITY, RECORD_S, SEEDS = 1e-3, 600.0, 5
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -64,6 +67,24 @@ def coverage(trials: int = 200) -> None:
         absent = np.mean([not f.bias_instability.present for f in fits])
         print(f"  cut-off {'none' if cutoff is None else f'{cutoff:g} Hz'}: density held {density:.1%}, random walk "
               f"held {held:.1%}, bias instability 'not present' {absent:.1%}")
+
+
+def floor_coverage(trials: int = 50, chunk: int = 25) -> None:
+    """Bias instability over a flicker floor: how often it is found, and how often its interval holds."""
+    rate, floor = 100.0, 2e-4
+    truth = floor / BIAS_INSTABILITY_FACTOR
+    for seconds in (1800.0, 3600.0):
+        samples, figures = int(seconds * rate), []
+        for start in range(0, trials, chunk):
+            rng = np.random.default_rng(200 + start)
+            x = DENSITY * np.sqrt(rate) * rng.standard_normal((samples, chunk)) + flicker(rng, samples, rate, floor,
+                                                                                           chunk)
+            tau, adev, relative = overlapping_adev(x, rate)
+            figures += [fit_noise(tau, adev[:, t], relative, seconds).noise.bias_instability for t in range(chunk)]
+        present = [f for f in figures if f.present]
+        held = np.mean([f.low <= truth <= f.high for f in present]) if present else float("nan")
+        print(f"  flicker floor 2e-4 under white {DENSITY:g}, {seconds / 60:g} min at {rate:g} Hz, {trials} seeds: "
+              f"found {len(present) / trials:.0%}, its interval held {held:.1%} of those")
 
 
 def against_allantools() -> None:
@@ -119,6 +140,7 @@ def main() -> int:
     density_grid()
     if "--coverage" in sys.argv:
         coverage()
+        floor_coverage()
     real_logs()
     return 0
 
