@@ -123,8 +123,9 @@ FILTER_DEFICIT = 0.05  # what the filter may still take off the density there: a
 FILTER_SKIP_OCTAVES = 2  # leaves ~3 % of the filter's deficit (one octave left ~5 %: intervals held less)
 
 
-def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> int | None:
-    """Index of the first tau to read the white line from, or None when the curve has no -1/2 region.
+def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> tuple[int | None, bool]:
+    """(index of the first tau to read the white line from, or None when the curve has no -1/2 region;
+    whether a filter's flatter stretch came before it).
 
     Low-pass-filtered white noise (a DLPF, an autopilot's integrator) sits below its -1/2 line at taus
     within a few correlation times of the filter, where the curve is flatter or rising; quantization sits
@@ -136,8 +137,8 @@ def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> int | None:
         if abs(slope + 0.5) <= SLOPE_TOLERANCE:
             filtered = index > 0 and bool(np.any(slopes[:index] > -0.5 + SLOPE_TOLERANCE))
             start = index + FILTER_SKIP_OCTAVES if filtered else index
-            return start if len(tau_s) - start >= MIN_WHITE_POINTS else None
-    return None
+            return (start if len(tau_s) - start >= MIN_WHITE_POINTS else None), filtered
+    return None, False
 
 
 @dataclass(frozen=True)
@@ -293,7 +294,7 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
         raise CalibrationError("the Allan curve must be finite, at taus > 0")
     period = float(tau[0]) if tau0_s is None else float(tau0_s)
     samples = int(round(duration_s / period)) + 1
-    start = white_region_start(tau, sigma)
+    start, filtered = white_region_start(tau, sigma)
     used = slice(0 if start is None else start, None)
     try:
         solution, covariance, model = _fit_lines(tau[used], sigma[used] ** 2, relative[used])
@@ -303,8 +304,7 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
     clusters = np.rint(tau[used] / period).astype(np.int64)
     boot = (bootstrap_lines(white2, walk2, clusters, period, samples, replicates)
             if white2 > 0 and replicates > 0 else None)
-    white = _white_figure(white2, covariance, boot, present=start is not None,
-                          filtered=start is not None and bool(np.any(slopes_before(tau, sigma, start) > -0.5)))
+    white = _white_figure(white2, covariance, boot, present=start is not None, filtered=filtered)
     walk = _walk_figure(walk2, floor, white2, tau[used], model, covariance, boot, duration_s, target_relative)
     bias = _bias_instability(tau[used], sigma[used], floor, model, samples, period,
                              None if boot is None else boot[:, 1])
@@ -316,12 +316,6 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
 def _analytic_interval(value2: float, variance: float) -> tuple[float, float]:
     spread = Z95 * math.sqrt(max(variance, 0.0))
     return math.sqrt(max(value2 - spread, 0.0)), math.sqrt(value2 + spread)
-
-
-def slopes_before(tau: np.ndarray, sigma: np.ndarray, start: int) -> np.ndarray:
-    """Local log-log slopes of the curve below `start`."""
-    slopes: np.ndarray = np.diff(np.log(sigma[:start + 1])) / np.diff(np.log(tau[:start + 1]))
-    return slopes
 
 
 def _white_figure(white2: float, covariance: np.ndarray, boot: np.ndarray | None, present: bool,
