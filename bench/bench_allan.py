@@ -1,6 +1,6 @@
 """Allan deviation of 3 h at 200 Hz (2.16 M samples x 6 channels, octave tau): this package's vectorised
 overlapping estimator against allantools' oadev on the same arrays, in the same run (values and time),
-and the issue's accuracy check over 20 seeds (density within 5 %, random walk within 25 %).
+and the accuracy check over 20 seeds (density within 5 %, random walk within 25 %).
 allantools is a bench-only comparison (pip install allantools==2024.6); without it the comparison is skipped."""
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ from ..core.errors import CalibrationError
 
 if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
     from ..core.allan import Figure, NoiseFit
-from ..io.output_paths import check_outputs, write_bytes_atomically
+from ..io.output_paths import check_output_places, check_outputs, write_bytes_atomically
 
 MIN_STILL_S = 20.0  # tau up to ~2 s with 9 clusters: the white-noise density at tau = 1 s, and no more
 UNITS = {"accelerometer": "m/s^2", "gyroscope": "rad/s"}
@@ -79,93 +79,147 @@ def still_stretch(t_ns: np.ndarray, accel: np.ndarray, gyro: np.ndarray | None) 
     return first, last
 
 
-def sample_rate_hz(t_ns: np.ndarray) -> float:
-    """The rate of evenly spaced stamps; refuses gaps (Allan deviation assumes one sample per tau0)."""
+DROPOUT_PERIODS = 2.5  # a step longer than this many sample periods lost samples ...
+GAP_PERIODS = 20.0  # ... and one longer than this breaks the stream (shorter ones: a few samples dropped)
+MAX_DROPOUT_SHARE = 1e-3  # dropped-sample steps tolerated per sample (an autopilot's log drops a few)
+
+
+def unbroken_stretch(t_ns: np.ndarray) -> tuple[int, int, float, int]:
+    """([first, last) of the longest stretch without a gap, its rate from the sample period (the median
+    step), the number of gaps): Allan deviation assumes one sample per period, and a rate from samples /
+    span would take a gap's length for slower sampling. A few dropped samples (steps of up to GAP_PERIODS)
+    are borne; more than MAX_DROPOUT_SHARE of them are refused."""
     steps = np.diff(t_ns.astype(np.int64))
     if len(steps) < 2 or np.any(steps <= 0):
         raise CalibrationError("stamps must increase: Allan deviation needs samples in time order")
-    median = float(np.median(steps))
+    period_ns = float(np.median(steps))
     # np.greater, not `>`: numpy's stubs type np.diff of int64 stamps as timedelta64, which `>` a float refuses
-    gaps = int(np.count_nonzero(np.greater(steps, 2.5 * median)))
-    if gaps > max(1, len(steps) // 1000):
-        raise CalibrationError(f"{gaps} gaps of more than 2.5 sample periods in the still stretch: Allan deviation "
-                               "needs an unbroken stream")
-    return float(len(steps) * 1e9 / (t_ns[-1] - t_ns[0]))
+    breaks = np.flatnonzero(np.greater(steps, GAP_PERIODS * period_ns)) + 1
+    edges = np.concatenate([[0], breaks, [len(t_ns)]])
+    longest = int(np.argmax(np.diff(edges)))
+    first, last = int(edges[longest]), int(edges[longest + 1])
+    dropouts = int(np.count_nonzero(np.greater(steps[first:last - 1], DROPOUT_PERIODS * period_ns)))
+    if dropouts > max(1, int(MAX_DROPOUT_SHARE * (last - first))):
+        raise CalibrationError(f"{dropouts} steps of more than {DROPOUT_PERIODS:g} sample periods in "
+                               f"{last - first} samples: Allan deviation needs an unbroken stream")
+    return first, last, 1e9 / period_ns, len(breaks)
 
 
-def _figure_text(figure: Figure, scale: float = 1.0) -> str:
+def _figure_text(figure: Figure, scale: float = 1.0, absent: str = "not present") -> str:
+    if not figure.present:
+        return absent
     if not figure.resolved and figure.needs_s is not None:
-        return f"< {figure.high * scale:.3g} (not resolved: needs {figure.needs_s / 3600:.1f} h still)"
+        needs = (f"{figure.needs_s / 3600:.1f} h" if figure.needs_s >= 3600 else f"{figure.needs_s / 60:.0f} min")
+        return f"< {figure.high * scale:.3g} (not resolved: needs {needs} still)"
     text = f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
     return text + ("" if figure.resolved else " (curve still falling: a bound)")
 
 
-def noise_table(fits: dict[str, list[NoiseFit]]) -> str:
+def noise_table(fits: dict[str, list[NoiseFit] | None]) -> str:
     rows = [f"{'channel':8s} {'white noise density':>34s} {'random walk':>34s} {'bias instability':>40s}"]
     for sensor, axes in fits.items():
+        if axes is None:
+            rows.append(f"{sensor}: no noise measurable (constant or quantized)")
+            continue
         rows.append(f"{sensor}: density {DENSITY_UNITS[sensor]}, random walk {WALK_UNITS[sensor]}, "
                     f"bias instability {UNITS[sensor]} (95 % intervals)")
         for axis, fit in zip("xyz", axes):
             n = fit.noise
-            bias = _figure_text(n.bias_instability) + f" at {n.bias_instability.at_tau_s:.3g} s"
-            rows.append(f"  {sensor[0]}{axis:6s} {_figure_text(n.white_density):>34s} "
+            bias = _figure_text(n.bias_instability, absent="not present (no flat floor)")
+            if n.bias_instability.present:
+                bias += f" at {n.bias_instability.at_tau_s:.3g} s"
+            white = _figure_text(n.white_density, absent="not resolved (no -1/2 slope)")
+            rows.append(f"  {sensor[0]}{axis:6s} {white:>34s} "
                         f"{_figure_text(n.random_walk):>34s} {bias:>40s}")
     return "\n".join(rows)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..bag.recording import open_recording
-    from ..core.allan import fit_noise, overlapping_adev, required_duration_s
-    from ..io.calibration_file import write_text_atomically
-    from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
+    from ..core.allan import required_duration_s
 
-    check_outputs([("--kalibr", args.kalibr), ("--plot", args.plot)], [args.recording])
+    outputs = [("--kalibr", args.kalibr), ("--plot", args.plot)]
+    check_outputs(outputs, [args.recording])
+    check_output_places(outputs)
     recording = open_recording(args.recording, args.format, imu_topic=args.imu_topic, instance=args.instance,
                                time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
     t_ns = recording.t_ns
     if len(t_ns) < 3:
         raise CalibrationError(f"{args.recording}: {len(t_ns)} samples: too few for noise figures")
     first, last = (0, len(t_ns)) if args.whole else still_stretch(t_ns, recording.accel_mps2, recording.gyro_radps)
+    within, beyond, rate, gaps = unbroken_stretch(t_ns[first:last])
+    if gaps:
+        whole = float(t_ns[last - 1] - t_ns[first]) * 1e-9
+        first, last = first + within, first + beyond
+        print(f"{gaps} gap(s) of more than {GAP_PERIODS:g} sample periods in the {whole:.1f} s taken: the longest "
+              "unbroken stretch is used")
     t = t_ns[first:last]
     duration_s = float(t[-1] - t[0]) * 1e-9 if len(t) > 1 else 0.0
     if duration_s < MIN_STILL_S:
         raise CalibrationError(
             f"{args.recording}: the still stretch lasts {duration_s:.1f} s: the noise density needs at least "
             f"{MIN_STILL_S:g} s still, the random walk within +-25 % about {required_duration_s(800.0) / 3600:.0f} h")
-    rate = sample_rate_hz(t)
     channels = {"accelerometer": recording.accel_mps2[first:last]}
     if recording.gyro_radps is not None:
         channels["gyroscope"] = recording.gyro_radps[first:last]
-    fits: dict[str, list[NoiseFit]] = {}
-    for sensor, values in channels.items():
-        tau, adev, relative = overlapping_adev(values, rate)
-        fits[sensor] = [fit_noise(tau, adev[:, axis], relative, duration_s) for axis in range(3)]
+    fits = {sensor: channel_fits(values, rate, duration_s) for sensor, values in channels.items()}
     print(f"{args.recording}: {recording.stream}, still {t_ns[first] * 1e-9:.1f}..{t_ns[last - 1] * 1e-9:.1f} s "
           f"({duration_s / 60:.1f} min, {len(t)} samples at {rate:.1f} Hz)")
     print(noise_table(fits))
     if args.kalibr:
-        if "gyroscope" not in fits:
-            raise CalibrationError(f"{args.recording}: no gyroscope in the recording: Kalibr's imu.yaml needs its "
-                                   "figures too")
-        figures = NoiseFigures(  # the largest axis of each: Kalibr takes one figure per sensor
-            accelerometer_noise_density=max(f.noise.white_density.value for f in fits["accelerometer"]),
-            accelerometer_random_walk=max(f.noise.random_walk.value for f in fits["accelerometer"]),
-            gyroscope_noise_density=max(f.noise.white_density.value for f in fits["gyroscope"]),
-            gyroscope_random_walk=max(f.noise.random_walk.value for f in fits["gyroscope"]),
-            update_rate_hz=rate)
-        comment = (f"accel-calib noise {Path(args.recording).name}: the largest axis of each figure; "
-                   f"{duration_s / 60:.1f} min still at {rate:.1f} Hz")
-        unresolved = [s for s, axes in fits.items() if not all(f.noise.random_walk.resolved for f in axes)]
-        if unresolved:
-            comment += f"\nrandom walk of {', '.join(unresolved)} not resolved: an upper bound (record longer)"
-        write_text_atomically(args.kalibr, kalibr_imu_yaml(figures, args.rostopic, comment))
-        print(f"written {args.kalibr}")
+        _write_kalibr(args, fits, rate, duration_s)
     if args.plot:
         from ..io.noise_figure import write_noise_figure
 
         with tempfile.TemporaryDirectory(prefix="accel-calib-noise-") as scratch:
             rendered = Path(scratch) / "noise.png"
-            write_noise_figure(fits, UNITS, rendered, title=Path(args.recording).name)
+            measured = {sensor: axes for sensor, axes in fits.items() if axes is not None}
+            write_noise_figure(measured, UNITS, rendered, title=Path(args.recording).name)
             write_bytes_atomically(args.plot, rendered.read_bytes())
         print(f"figure {args.plot}")
     return 0
+
+
+def channel_fits(values: np.ndarray, rate_hz: float, duration_s: float) -> list[NoiseFit] | None:
+    """The three axes' figures of one sensor, or None when an axis has no noise to measure (its Allan
+    deviation is 0 at some tau: constant or coarsely quantized samples, a gyro of all zeros)."""
+    from ..core.allan import fit_noise, overlapping_adev
+
+    tau, adev, relative = overlapping_adev(values, rate_hz)
+    if not np.all(adev > 0):
+        return None
+    return [fit_noise(tau, adev[:, axis], relative, duration_s, tau0_s=1.0 / rate_hz) for axis in range(3)]
+
+
+def _write_kalibr(args: argparse.Namespace, fits: dict[str, list[NoiseFit] | None], rate: float,
+                  duration_s: float) -> None:
+    """Kalibr's imu.yaml from the figures, or one line saying which figure is missing (never a 0)."""
+    from ..io.calibration_file import write_text_atomically
+    from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
+
+    if "gyroscope" not in fits:
+        raise CalibrationError(f"{args.recording}: no gyroscope in the recording: Kalibr's imu.yaml needs its "
+                               "figures too")
+    silent = [sensor for sensor, axes in fits.items() if axes is None]
+    if silent:
+        raise CalibrationError(f"{args.recording}: no noise measurable in the {' and '.join(silent)} (constant or "
+                               "quantized samples): no figures for Kalibr's imu.yaml")
+    measured = {sensor: axes for sensor, axes in fits.items() if axes is not None}
+    absent = [f"{sensor} {axis}" for sensor, axes in measured.items() for axis, f in zip("xyz", axes)
+              if not f.noise.white_density.present]
+    if absent:
+        raise CalibrationError(f"{args.recording}: no white-noise region (-1/2 slope) in the Allan curve of "
+                               f"{', '.join(absent)}: no noise density for Kalibr; record longer or faster")
+    figures = NoiseFigures(  # the largest axis of each: Kalibr takes one figure per sensor
+        accelerometer_noise_density=max(f.noise.white_density.value for f in measured["accelerometer"]),
+        accelerometer_random_walk=max(f.noise.random_walk.value for f in measured["accelerometer"]),
+        gyroscope_noise_density=max(f.noise.white_density.value for f in measured["gyroscope"]),
+        gyroscope_random_walk=max(f.noise.random_walk.value for f in measured["gyroscope"]),
+        update_rate_hz=rate)
+    comment = (f"accel-calib noise {Path(args.recording).name}: the largest axis of each figure; "
+               f"{duration_s / 60:.1f} min still at {rate:.1f} Hz")
+    unresolved = [s for s, axes in measured.items() if not all(f.noise.random_walk.resolved for f in axes)]
+    if unresolved:
+        comment += f"\nrandom walk of {', '.join(unresolved)} not resolved: an upper bound (record longer)"
+    write_text_atomically(args.kalibr, kalibr_imu_yaml(figures, args.rostopic, comment))
+    print(f"written {args.kalibr}")

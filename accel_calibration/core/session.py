@@ -383,7 +383,7 @@ class CalibrationSession:
     def measured_noise(self) -> MeasuredNoise | None:
         """The white noise measured at the still poses, as a density at the poses' sample rate (None
         before the noise floor is learned or a pose is held)."""
-        accel_var = self.detector.noise_floor_accel_var
+        accel_var = self.accel_noise_var()
         poses = [p for p in self.store.poses if p.samples > 1 and p.end_ns > p.start_ns]
         if accel_var is None or accel_var <= 0 or not poses:
             return None
@@ -393,6 +393,18 @@ class CalibrationSession:
             return MeasuredNoise.from_variances(rate_hz, accel_var, gyro_var if gyro_var else None)
         except CalibrationError:  # a stream in counts or another unit: no density to keep
             return None
+
+    def accel_noise_var(self) -> float | None:
+        """The accelerometer's white-noise variance per axis, (m/s^2)^2: the pooled variance of the samples
+        within the still poses held (each pose's spread about its own mean, weighted by its degrees of
+        freedom). Not the detector's floor: a low quantile of window variances reads low (0.83x the real
+        variance at 0.03 m/s^2 per sample). None before a pose of two samples is held."""
+        poses = [p for p in self.store.poses if p.samples > 1]
+        if not poses:
+            return None
+        dof = np.array([p.samples - 1 for p in poses], dtype=float)
+        per_axis = np.array([float(np.trace(p.accel_cov)) / 3.0 for p in poses])
+        return float(dof @ per_axis / dof.sum())
 
     def gyro_noise_var(self) -> float | None:
         """The gyro's white-noise variance per axis, (rad/s)^2: the quietest still windows' (None before)."""

@@ -254,7 +254,7 @@ class LiveCalibration:
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
         # The covariances follow the noise measured at the still poses.
-        self.in_force.set_noise(self.session.detector.noise_floor_accel_var, self.session.gyro_noise_var())
+        self.in_force.set_noise(self.session.accel_noise_var(), self.session.gyro_noise_var())
         self.noise = self.session.measured_noise()  # read by the diagnostics' thread: set whole
         self.watch.add(poses)
         result = self.session.refit()

@@ -25,10 +25,12 @@ def write_noise_figure(fits: dict[str, list[NoiseFit]], units: dict[str, str], p
             panel.fill_between(fit.tau_s, fit.adev * np.maximum(1 - band, 1e-3), fit.adev * (1 + band),
                                color=colour, alpha=0.15)
             noise = fit.noise
-            panel.loglog(fit.tau_s, noise.white_density.value / np.sqrt(fit.tau_s), "--", color=colour, lw=0.8)
+            if noise.white_density.present:
+                panel.loglog(fit.tau_s, noise.white_density.value / np.sqrt(fit.tau_s), "--", color=colour, lw=0.8)
             if noise.random_walk.resolved:
                 panel.loglog(fit.tau_s, noise.random_walk.value * np.sqrt(fit.tau_s / 3.0), ":", color=colour, lw=0.8)
-            panel.axhline(noise.bias_instability.value * BIAS_INSTABILITY_FACTOR, color=colour, lw=0.5, alpha=0.5)
+            if noise.bias_instability.present:
+                panel.axhline(noise.bias_instability.value * BIAS_INSTABILITY_FACTOR, color=colour, lw=0.5, alpha=0.5)
         panel.set_xlabel("tau (s)")
         panel.set_ylabel(f"Allan deviation ({units[sensor]})")
         panel.set_title(f"{sensor}: -- white (-1/2), : random walk (+1/2), - bias floor")
