@@ -66,10 +66,10 @@ def test_corrected_stream_flows_while_calibrate_fits_and_saves(running_node, tes
     save_started, release_save = threading.Event(), threading.Event()
     real_save = node._in_force._save
 
-    def slow_save(calibration):
+    def slow_save(calibration, *provenance):
         save_started.set()
         assert release_save.wait(30), "test never released the save"
-        real_save(calibration)
+        real_save(calibration, *provenance)
 
     node._in_force._save = slow_save
     future = tester.clients["calibrate"].call_async(Trigger.Request())
