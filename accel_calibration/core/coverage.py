@@ -18,7 +18,7 @@ import numpy as np
 
 from .lapack import dsyevd as syevd
 from .models import SphereModel, matrix_entries
-from .units import MG
+from .units import AXES, MG
 
 # A pose "has x pointing down" when its measured specific force is within ~45 deg of -x
 # (an accelerometer at rest reads +g upwards, so a_x ~ -g means the x axis points down).
@@ -100,7 +100,6 @@ def describe_missing(missing: list[str]) -> str:
 
 
 # ------------------------------------------------------------------ observability by uncertainty
-AXES = "xyz"
 
 
 @dataclass(frozen=True)

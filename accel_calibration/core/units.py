@@ -10,6 +10,7 @@ from numpy.typing import ArrayLike
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, by definition (CGPM 1901): 1 g
 MG = STANDARD_GRAVITY * 1e-3  # 1 mg in m/s^2
+AXES = "xyz"  # the sensor axes, in the order of every vector's components
 
 
 def units_problem(accel_mps2: ArrayLike, gravity: float) -> str | None:
