@@ -269,8 +269,6 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
              start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool,
              temperature_readings: tuple[np.ndarray, np.ndarray] | None) -> ReplayResult:
     """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
-    from ..core.models import parameter_count
-
     if not has_gyro:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
         # The zeros standing in for a missing gyro are no motions to fit.
@@ -287,7 +285,7 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
     problem = None
     if not verdict.success:
         problem = verdict.message
-        need = max(session.settings.min_poses, parameter_count(session.settings.model) + 1)
+        need = session.poses_needed()
         if len(session.store) < need and s.prior is None:
             problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
                        f"{session.settings.model} needs {need} orientations): " + problem)

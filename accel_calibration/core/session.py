@@ -26,6 +26,7 @@ from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
+from .refusal import OPENED_BY_POSES, Gate, Refusal
 from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
@@ -33,7 +34,7 @@ from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
-from .units import MG, units_problem
+from .units import MG, units_text
 
 # |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
 # m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
@@ -65,11 +66,17 @@ class Verdict:
     """What /calibrate (or replay) decides: a calibration ready to apply, or the gate that refused."""
 
     success: bool
-    message: str  # "gate <name>: <reason>" on refusal
+    message: str  # "gate <name>: <reason>" on refusal, with the poses left out as outliers
     result: FitResult | None = None
     calibration: Calibration | None = None  # with gyro bias, frame_id and sensor_id filled in
     gyro: GyroFitResult | None = None  # the gyro fit tried with it (applied when its gates passed)
     gyro_refusal: str | None = None  # why it was not applied ("gyro: gate ...: ..."), None when it was or none ran
+    refusal: Refusal | None = None  # the gate that refused, None on success
+
+    @classmethod
+    def refused(cls, refusal: Refusal, said: str = "", result: FitResult | None = None) -> Verdict:
+        """A refusal: `said` (the outliers left out, what else helps) follows the gate's own text."""
+        return cls(False, str(refusal) + said, result, refusal=refusal)
 
 
 class CalibrationSession:
@@ -321,18 +328,18 @@ class CalibrationSession:
         if self.prior is not None:
             return self._calibrate_with_prior(self.store.poses + list(extra), self.prior)
         poses = self.store.poses + list(extra)
-        need = max(self.settings.min_poses, parameter_count(self.model) + 1)
+        need = self.poses_needed()
         if len(poses) < need:
             # Still intervals that were no gravity: a stream in g or in counts says so, not "0 poses".
             dropped = self.implausible_means
-            problem = units_problem(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
+            problem = units_text(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
             if problem is not None:
-                return Verdict(False, "gate " + problem)
-            return Verdict(False, f"gate poses: have {len(poses)} poses, need min_poses={need}"
-                           f" ({self._missing_text(poses)}){self._too_noisy_text()}")
-        problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
+                return Verdict.refused(Refusal(Gate.UNITS, problem))
+            return Verdict.refused(Refusal(Gate.POSES, f"have {len(poses)} poses, need min_poses={need}"
+                                           f" ({self._missing_text(poses)}){self._too_noisy_text()}"))
+        problem = units_text([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
-            return Verdict(False, "gate " + problem)
+            return Verdict.refused(Refusal(Gate.UNITS, problem))
         # Cold: the verdict depends on the poses alone, not on how many warm refits the node's worker
         # happened to run while they arrived (live and replay then agree exactly, whatever the load).
         result = self.refit(extra, warm=False)
@@ -340,23 +347,28 @@ class CalibrationSession:
         # Poses left out as outliers are said either way, counted from 1 as the node's log counts them.
         left_out = "" if result is None else "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result is None or result.calibration is None or refusal is not None:
-            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+            return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
+
+    def poses_needed(self) -> int:
+        """The poses a fit without a prior needs: min_poses, and at least one more than the model has
+        parameters (so the residual can say whether the poses agree)."""
+        return max(self.settings.min_poses, parameter_count(self.model) + 1)
 
     def _calibrate_with_prior(self, poses: list[Pose], prior: Prior) -> Verdict:
         """With a prior the pose count is no gate: what poses and prior support together decides (the fit's
         own checks, then every gate but the count). No temperature model: a prior fits b and M alone."""
         if not poses:
-            return Verdict(False, "gate poses: no pose held (a fit with a prior still needs poses)")
-        problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
+            return Verdict.refused(Refusal(Gate.POSES, "no pose held (a fit with a prior still needs poses)"))
+        problem = units_text([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
-            return Verdict(False, "gate " + problem)
+            return Verdict.refused(Refusal(Gate.UNITS, problem))
         result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.settings.gravity,
                      outlier_options=self.settings.outliers, pose_sigma_mps2=pose_mean_sigma(poses), prior=prior)
         refusal = self.gates.check_fit(result)
         left_out = "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result.calibration is None or refusal is not None:
-            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+            return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
 
     def _passed(self, result: FitResult, left_out: str) -> Verdict:
@@ -374,7 +386,7 @@ class CalibrationSession:
         # Never hand on what the file's readers would refuse: every writer (node, replay, fleet) saves this.
         loadable, left_aside = self.gates.loadable(calibration)
         if loadable is None:
-            return Verdict(False, f"gate plausibility: {left_aside}" + left_out, result)
+            return Verdict.refused(Refusal(Gate.PLAUSIBILITY, str(left_aside)), left_out, result)
         if left_aside is not None:
             said, gyro_text = f"; {left_aside}; the accelerometer calibration is kept", left_aside
         return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=loadable),
@@ -466,13 +478,13 @@ class CalibrationSession:
             rms = fit_.calibration.quality.residual_rms_mg
             sigma = float(np.max(fit_.sigma.bias) / MG) if np.all(np.isfinite(fit_.sigma.bias)) else None
             fitted_temperature = fit_.calibration.temperature
-        need = max(self.settings.min_poses, parameter_count(self.model) + 1)
+        need = self.poses_needed()
         refusal = None if self.last_fit is None else self.gates.check(self.last_fit)
         ready = fit_ is not None and refusal is None and n >= need
         # Once there is a fit (one that failed for want of observability too), the orientation that would
         # pin the loosest parameter down most; before, the first face not yet seen.
         turn = None
-        if self.last_fit is not None and (refusal or "").startswith(("gate poses", "gate fit", "gate sigma")):
+        if self.last_fit is not None and refusal is not None and refusal.gate in OPENED_BY_POSES:
             turn = self.gates.next_orientation(self.last_fit)
         temps = [p.temperature_degc for p in self.store.poses if p.temperature_degc is not None]
         span = (float(min(temps)), float(max(temps))) if temps else None

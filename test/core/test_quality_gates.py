@@ -89,3 +89,20 @@ def test_bad_gate_settings_are_refused(gates, name):
         QualityGates(**{("scale_band" if k.startswith("scale") else k): v for k, v in gates.items()}
                      if "scale_min" not in gates
                      else {"scale_band": (gates["scale_min"], gates["scale_max"])})
+
+
+@pytest.mark.parametrize("bias", [(0.6, 0.0, 0.0), (float("nan"), 0.0, 0.0)])
+def test_the_gates_and_the_file_check_judge_bias_and_scale_by_one_rule(bias):
+    """What /calibrate refuses and what the node refuses to put in force agree, text and all: a NaN bias
+    (only arrays, not a Calibration, can hold one) is refused by both."""
+    from types import SimpleNamespace
+
+    from accel_calibration.core.plausibility import plausibility_problem
+
+    gates = QualityGates(max_bias_mps2=0.5)
+    terms = SimpleNamespace(bias=np.array(bias), matrix=np.eye(3), model="sphere9", quadratic=None,
+                            temperature=None, gyro_bias_radps=None, gyro_matrix=None)
+    from_gate = gates.plausibility(terms)
+    assert from_gate is not None
+    assert str(from_gate) == plausibility_problem(terms, max_bias_mps2=0.5)
+    assert str(from_gate).startswith("gate bias: |b| ")
