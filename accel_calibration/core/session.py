@@ -15,9 +15,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .calibration import Calibration, MeasuredNoise
-from .coverage import missing_directions
+from .coverage import Face, missing_directions, missing_faces
 from .errors import CalibrationError, SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
@@ -39,7 +40,6 @@ from .units import MG, units_text
 # |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
 # m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
 PLAUSIBLE_GRAVITY = (0.5, 1.5)
-ALL_FACES = ("x pointing up", "x pointing down", "y pointing up", "y pointing down", "z pointing up", "z pointing down")
 
 
 @dataclass(frozen=True)
@@ -53,12 +53,8 @@ class Progress:
     advice: str
     temperature_span_degc: tuple[float, float] | None = None  # lowest and highest pose temperature
     temperature_status: str = "no temperature"
-
-
-def advice_for(missing: Sequence[str]) -> str:
-    """'turn x down' style advice for the first face not yet covered."""
-    axis, _, way = missing[0].partition(" pointing ")
-    return f"turn {axis} {way}"
+    # The unit specific force of the orientation the advice turns to; None when the advice is no turn.
+    advised_direction: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -450,7 +446,7 @@ class CalibrationSession:
         return verdict if verdict.success else None
 
     def _missing_text(self, poses: Sequence[Pose]) -> str:
-        missing = missing_directions(_directions(poses)) if poses else list(ALL_FACES)
+        missing = missing_directions(_directions(poses)) if poses else [str(face) for face in Face]
         return "still missing: " + ", ".join(missing) if missing else "every face seen; hold more orientations"
 
     def gyro_bias_radps(self) -> np.ndarray | None:
@@ -468,7 +464,7 @@ class CalibrationSession:
         """Poses held, faces missing, the last fit and what to do next; `calibration` (the one in force)
         turns the poses into directions, `calibrate_service` is the service name as the node resolves it."""
         n = len(self.store)
-        missing = tuple(missing_directions(self.directions(calibration))) if n else ALL_FACES
+        faces = missing_faces(self.directions(calibration)) if n else list(Face)
         fit_ = self.last_fit if self.last_fit is not None and self.last_fit.success else None
         rms = sigma = None
         fitted_temperature = None
@@ -498,17 +494,20 @@ class CalibrationSession:
                 "temperature span sufficient; needs more poses per temperature"
         else:
             status = problem
+        direction: ArrayLike | None = None
         if ready:
             advice = f"ready: call {calibrate_service}"
         elif turn is not None:
-            advice = turn.text
-        elif missing:
-            advice = advice_for(missing)
+            advice, direction = turn.text, turn.direction
+        elif faces:
+            advice, direction = faces[0].turn, faces[0].direction
         elif n < need:
             advice = f"hold still in a new orientation ({n} of {need} poses)"
         else:
             advice = "hold still in more orientations (fit not yet within the gates)"
-        return Progress(n, need, missing, rms, sigma, ready, advice, span, status)
+        missing = tuple(str(face) for face in faces)
+        return Progress(n, need, missing, rms, sigma, ready, advice, span, status,
+                        None if direction is None else _unit_tuple(direction))
 
 
 def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -> np.ndarray:
@@ -517,6 +516,11 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
         accel = calibration.apply(accel)
     norms = np.linalg.norm(accel, axis=1)
     return accel / norms[:, None] if len(accel) else accel
+
+
+def _unit_tuple(direction: ArrayLike) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in np.asarray(direction, dtype=float).reshape(3))
+    return (x, y, z)
 
 
 def _rounded_up(value: float, highest: float | None) -> float:
