@@ -26,7 +26,7 @@ from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
 from .calibration_file import calibration_to_yaml
-from .in_force import ERROR, OK, WARN, CalibrationInForce
+from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
 
 __all__ = ["LOG_THROTTLE_S", "MAX_BUFFERED", "TEMPERATURE_AHEAD_NS", "LiveCalibration", "Log"]
 
@@ -55,7 +55,7 @@ class LiveCalibration:
         self.frame_id: str | None = None
         self.still = False  # the detector's state at the last feed
         self.counts: collections.Counter[str] = collections.Counter()  # what the node set aside, by name
-        self.status = (OK, "")  # the level and first words of the diagnostics
+        self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
         self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
         self._log = log
         self._calibrate_service = calibrate_service
@@ -161,7 +161,7 @@ class LiveCalibration:
         self.enabled = on
         return "correction on" if on else "correction off: raw passes through"
 
-    def reported_status(self) -> tuple[str, str]:
+    def reported_status(self) -> tuple[Level, str]:
         """The diagnostics' level and first words: the node's status, warned when the watch says the
         calibration in force moved (nothing is applied for it)."""
         level, message = self.status
