@@ -274,14 +274,13 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
         # The zeros standing in for a missing gyro are no motions to fit.
         session.update_settings(dataclasses.replace(session.settings, gyro_calibrate=False))
+    session.prior = s.prior
+    events, verdict = session.verdict_for(poses)
     slots: list[int | None] = []  # per pose, its place in the store (None once the store gave it to a newer pose)
-    for pose in poses:
-        event = session.add_pose(pose)
+    for event in events:
         if event.replaced_oldest:
             slots = [None if slot == event.index else slot for slot in slots]
         slots.append(event.index)
-    session.prior = s.prior
-    verdict = session.calibrate()
     counts = session.counters.as_dict()
     problem = None
     if not verdict.success:

@@ -98,6 +98,8 @@ class CalibrationSession:
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
+        # The last cold fit and the poses it fitted (held, not compared by value: a merge makes a new pose).
+        self._cold_fit: tuple[tuple[Pose, ...], FitResult] | None = None
         # The raw gyro between consecutive poses (the gyro fit's motions), fed by the same sample path.
         self.motions = MotionRecorder(max_motion_s=settings.gyro_max_motion_s,
                                       trailing_s=2.0 + 4 * settings.static_window_s, capacity=settings.max_poses,
@@ -124,6 +126,7 @@ class CalibrationSession:
             raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
         self.gates = QualityGates.from_settings(settings)
         self.settings = settings
+        self._cold_fit = None
 
     # ------------------------------------------------------------------ stream side
     @property
@@ -209,6 +212,7 @@ class CalibrationSession:
         self.store.clear()
         self.motions.clear()
         self.last_fit = None
+        self._cold_fit = None
         return dropped
 
     def temperature_problem(self, poses: Sequence[Pose] | None = None) -> str | None:
@@ -234,6 +238,21 @@ class CalibrationSession:
         poses = store.poses
         if len(poses) < parameter_count(self.model):
             return None
+        initial = self.last_fit.calibration if warm and self.last_fit is not None and self.last_fit.success else None
+        if initial is None and self._cold_fit is not None and _same_poses(self._cold_fit[0], poses):
+            # A cold fit is a function of the poses alone: these were fitted already (an auto-calibration's
+            # verdict, then /calibrate's).
+            self.last_fit = self._cold_fit[1]
+            return self.last_fit
+        result = self._fit(poses, initial)
+        if initial is None:
+            self._cold_fit = (tuple(poses), result)
+        self.last_fit = result
+        return result
+
+    def _fit(self, poses: Sequence[Pose], initial: Calibration | None) -> FitResult:
+        """The fit of `poses`: with the temperature model when their span allows it and it succeeds, else
+        blind to temperature, started from `initial` (None: cold)."""
         accel = [p.accel_mps2 for p in poses]
         gravity = self.settings.gravity
         # A pose off the sphere with the rest is left out (and named) by the fit itself.
@@ -245,10 +264,8 @@ class CalibrationSession:
                          temperature_model=options.model, temperature_options=options,
                          outlier_options=outliers, pose_sigma_mps2=noise)
             if result.success:
-                self.last_fit = result
                 return result
             # Not yet enough poses per temperature: the temperature-blind fit, said in progress.
-        initial = self.last_fit.calibration if warm and self.last_fit is not None and self.last_fit.success else None
         if initial is not None and initial.temperature is not None:
             initial = initial.replace(temperature=None)
         result = fit(accel, model=self.model, gravity=gravity, initial=initial, outlier_options=outliers,
@@ -256,7 +273,6 @@ class CalibrationSession:
         if initial is not None and not result.success:
             # A warm start from a calibration that no longer fits (the poses changed) must not decide.
             result = fit(accel, model=self.model, gravity=gravity, outlier_options=outliers, pose_sigma_mps2=noise)
-        self.last_fit = result
         return result
 
     def _too_noisy_text(self) -> str:
@@ -317,6 +333,12 @@ class CalibrationSession:
             return str(error)
         self.prior = given
         return None
+
+    def verdict_for(self, poses: Iterable[Pose], holding: Pose | None = None) -> tuple[list[StoreEvent], Verdict]:
+        """/calibrate's verdict once `poses` (those found since the last) are in the store: where each went
+        (the store's events, in order) and the verdict, with the pose being held."""
+        events = [self.add_pose(pose) for pose in poses]
+        return events, self.calibrate(holding)
 
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
@@ -516,6 +538,10 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
         accel = calibration.apply(accel)
     norms = np.linalg.norm(accel, axis=1)
     return accel / norms[:, None] if len(accel) else accel
+
+
+def _same_poses(fitted: Sequence[Pose], poses: Sequence[Pose]) -> bool:
+    return len(fitted) == len(poses) and all(a is b for a, b in zip(fitted, poses, strict=True))
 
 
 def _unit_tuple(direction: ArrayLike) -> tuple[float, float, float]:

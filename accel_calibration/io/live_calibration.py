@@ -304,10 +304,8 @@ class LiveCalibration:
         self.feed()
         self._live.drain()
         last = self._live.take_poses()
-        for pose in last:
-            self.session.add_pose(pose)
+        _, verdict = self.session.verdict_for(last, self._live.holding())
         self.watch.add(last)
-        verdict = self.session.calibrate(self._live.holding())
         self.refresh_progress()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
