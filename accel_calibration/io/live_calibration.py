@@ -56,6 +56,7 @@ class LiveCalibration:
         self.still = False  # the detector's state at the last feed
         self.counts: collections.Counter[str] = collections.Counter()  # what the node set aside, by name
         self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
+        self._changed_underneath: tuple[Level, str] | None = None  # the status a save refused for it set
         self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
         self._log = log
         self._calibrate_service = calibrate_service
@@ -294,7 +295,7 @@ class LiveCalibration:
         """A save refused because the file changed underneath is a WARN (nothing is broken: two writers
         share the file); any other failed save an ERROR (a file we could not read keeps its own)."""
         if self.in_force.changed_underneath is not None:
-            self.status = (WARN, message)
+            self.status = self._changed_underneath = (WARN, message)
             self._log.warning(message)
         elif not self.in_force.file_unreadable:
             self.status = (ERROR, f"save failed: {message}")
@@ -329,7 +330,7 @@ class LiveCalibration:
 
     def save(self) -> tuple[bool, str]:
         saved, message = self.in_force.save()
-        if saved and self.status[0] == WARN and self.status[1].startswith("not saved: "):
+        if saved and self._changed_underneath is not None and self.status == self._changed_underneath:
             self.status = (OK, "calibrated")  # the change underneath is overwritten on purpose
         elif not saved and self.in_force.changed_underneath is not None:
             self._say_unsaved(message)
