@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 from hypothesis import settings as hypothesis_settings
 
+from helpers.ci import under_ci
+
 # Each test session gets its own DDS domain and stays on this machine, so parallel sessions and
 # other ROS graphs never see each other. Set before anything initialises rclpy.
 os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
@@ -20,7 +22,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 # derived from each test, so a gate never turns red on an example nobody has seen (a failure found
 # locally is kept as an @example).
 hypothesis_settings.register_profile("ci", derandomize=True, print_blob=True)
-if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+if under_ci():
     hypothesis_settings.load_profile("ci")
 
 REPO = Path(__file__).resolve().parents[1]
@@ -33,7 +35,7 @@ def shared_path(relative: str) -> Path:
     path = SHARED_DATA / relative
     if not path.exists():
         reason = f"reference data {path} not found (../shared is not beside this clone)"
-        if os.environ.get("CI", "").lower() == "true":
+        if under_ci():
             pytest.fail(reason)
         pytest.skip(reason)
     return path
@@ -91,7 +93,7 @@ def postgres():
     try:
         server = PostgresServer()
     except PostgresUnavailable as missing:
-        if os.environ.get("CI", "").lower() == "true":
+        if under_ci():
             pytest.fail(f"{missing} (CI=true: PostgreSQL must be here)")
         pytest.skip(str(missing))
     with server:

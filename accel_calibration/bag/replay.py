@@ -15,6 +15,7 @@ import numpy as np
 from ..core.calibration import Calibration
 from ..core.fit import FitResult
 from ..core.pose import Pose
+from ..core.pose_map import PoseStatus
 from ..core.session import CalibrationSession
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
@@ -73,9 +74,9 @@ class ReplayResult:
     # The temperature topic's readings (stamps ns, degC) as read, for correcting a copy at each sample's
     # temperature; None without a temperature topic.
     temperature_readings: tuple[np.ndarray, np.ndarray] | None = None
-    # Per pose found (in `poses`): "used" or "outlier" by the fit, "dropped" (the store gave it up at
-    # capacity) or "not fitted" (no fit was run: too few poses, wrong units).
-    pose_status: list[str] = field(default_factory=list)
+    # Per pose found (in `poses`): used or outlier by the fit, dropped (the store gave it up at
+    # capacity) or not fitted (no fit was run: too few poses, wrong units).
+    pose_status: list[PoseStatus] = field(default_factory=list)
     temperature_timeout_s: float = 5.0
     start_ns: int | None = None  # the earliest IMU stamp
     sensor_id: str = ""  # as the recording names the sensor (a ULog's device), where it does
@@ -269,25 +270,22 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
              start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool,
              temperature_readings: tuple[np.ndarray, np.ndarray] | None) -> ReplayResult:
     """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
-    from ..core.models import parameter_count
-
     if not has_gyro:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
         # The zeros standing in for a missing gyro are no motions to fit.
         session.update_settings(dataclasses.replace(session.settings, gyro_calibrate=False))
+    session.prior = s.prior
+    events, verdict = session.verdict_for(poses)
     slots: list[int | None] = []  # per pose, its place in the store (None once the store gave it to a newer pose)
-    for pose in poses:
-        event = session.add_pose(pose)
+    for event in events:
         if event.replaced_oldest:
             slots = [None if slot == event.index else slot for slot in slots]
         slots.append(event.index)
-    session.prior = s.prior
-    verdict = session.calibrate()
     counts = session.counters.as_dict()
     problem = None
     if not verdict.success:
         problem = verdict.message
-        need = max(session.settings.min_poses, parameter_count(session.settings.model) + 1)
+        need = session.poses_needed()
         if len(session.store) < need and s.prior is None:
             problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
                        f"{session.settings.model} needs {need} orientations): " + problem)
@@ -307,8 +305,8 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
         result = dataclasses.replace(verdict.result, calibration=calibration)
     # Poses the fit left out (fit.FitResult.outliers: each with its index into the store's poses).
     outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}
-    status = ["dropped" if slot is None else "not fitted" if result is None
-              else "outlier" if slot in outliers else "used" for slot in slots]
+    status = [PoseStatus.DROPPED if slot is None else PoseStatus.NOT_FITTED if result is None
+              else PoseStatus.OUTLIER if slot in outliers else PoseStatus.USED for slot in slots]
     return ReplayResult(
         bag=str(recording.path),
         imu_topic=recording.stream,

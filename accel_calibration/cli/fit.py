@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         from ..core.gates import QualityGates
 
         refusal = QualityGates().check_fit(result)
-        if refusal:
+        if refusal is not None:
             raise CalibrationError(f"fit refused with --prior {args.prior} ({refusal})")
     save_calibration(result.calibration.replace(gravity_source=gravity_source), args.output,
                      result.parameter_sources, args.prior)

@@ -19,9 +19,8 @@ from .calibration import Calibration
 from .change_rule import ChangeJudgement, ChangeRule
 from .coverage import CONDITION_LIMIT, FACE_COSINE, orientation_advice
 from .pose import Pose
-from .units import MG
+from .units import AXES, MG
 
-AXES = "xyz"
 QUANTITIES = ("bias", "scale")
 # A parameter is not observable when this share of it (in the Jacobi-scaled normal equations) lies in
 # directions whose curvature is below 1/CONDITION_LIMIT of the best observed one.

@@ -10,6 +10,7 @@ matrix with that pose added), spoken as faces: "turn x down", "turn x and y down
 """
 from __future__ import annotations
 
+import enum
 import itertools
 import math
 from dataclasses import dataclass
@@ -18,7 +19,7 @@ import numpy as np
 
 from .lapack import dsyevd as syevd
 from .models import SphereModel, matrix_entries
-from .units import MG
+from .units import AXES, MG
 
 # A pose "has x pointing down" when its measured specific force is within ~45 deg of -x
 # (an accelerometer at rest reads +g upwards, so a_x ~ -g means the x axis points down).
@@ -29,21 +30,61 @@ FACE_COSINE = 0.7
 CONDITION_LIMIT = 1e4
 SAME_DIRECTION_DEG = 15.0
 
-def face_name(axis: int, sign: int) -> str:
-    return f"{'xyz'[axis]} pointing {'up' if sign > 0 else 'down'}"
+
+class Face(enum.Enum):
+    """An axis pointing up or down: (axis index, sign of the specific force along it)."""
+
+    X_UP = (0, 1)
+    X_DOWN = (0, -1)
+    Y_UP = (1, 1)
+    Y_DOWN = (1, -1)
+    Z_UP = (2, 1)
+    Z_DOWN = (2, -1)
+
+    @property
+    def axis(self) -> int:
+        return int(self.value[0])
+
+    @property
+    def sign(self) -> int:
+        return int(self.value[1])
+
+    @property
+    def way(self) -> str:
+        return "up" if self.sign > 0 else "down"
+
+    def __str__(self) -> str:
+        return f"{AXES[self.axis]} pointing {self.way}"
+
+    @property
+    def turn(self) -> str:
+        """The advice that brings a pose to this face: 'turn x down'."""
+        return f"turn {AXES[self.axis]} {self.way}"
+
+    @property
+    def direction(self) -> tuple[float, float, float]:
+        """The unit specific force of a pose at this face."""
+        unit = [0.0, 0.0, 0.0]
+        unit[self.axis] = float(self.sign)
+        return (unit[0], unit[1], unit[2])
 
 
-def missing_directions(directions: np.ndarray) -> list[str]:
+def missing_faces(directions: np.ndarray) -> list[Face]:
     """Faces (x up, x down, ...) that no pose comes near. `directions` are unit vectors (N, 3) of
     the measured specific force."""
     highest, lowest = directions.max(axis=0).tolist(), directions.min(axis=0).tolist()
     missing = []
     for axis in range(3):
         if highest[axis] < FACE_COSINE:
-            missing.append(face_name(axis, +1))
+            missing.append(Face((axis, 1)))
         if lowest[axis] > -FACE_COSINE:
-            missing.append(face_name(axis, -1))
+            missing.append(Face((axis, -1)))
     return missing
+
+
+def missing_directions(directions: np.ndarray) -> list[str]:
+    """The missing faces (missing_faces), said: 'x pointing up', ..."""
+    return [str(face) for face in missing_faces(directions)]
 
 
 def angular_spread_deg(directions: np.ndarray) -> float:
@@ -100,7 +141,6 @@ def describe_missing(missing: list[str]) -> str:
 
 
 # ------------------------------------------------------------------ observability by uncertainty
-AXES = "xyz"
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike
 from .calibration import Calibration
 from .errors import CalibrationError
 from .fit_outliers import leave_out_outliers, sphere_rows
-from .fit_result import AXES, DEFAULT_OUTLIER_OPTIONS, FitResult, Outlier, OutlierOptions, Sigma
+from .fit_result import DEFAULT_OUTLIER_OPTIONS, FitResult, Outlier, OutlierOptions, Sigma
 from .fit_solvers import fit_without_temperature, numerical_failure, uncertainty_of
 from .fit_temperature import fit_with_temperature
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS
@@ -27,7 +27,7 @@ from .temperature_models import (
     TEMPERATURE_MODELS,
     TemperatureOptions,
 )
-from .units import MG, STANDARD_GRAVITY
+from .units import AXES, MG, STANDARD_GRAVITY
 
 # The result types live in fit_result.py, the outlier layer in fit_outliers.py, the solvers in fit_solvers.py
 # and fit_temperature.py; what callers import from here stays here.

@@ -14,9 +14,9 @@ from .coverage import (
     inverse_normal,
 )
 from .errors import CalibrationError
-from .fit_result import AXES, FitResult, Outlier, OutlierOptions
+from .fit_result import FitResult, Outlier, OutlierOptions
 from .models import SphereModel, parameter_count
-from .units import MG
+from .units import AXES, MG
 
 # The outlier test refits without at most this many candidates (largest first) per pose left out: a
 # pose the model cannot do without (leverage near 1) looks like one until the refit without it fails.

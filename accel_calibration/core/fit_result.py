@@ -11,9 +11,7 @@ from .coverage import (
     Uncertainty,
 )
 from .errors import CalibrationError
-from .units import MG, STANDARD_GRAVITY
-
-AXES = "xyz"
+from .units import AXES, MG, STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

@@ -172,27 +172,10 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
     # The poses as rows of x, y and z: what the residual function and the direction checks work on
     # (whole contiguous rows instead of strided columns).
     accel_t = np.ascontiguousarray(accel.T)
-    if start is not None:
-        bias0, matrix0 = start.bias, start.matrix
-        x0 = model.pack(bias0, matrix0)
-    elif initial is not None:
-        bias0, matrix0 = initial.bias, initial.matrix
-        x0 = model.project(bias0, matrix0)
-    else:
-        bias0, matrix0 = seed_sphere(accel, gravity, cross_axis=name == "sphere9")
-        # The seed's M is diagonal, or lower-triangular for sphere9, with a positive diagonal: already in
-        # the model's form (what project's QR would return, without it).
-        x0 = np.concatenate((bias0, matrix0.ravel()[model.flat_index]))
-    directions_t = np.dot(matrix0, accel_t - bias0[:, None])
-    lengths = np.sqrt(np.dot(ONES3, directions_t * directions_t))
-    if not lengths.min() > 0:  # NaN too
-        row = int(np.flatnonzero(~(lengths > 0))[0])
-        return FitResult(False, f"pose {row} reads {accel[row].tolist()}, exactly the starting estimate of the bias, "
-                         "so it has no direction: drop it if it is a dropped or zeroed sample", name, poses=n)
-    directions_t /= lengths
-    if not math.isfinite(float(directions_t.sum())):  # unit vectors: the sum is finite unless an entry is not
-        return numerical_failure(accel, None, "the starting point overflows", model=name)
-    directions = directions_t.T
+    bias0, matrix0, x0 = _sphere_start(model, accel, gravity, initial, start)
+    directions = _start_directions(accel, accel_t, bias0, matrix0, name)
+    if isinstance(directions, FitResult):
+        return directions
     missing = tuple(missing_directions(directions))
     spread = angular_spread_deg(directions)
     if spread < SAME_DIRECTION_DEG:
@@ -213,6 +196,46 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
         root = np.sqrt(weights)
         solution = gauss_newton_stacked(lambda p: model.stacked(p, accel_t, gravity) * root, x0)
         residuals_mg = solution.residuals / root / MG
+    return _sphere_result(accel, model, gravity, solution, residuals_mg, missing, ref_temperature, frame_id)
+
+
+def _sphere_start(model: SphereModel, accel: np.ndarray, gravity: float, initial: Calibration | None,
+                  start: Calibration | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(b0, M0, x0): the point the solver starts from: `start` as it is, `initial` projected onto the
+    model's form, else a seed from the poses."""
+    if start is not None:
+        return start.bias, start.matrix, model.pack(start.bias, start.matrix)
+    if initial is not None:
+        return initial.bias, initial.matrix, model.project(initial.bias, initial.matrix)
+    bias0, matrix0 = seed_sphere(accel, gravity, cross_axis=model.name == "sphere9")
+    # The seed's M is diagonal, or lower-triangular for sphere9, with a positive diagonal: already in
+    # the model's form (what project's QR would return, without it).
+    return bias0, matrix0, np.concatenate((bias0, matrix0.ravel()[model.flat_index]))
+
+
+def _start_directions(accel: np.ndarray, accel_t: np.ndarray, bias0: np.ndarray, matrix0: np.ndarray,
+                      name: str) -> np.ndarray | FitResult:
+    """The poses' unit directions (N, 3) at the starting point, or the failure of a pose that has none."""
+    n = len(accel)
+    directions_t = np.dot(matrix0, accel_t - bias0[:, None])
+    lengths = np.sqrt(np.dot(ONES3, directions_t * directions_t))
+    if not lengths.min() > 0:  # NaN too
+        row = int(np.flatnonzero(~(lengths > 0))[0])
+        return FitResult(False, f"pose {row} reads {accel[row].tolist()}, exactly the starting estimate of the bias, "
+                         "so it has no direction: drop it if it is a dropped or zeroed sample", name, poses=n)
+    directions_t /= lengths
+    if not math.isfinite(float(directions_t.sum())):  # unit vectors: the sum is finite unless an entry is not
+        return numerical_failure(accel, None, "the starting point overflows", model=name)
+    directions: np.ndarray = directions_t.T
+    return directions
+
+
+def _sphere_result(accel: np.ndarray, model: SphereModel, gravity: float, solution: LeastSquaresSolution,
+                   residuals_mg: np.ndarray, missing: tuple[str, ...], ref_temperature: float | None,
+                   frame_id: str) -> FitResult:
+    """The solver's solution judged (finite, observable, converged, not mirrored) and, when it passes,
+    the calibration with its sigma, uncertainty and the poses' leverages."""
+    name, n = model.name, len(accel)
     # One normal matrix (the solver's, when it formed it at the solution) for the condition number,
     # sigma, the uncertainty and the outlier leverages.
     jacobian = solution.jacobian
@@ -227,44 +250,15 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
         missing_directions=missing,
         poses=n,
     )
-    # Overflow before observability: an infinite condition number from it says nothing about coverage.
-    # Finite sums of squares (x, the cost, the normal matrix's diagonal) prove every entry finite at
-    # once (the solver forms its normal matrix only at a point where they are); only otherwise is each
-    # array checked to name the one that is not.
-    x = solution.x
-    finite = (math.isfinite(float(x.dot(x))) and math.isfinite(solution.cost)
-              and (solution.normal is not None or math.isfinite(float(normal.trace()))))
-    broken = None if finite else not_finite(parameters=x, residuals=solution.residuals, jacobian=jacobian)
-    if broken:
-        return numerical_failure(accel, None, broken_reason(broken, solution), **common)
-    # Observability first: a fit that wanders along an unobservable direction also fails to converge,
-    # and "turn x down" helps the person more than "did not converge".
-    if condition > CONDITION_LIMIT:
-        # The normal matrix still says which orientation would pin down what is loose.
-        bias_now, matrix_now = model.unpack(solution.x)
-        uncertainty = uncertainty_of(name, bias_now, matrix_now, gravity, solution.jacobian, solution.residuals,
-                                   model.size)
-        advice = None if uncertainty is None else next_orientation(uncertainty, SigmaBounds())
-        return FitResult(
-            False,
-            f"poses do not constrain model {name} (condition number {condition:.3g} > {CONDITION_LIMIT:.0g}): "
-            + describe_missing(list(missing)) + ("" if advice is None else f"; {advice.text} would help most"),
-            uncertainty=uncertainty,
-            **common,
-        )
-    if n <= model.size:
-        return no_degree_of_freedom(n, f"{model.size} parameters of model {name}", **common)
-    if not solution.success:
-        return FitResult(False, solution.message, **common)
-    bias, matrix = model.unpack(solution.x)
-    m00, m11, m22 = matrix.diagonal().tolist()
-    if not m00 * m11 * m22 > 0:  # det(M): the sphere models' M is lower-triangular
-        return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
+    failure = _sphere_failure(accel, model, gravity, solution, normal, condition, missing, common)
+    if failure is not None:
+        return failure
     if inverse is None:  # an infinite condition number fails the observability check above
         return numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
     stds = np.sqrt(np.abs(inverse.diagonal()) * (2.0 * solution.cost / (n - model.size)))
     if not all(map(math.isfinite, stds.tolist())):
         return numerical_failure(accel, None, "uncertainties not finite: the normal matrix is singular", **common)
+    bias, matrix = model.unpack(solution.x)
     _, matrix_sigma = model.unpack(stds)
     sigma = Sigma(bias=stds[:3], matrix=matrix_sigma)
     residuals = solution.residuals
@@ -289,6 +283,47 @@ def _fit_sphere(accel: np.ndarray, name: str, gravity: float, initial: Calibrati
                      leverage=leverage, **common)
 
 
+def _sphere_failure(accel: np.ndarray, model: SphereModel, gravity: float, solution: LeastSquaresSolution,
+                    normal: np.ndarray, condition: float, missing: tuple[str, ...],
+                    common: dict[str, Any]) -> FitResult | None:
+    """Why the solution is no calibration (not finite, unobservable, no degree of freedom, not converged,
+    mirrored), in that order; None when it is one."""
+    name, n = model.name, len(accel)
+    # Overflow before observability: an infinite condition number from it says nothing about coverage.
+    # Finite sums of squares (x, the cost, the normal matrix's diagonal) prove every entry finite at
+    # once (the solver forms its normal matrix only at a point where they are); only otherwise is each
+    # array checked to name the one that is not.
+    x = solution.x
+    finite = (math.isfinite(float(x.dot(x))) and math.isfinite(solution.cost)
+              and (solution.normal is not None or math.isfinite(float(normal.trace()))))
+    broken = None if finite else not_finite(parameters=x, residuals=solution.residuals, jacobian=solution.jacobian)
+    if broken:
+        return numerical_failure(accel, None, broken_reason(broken, solution), **common)
+    # Observability first: a fit that wanders along an unobservable direction also fails to converge,
+    # and "turn x down" helps the person more than "did not converge".
+    if condition > CONDITION_LIMIT:
+        # The normal matrix still says which orientation would pin down what is loose.
+        bias_now, matrix_now = model.unpack(solution.x)
+        uncertainty = uncertainty_of(name, bias_now, matrix_now, gravity, solution.jacobian, solution.residuals,
+                                     model.size)
+        advice = None if uncertainty is None else next_orientation(uncertainty, SigmaBounds())
+        return FitResult(
+            False,
+            f"poses do not constrain model {name} (condition number {condition:.3g} > {CONDITION_LIMIT:.0g}): "
+            + describe_missing(list(missing)) + ("" if advice is None else f"; {advice.text} would help most"),
+            uncertainty=uncertainty,
+            **common,
+        )
+    if n <= model.size:
+        return no_degree_of_freedom(n, f"{model.size} parameters of model {name}", **common)
+    if not solution.success:
+        return FitResult(False, solution.message, **common)
+    m00, m11, m22 = model.unpack(solution.x)[1].diagonal().tolist()
+    if not m00 * m11 * m22 > 0:  # det(M): the sphere models' M is lower-triangular
+        return FitResult(False, "fit converged to a mirrored solution; check the poses", **common)
+    return None
+
+
 def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity: float,
                    ref_temperature: float | None, frame_id: str, weights: np.ndarray | None = None) -> FitResult:
     """Forward model per axis j: a_raw_j = b_j + sum_k S_jk a_k (+ q_j a_j^2), linear least squares
@@ -296,44 +331,11 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
     n = len(accel)
     true = gravity * directions
     quadratic = name == "reference15"
-    k = 5 if quadratic else 4
     missing = tuple(missing_directions(directions))
-    coefficients = np.zeros((3, k))
-    covariances = np.zeros((3, k, k))
-    residual_raw = np.zeros((n, 3))
-    condition = 0.0
-    for j in range(3):
-        columns = [np.ones(n), true[:, 0], true[:, 1], true[:, 2]]
-        if quadratic:
-            columns.append(true[:, j] ** 2)
-        design = np.column_stack(columns)
-        condition = max(condition, scaled_condition_number(design))
-        if not np.isfinite(condition) or condition > 1e10 or np.linalg.matrix_rank(design) < k:
-            return FitResult(
-                False,
-                f"reference directions do not determine model {name}: " + describe_missing(list(missing)),
-                name,
-                condition_number=condition,
-                missing_directions=missing,
-                poses=n,
-            )
-        if n <= k:
-            return no_degree_of_freedom(n, f"{k} parameters per axis of model {name}", name,
-                                         condition_number=condition, missing_directions=missing)
-        dof = n - k
-        if weights is None:
-            solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
-            coefficients[j] = solution
-            residual_raw[:, j] = accel[:, j] - design @ solution
-            variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof
-            covariances[j] = variance * np.linalg.inv(design.T @ design)
-        else:
-            root = np.sqrt(weights)
-            solution, *_ = np.linalg.lstsq(design * root[:, None], accel[:, j] * root, rcond=None)
-            coefficients[j] = solution
-            residual_raw[:, j] = accel[:, j] - design @ solution
-            variance = float(weights @ residual_raw[:, j] ** 2) / dof
-            covariances[j] = variance * np.linalg.inv((design * weights[:, None]).T @ design)
+    axes = _reference_axes(accel, true, name, weights, missing)
+    if isinstance(axes, FitResult):
+        return axes
+    coefficients, covariances, residual_raw, condition = axes
     bias = coefficients[:, 0]
     forward = coefficients[:, 1:4]
     q = coefficients[:, 4] if quadratic else None
@@ -391,3 +393,49 @@ def _fit_reference(accel: np.ndarray, directions: np.ndarray, name: str, gravity
         missing_directions=missing,
         poses=n,
     )
+
+
+def _reference_axes(accel: np.ndarray, true: np.ndarray, name: str, weights: np.ndarray | None,
+                    missing: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | FitResult:
+    """Each axis' linear least squares: (coefficients (3, k), their covariances (3, k, k), the raw
+    residuals (N, 3), the largest condition number), or why the directions do not determine them."""
+    n = len(accel)
+    quadratic = name == "reference15"
+    k = 5 if quadratic else 4
+    coefficients = np.zeros((3, k))
+    covariances = np.zeros((3, k, k))
+    residual_raw = np.zeros((n, 3))
+    condition = 0.0
+    for j in range(3):
+        columns = [np.ones(n), true[:, 0], true[:, 1], true[:, 2]]
+        if quadratic:
+            columns.append(true[:, j] ** 2)
+        design = np.column_stack(columns)
+        condition = max(condition, scaled_condition_number(design))
+        if not np.isfinite(condition) or condition > 1e10 or np.linalg.matrix_rank(design) < k:
+            return FitResult(
+                False,
+                f"reference directions do not determine model {name}: " + describe_missing(list(missing)),
+                name,
+                condition_number=condition,
+                missing_directions=missing,
+                poses=n,
+            )
+        if n <= k:
+            return no_degree_of_freedom(n, f"{k} parameters per axis of model {name}", name,
+                                         condition_number=condition, missing_directions=missing)
+        dof = n - k
+        if weights is None:
+            solution, *_ = np.linalg.lstsq(design, accel[:, j], rcond=None)
+            coefficients[j] = solution
+            residual_raw[:, j] = accel[:, j] - design @ solution
+            variance = float(residual_raw[:, j] @ residual_raw[:, j]) / dof
+            covariances[j] = variance * np.linalg.inv(design.T @ design)
+        else:
+            root = np.sqrt(weights)
+            solution, *_ = np.linalg.lstsq(design * root[:, None], accel[:, j] * root, rcond=None)
+            coefficients[j] = solution
+            residual_raw[:, j] = accel[:, j] - design @ solution
+            variance = float(weights @ residual_raw[:, j] ** 2) / dof
+            covariances[j] = variance * np.linalg.inv((design * weights[:, None]).T @ design)
+    return coefficients, covariances, residual_raw, condition

@@ -3,6 +3,7 @@ and the seed paper's segmented model (per segment the drift against a room-tempe
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -49,94 +50,31 @@ def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None,
     near the temperature most poses share), then per segment the drift (l, m, n) of each axis against it:
     observed directly with known orientations (a linear fit per axis), on the sphere without."""
     n = len(accel)
-    width = options.segment_width_degc
-    low_degc, high_degc = float(temps.min()), float(temps.max())
-    # Each segment needs several poses: more segments than poses means a corrupt temperature, and
-    # would have the loop below lay out that many segments.
-    spanned = segment_keys(np.array([high_degc]), width)[0] - segment_keys(np.array([low_degc]), width)[0] + 1
-    if not spanned <= n:
-        return FitResult(False, f"temperatures {low_degc:.4g}..{high_degc:.4g} degC span {spanned:.3g} segments of "
-                         f"{width:g} degC, more than the {n} poses can fill: check the temperatures for a corrupt "
-                         "value", name, poses=n)
-    keys = segment_keys(temps, width)
-    occupied = np.unique(keys)
-    in_base = room_temperature_poses(temps, options)
-    band = f"within {width / 4:g} degC of " + (f"{options.reference_degc:g} degC" if options.reference_degc is not None
-                                                 else "the room temperature")
-    if not in_base.any():
-        return FitResult(False, f"no poses {band}: hold the room-temperature poses there, or give another "
-                         "reference temperature", name, poses=n)
-    reference_degc = float(temps[in_base].mean())
-    base_key = float(segment_keys(np.array([reference_degc]), width)[0])
-    base = base_fit(accel[in_base], model=name, gravity=gravity, reference=None if ref is None else ref[in_base],
-                    initial=initial, frame_id=frame_id,
-                    pose_sigma_mps2=None if pose_sigma is None else pose_sigma[in_base])
-    if not base.success or base.calibration is None:  # a successful fit always carries its calibration
-        return FitResult(False, f"room-temperature calibration from the {int(in_base.sum())} poses at "
-                         f"{reference_degc:.1f} degC: {base.message}", name, poses=n,
-                         missing_directions=base.missing_directions)
+    room_fit = _room_fit(accel, temps, ref, name, gravity, options, initial, frame_id, base_fit, pose_sigma)
+    if isinstance(room_fit, FitResult):
+        return room_fit
+    base, in_base, reference_degc = room_fit
+    assert base.calibration is not None
     room = base.calibration
     corrected = room.apply(accel)
-    known = ref is not None
-    if known:
-        assert ref is not None
-        directions, true = ref, gravity * ref
-    else:
-        directions, true = corrected / np.linalg.norm(corrected, axis=1)[:, None], None
-    bounds, anchors, coefficients, learned_poses, refused = [], [], [], [], []
-    learned = np.zeros(n, dtype=bool)
-    for key in occupied:
-        inside = keys == key
-        lo, hi = segment_bounds(float(key), width)
-        here = f"segment {lo:g}..{hi:g} degC ({int(inside.sum())} poses at {float(temps[inside].mean()):.1f} degC)"
-        needs = segment_needs(directions[inside], known, options.min_poses_per_segment)
-        if key == base_key and (needs or (not known and in_base[inside].all())):
-            # The room-temperature calibration stands for its own segment: no drift against itself (on the
-            # sphere, poses spent on the calibration have none left to show; with known orientations the
-            # quadratic is kept when determined).
-            q = np.zeros((3, 3))
-        elif needs:
-            refused.append(f"{here} cannot be determined: hold {describe_needs(needs)}")
-            continue
-        elif true is not None:
-            q, _ = known_segment_drift(accel[inside], true[inside] - corrected[inside])
-        else:
-            solution = sphere_segment_drift(accel[inside], corrected[inside], gravity)
-            if not solution.success or not_finite(drift=solution.x):
-                refused.append(f"{here}: its drift fit failed ({solution.message})")
-                continue
-            q = solution.x.reshape(3, 3)
-        bounds.append((lo, hi))
-        anchors.append(float(temps[inside].mean()))
-        coefficients.append(q)
-        learned_poses.append(int(inside.sum()))
-        learned |= inside
-    if refused and options.every_segment:
-        return FitResult(False, "; ".join(refused), name, poses=n, missing_directions=base.missing_directions)
-    if options.segment_blend and len(bounds) > 1:
-        # Each segment alone is the paper's fit, and the least squares of the picked model. The blended one
-        # is fitted as applied: every pose at its own temperature, between its neighbouring segments (the
-        # same answer when each segment's poses share one temperature).
-        weights = blend_weights(temps[learned], np.array(anchors))
-        if true is not None:
-            coefficients = list(known_blended_drift(accel[learned], (true - corrected)[learned], weights))
-        else:
-            free = np.array([not (q == 0).all() for q in coefficients])  # the room segment's drift stays zero
-            solution = sphere_blended_drift(accel[learned], corrected[learned], gravity, weights,
-                                            np.array(coefficients), free)
-            if not solution.success or not_finite(drift=solution.x):
-                return FitResult(False, f"the blended segment fit failed ({solution.message}); "
-                                 "fit with segment_blend off", name, poses=n)
-            joint = np.array(coefficients)
-            joint[free] = solution.x.reshape(-1, 3, 3)
-            coefficients = list(joint)
+    true = None if ref is None else gravity * ref
+    segments = _segment_drifts(accel, temps, ref, corrected, in_base, reference_degc, gravity, options)
+    if segments.refused and options.every_segment:
+        return FitResult(False, "; ".join(segments.refused), name, poses=n, missing_directions=base.missing_directions)
+    learned = segments.learned
+    coefficients = segments.coefficients
+    if options.segment_blend and len(segments.bounds) > 1:
+        blended = _blended_drifts(accel, temps, true, corrected, segments, gravity, name)
+        if isinstance(blended, FitResult):
+            return blended
+        coefficients = blended
     if not_finite(segment_coefficients=np.array(coefficients)):
         return numerical_failure(accel, temps, "segment drift coefficients not finite", model=name)
     temperature = TemperatureModel(
         "segmented", reference_degc, (float(temps[learned].min()), float(temps[learned].max())),
-        segment_bounds_degc=np.array(bounds), segment_temperatures_degc=np.array(anchors),
+        segment_bounds_degc=np.array(segments.bounds), segment_temperatures_degc=np.array(segments.anchors),
         segment_coefficients=np.array(coefficients),
-        segment_poses=tuple(learned_poses), segment_blend=options.segment_blend)
+        segment_poses=tuple(segments.learned_poses), segment_blend=options.segment_blend)
     calibration = room.replace(temperature=temperature, reference_temperature_degc=temperature.reference_degc)
     # Judged on the poses the model describes; those of a segment not learned yet are reported, not fitted.
     fitted = calibration.apply(accel[learned], temps[learned])
@@ -147,13 +85,122 @@ def _fit_segmented(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None,
     if not_finite(residuals=residuals_mg):
         return numerical_failure(accel, temps, "residuals not finite", model=name)
     calibration = calibration.replace(quality=quality_of(residuals_mg, base.condition_number))
-    message = (f"segmented temperature model: {len(bounds)} segment{'s' if len(bounds) > 1 else ''} learned "
+    count = len(segments.bounds)
+    message = (f"segmented temperature model: {count} segment{'s' if count > 1 else ''} learned "
                f"({', '.join(temperature.segment_names())}; room temperature {reference_degc:.1f} degC)")
-    if refused:
-        message += "; not yet: " + "; ".join(refused)
+    if segments.refused:
+        message += "; not yet: " + "; ".join(segments.refused)
     return FitResult(True, message, name, iterations=base.iterations, calibration=calibration, sigma=base.sigma,
                      residuals_mg=residuals_mg, cost=0.5 * float(np.sum((residuals_mg * MG) ** 2)),
                      condition_number=base.condition_number, missing_directions=base.missing_directions, poses=n)
+
+
+def _room_fit(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None, name: str, gravity: float,
+              options: TemperatureOptions, initial: Calibration | None, frame_id: str,
+              base_fit: Callable[..., FitResult], pose_sigma: np.ndarray | None
+              ) -> tuple[FitResult, np.ndarray, float] | FitResult:
+    """(the room-temperature fit, which poses it took, their mean temperature), or why there is none."""
+    n = len(accel)
+    width = options.segment_width_degc
+    low_degc, high_degc = float(temps.min()), float(temps.max())
+    # Each segment needs several poses: more segments than poses means a corrupt temperature, and
+    # would have the segment loop lay out that many segments.
+    spanned = segment_keys(np.array([high_degc]), width)[0] - segment_keys(np.array([low_degc]), width)[0] + 1
+    if not spanned <= n:
+        return FitResult(False, f"temperatures {low_degc:.4g}..{high_degc:.4g} degC span {spanned:.3g} segments of "
+                         f"{width:g} degC, more than the {n} poses can fill: check the temperatures for a corrupt "
+                         "value", name, poses=n)
+    in_base = room_temperature_poses(temps, options)
+    band = f"within {width / 4:g} degC of " + (f"{options.reference_degc:g} degC" if options.reference_degc is not None
+                                                 else "the room temperature")
+    if not in_base.any():
+        return FitResult(False, f"no poses {band}: hold the room-temperature poses there, or give another "
+                         "reference temperature", name, poses=n)
+    reference_degc = float(temps[in_base].mean())
+    base = base_fit(accel[in_base], model=name, gravity=gravity, reference=None if ref is None else ref[in_base],
+                    initial=initial, frame_id=frame_id,
+                    pose_sigma_mps2=None if pose_sigma is None else pose_sigma[in_base])
+    if not base.success or base.calibration is None:  # a successful fit always carries its calibration
+        return FitResult(False, f"room-temperature calibration from the {int(in_base.sum())} poses at "
+                         f"{reference_degc:.1f} degC: {base.message}", name, poses=n,
+                         missing_directions=base.missing_directions)
+    return base, in_base, reference_degc
+
+
+@dataclass
+class _Segments:
+    """The segments learned (their bounds, mean temperatures, drift coefficients and pose counts), the
+    poses they hold, and why the others are not learned yet."""
+
+    learned: np.ndarray  # (N,) bool
+    bounds: list[tuple[float, float]] = field(default_factory=list)
+    anchors: list[float] = field(default_factory=list)
+    coefficients: list[np.ndarray] = field(default_factory=list)
+    learned_poses: list[int] = field(default_factory=list)
+    refused: list[str] = field(default_factory=list)
+
+
+def _segment_drifts(accel: np.ndarray, temps: np.ndarray, ref: np.ndarray | None, corrected: np.ndarray,
+                    in_base: np.ndarray, reference_degc: float, gravity: float,
+                    options: TemperatureOptions) -> _Segments:
+    """Each occupied segment's drift against the room-temperature calibration (`corrected`: the poses
+    through it), or why it cannot be determined yet."""
+    width = options.segment_width_degc
+    keys = segment_keys(temps, width)
+    base_key = float(segment_keys(np.array([reference_degc]), width)[0])
+    known = ref is not None
+    if ref is not None:
+        directions, true = ref, gravity * ref
+    else:
+        directions, true = corrected / np.linalg.norm(corrected, axis=1)[:, None], None
+    segments = _Segments(learned=np.zeros(len(accel), dtype=bool))
+    for key in np.unique(keys):
+        inside = keys == key
+        lo, hi = segment_bounds(float(key), width)
+        here = f"segment {lo:g}..{hi:g} degC ({int(inside.sum())} poses at {float(temps[inside].mean()):.1f} degC)"
+        needs = segment_needs(directions[inside], known, options.min_poses_per_segment)
+        if key == base_key and (needs or (not known and in_base[inside].all())):
+            # The room-temperature calibration stands for its own segment: no drift against itself (on the
+            # sphere, poses spent on the calibration have none left to show; with known orientations the
+            # quadratic is kept when determined).
+            q = np.zeros((3, 3))
+        elif needs:
+            segments.refused.append(f"{here} cannot be determined: hold {describe_needs(needs)}")
+            continue
+        elif true is not None:
+            q, _ = known_segment_drift(accel[inside], true[inside] - corrected[inside])
+        else:
+            solution = sphere_segment_drift(accel[inside], corrected[inside], gravity)
+            if not solution.success or not_finite(drift=solution.x):
+                segments.refused.append(f"{here}: its drift fit failed ({solution.message})")
+                continue
+            q = solution.x.reshape(3, 3)
+        segments.bounds.append((lo, hi))
+        segments.anchors.append(float(temps[inside].mean()))
+        segments.coefficients.append(q)
+        segments.learned_poses.append(int(inside.sum()))
+        segments.learned |= inside
+    return segments
+
+
+def _blended_drifts(accel: np.ndarray, temps: np.ndarray, true: np.ndarray | None, corrected: np.ndarray,
+                    segments: _Segments, gravity: float, name: str) -> list[np.ndarray] | FitResult:
+    """Each segment alone is the paper's fit, and the least squares of the picked model. The blended one
+    is fitted as applied: every pose at its own temperature, between its neighbouring segments (the same
+    answer when each segment's poses share one temperature)."""
+    learned, coefficients = segments.learned, segments.coefficients
+    weights = blend_weights(temps[learned], np.array(segments.anchors))
+    if true is not None:
+        return list(known_blended_drift(accel[learned], (true - corrected)[learned], weights))
+    free = np.array([not (q == 0).all() for q in coefficients])  # the room segment's drift stays zero
+    solution = sphere_blended_drift(accel[learned], corrected[learned], gravity, weights,
+                                    np.array(coefficients), free)
+    if not solution.success or not_finite(drift=solution.x):
+        return FitResult(False, f"the blended segment fit failed ({solution.message}); "
+                         "fit with segment_blend off", name, poses=len(accel))
+    joint = np.array(coefficients)
+    joint[free] = solution.x.reshape(-1, 3, 3)
+    return list(joint)
 
 
 def fit_with_temperature(accel: np.ndarray, temps: np.ndarray, name: str, gravity: float,

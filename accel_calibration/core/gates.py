@@ -11,7 +11,8 @@ from .calibration import Calibration
 from .coverage import NextOrientation, ParameterSigma, SigmaBounds, next_orientation, parameter_sigmas, worst
 from .errors import CalibrationError
 from .fit import FitResult
-from .plausibility import loadable_part
+from .plausibility import bias_scale_refusal, loadable_part
+from .refusal import Gate, Refusal
 from .settings import Settings
 
 
@@ -53,26 +54,27 @@ class QualityGates:
     def sigma_bounds(self) -> SigmaBounds:
         return SigmaBounds(self.max_bias_sigma_mg, self.max_scale_sigma_ppm, self.max_misalignment_sigma_mrad)
 
-    def check(self, result: FitResult) -> str | None:
+    def check(self, result: FitResult) -> Refusal | None:
         """None when the result passes, else the first gate it fails, said plainly."""
         if result.poses < self.min_poses:
             left_out = f" ({len(result.outliers)} more left out as outliers)" if result.outliers else ""
-            return f"gate poses: have {result.poses} poses{left_out}, need min_poses={self.min_poses}"
+            return Refusal(Gate.POSES, f"have {result.poses} poses{left_out}, need min_poses={self.min_poses}")
         return self.check_fit(result)
 
-    def check_fit(self, result: FitResult) -> str | None:
+    def check_fit(self, result: FitResult) -> Refusal | None:
         """Every gate but the pose count: what a fit with a prior must meet, whose few poses are its point."""
         if not result.success:
-            return f"gate fit: {result.message}"
+            return Refusal(Gate.FIT, result.message)
         calibration = result.calibration
         # fit() gives every successful result its calibration, with quality.
         assert calibration is not None and calibration.quality is not None
         rms = calibration.quality.residual_rms_mg
         if rms > self.max_residual_rms_mg:
-            return f"gate residual: rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)"
+            return Refusal(Gate.RESIDUAL,
+                           f"rms {rms:.1f} mg above {self.max_residual_rms_mg:g} mg (motion in the poses?)")
         return self.sigma_refusal(result) or self.plausibility(calibration)
 
-    def sigma_refusal(self, result: FitResult) -> str | None:
+    def sigma_refusal(self, result: FitResult) -> Refusal | None:
         """The sigma gate alone (None when every parameter is known within its bound). With a prior the
         sigma are of poses and prior together, so a prior too loose to hold what the poses do not see
         is refused here, naming that parameter."""
@@ -80,7 +82,7 @@ class QualityGates:
         if loosest is None or not loosest.ratio <= 1.0:
             advice = self.next_orientation(result)
             what = "no uncertainty from the fit" if loosest is None else str(loosest)
-            return f"gate sigma: {what}; " + (f"{advice.text} would lower it most" if advice else "add poses")
+            return Refusal(Gate.SIGMA, f"{what}; " + (f"{advice.text} would lower it most" if advice else "add poses"))
         return None
 
     def worst_sigma(self, result: FitResult) -> ParameterSigma | None:
@@ -103,18 +105,10 @@ class QualityGates:
             return None
         return next_orientation(result.uncertainty, self.sigma_bounds)
 
-    def plausibility(self, calibration: Calibration) -> str | None:
+    def plausibility(self, calibration: Calibration) -> Refusal | None:
         """The bias-range and scale-band gates alone: also what a calibration file must meet before the
         node puts it in force (a well-formed file can still hold absurd numbers)."""
-        bias = float(np.max(np.abs(calibration.bias)))
-        if bias > self.max_bias_mps2:
-            return f"gate bias: |b| {bias:.3f} m/s^2 above the plausible {self.max_bias_mps2:g} m/s^2"
-        lo, hi = self.scale_band
-        gains = np.linalg.norm(calibration.matrix, axis=1)  # correction gain of each axis (row of M)
-        outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
-        if outside:
-            return f"gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g}"
-        return None
+        return bias_scale_refusal(calibration.bias, calibration.matrix, self.max_bias_mps2, self.scale_band)
 
     def loadable(self, calibration: Calibration) -> tuple[Calibration | None, str | None]:
         """What of a calibration that passed the gates may be saved: core/plausibility.loadable_part at

@@ -20,8 +20,8 @@ import numpy as np
 
 from .gyro_scoring import GyroSamples, motion_rotations
 from .pose import Pose
+from .units import AXES
 
-AXES = "xyz"
 # (factor the raw rate is multiplied by, what it means when it is the one that fits)
 UNIT_FACTORS = ((1.0, ""), (math.pi / 180.0, "gyro in deg/s given as rad/s"),
                 (180.0 / math.pi, "gyro in rad/s given as deg/s"))

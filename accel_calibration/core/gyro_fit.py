@@ -36,8 +36,7 @@ from .gyro_scoring import motion_intervals
 from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
 from .rotation_integration import IntervalSet, skew
-
-AXES = "xyz"
+from .units import AXES
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import CalibrationError
-from .gyro_fit import AXES, GyroFitResult, turn_advice, unobserved_axes
+from .gyro_fit import GyroFitResult, turn_advice, unobserved_axes
+from .units import AXES
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from .lapack import dpocon as pocon
 from .lapack import dposv as posv
+from .units import AXES
 
 SPHERE_MODELS = ("six", "sphere9")
 REFERENCE_MODELS = ("reference12", "reference15")
@@ -31,7 +32,6 @@ MODELS = SPHERE_MODELS + REFERENCE_MODELS  # what fit() fits
 # Fitted from a dividing head's angles (dividing_head_fit.py); its Calibration corrects like reference12's.
 DIVIDING_HEAD = "dividing-head"
 CALIBRATION_MODELS = MODELS + (DIVIDING_HEAD,)  # what a Calibration (and its file) may name
-AXES = "xyz"
 
 # Free entries of M for each sphere model, as (row, column).
 _MATRIX_ENTRIES = {

@@ -8,6 +8,8 @@ import numpy as np
 
 from .calibration import Calibration
 from .errors import CalibrationError
+from .refusal import Gate, Refusal
+from .units import AXES
 
 # MEMS gyro zero-rate offsets are below ~0.35 rad/s (MPU-6050: +-20 deg/s); 1 rad/s leaves margin.
 MAX_GYRO_BIAS_RADPS = 1.0
@@ -57,18 +59,23 @@ def _orientation_problem(matrix: np.ndarray, what: str) -> str | None:
     return None
 
 
-def _gate_problem(bias: np.ndarray, matrix: np.ndarray, max_bias_mps2: float, scale_band: tuple[float, float],
-                  where: str) -> str | None:
-    """The bias and scale gates of core/gates.py at one point (bias (3,), M (3, 3))."""
+def bias_scale_refusal(bias: np.ndarray, matrix: np.ndarray, max_bias_mps2: float, scale_band: tuple[float, float],
+                       where: str = "") -> Refusal | None:
+    """The bias and scale gates at one point (bias (3,), M (3, 3)): what /calibrate and the file's readers
+    both apply. Written as `not within`, so a NaN is refused, never passed."""
     worst_bias = float(np.max(np.abs(bias)))
     if not worst_bias <= max_bias_mps2:
-        return f"gate bias: |b| {worst_bias:.4g} m/s^2{where} above the plausible {max_bias_mps2:g} m/s^2"
+        return Refusal(Gate.BIAS, f"|b| {worst_bias:.4g} m/s^2{where} above the plausible {max_bias_mps2:g} m/s^2")
     lo, hi = scale_band
     gains = np.linalg.norm(matrix, axis=1)  # correction gain of each axis (row of M)
-    outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+    outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
     if outside:
-        return f"gate scale: correction gain {', '.join(outside)}{where} outside {lo:g}..{hi:g}"
+        return Refusal(Gate.SCALE, f"correction gain {', '.join(outside)}{where} outside {lo:g}..{hi:g}")
     return None
+
+
+def _refusal_text(refusal: Refusal | None) -> str | None:
+    return None if refusal is None else str(refusal)
 
 
 def effective_terms(calibration: Calibration, temperatures_degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +117,7 @@ def _temperature_problem(calibration: Calibration, max_bias_mps2: float,
     for k, temperature in enumerate(grid):
         where = f" at {temperature:.1f} degC"
         problem = (_orientation_problem(matrices[k], f"the correction{where}")
-                   or _gate_problem(bias[k], matrices[k], max_bias_mps2, scale_band, where))
+                   or _refusal_text(bias_scale_refusal(bias[k], matrices[k], max_bias_mps2, scale_band, where)))
         if problem is not None:
             return "temperature block: " + problem
     return None
@@ -129,7 +136,7 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
     if calibration.temperature is not None:
         problem = _temperature_problem(calibration, max_bias_mps2, scale_band)
     else:
-        problem = _gate_problem(calibration.bias, calibration.matrix, max_bias_mps2, scale_band, "")
+        problem = _refusal_text(bias_scale_refusal(calibration.bias, calibration.matrix, max_bias_mps2, scale_band))
     if problem is not None:
         return problem
     if calibration.gyro_bias_radps is not None:
@@ -143,7 +150,7 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
             return problem
         lo, hi = gyro_scale_band
         gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
-        outside = [f"{'xyz'[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+        outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
         if outside:
             return (f"gyro matrix: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (a MEMS gyro's scale "
                     "error is a few percent: a gyro in other units than rad/s, or a bad fit)")

@@ -23,14 +23,14 @@ if TYPE_CHECKING:
 # A candidate orientation (6 faces, 12 edges, 8 corners: 35-45 deg apart) with no pose within this angle
 # is a hole: half the spacing, so a pose covers the candidate it is nearest to and no other.
 HOLE_ANGLE_DEG = 22.5
-_FACES = {f"{axis} pointing {way}": (index, 1.0 if way == "up" else -1.0)
-          for index, axis in enumerate("xyz") for way in ("up", "down")}
 
 
 class PoseStatus(enum.Enum):
     USED = "used"  # fitted as it was found
     MERGED = "merged"  # fitted, with later poses at its orientation merged into it
     OUTLIER = "outlier"  # left out by the last fit
+    DROPPED = "dropped"  # given up by the store at capacity (replay)
+    NOT_FITTED = "not fitted"  # no fit was run: too few poses, wrong units (replay)
 
 
 @dataclass(frozen=True)
@@ -60,21 +60,5 @@ def pose_map(session: CalibrationSession, calibration: Calibration | None, progr
     outliers = set(last_fit.outlier_indices) if last_fit is not None else set()
     statuses = tuple(PoseStatus.OUTLIER if index in outliers else PoseStatus.MERGED if merges else PoseStatus.USED
                      for index, merges in enumerate(session.store.merges))
-    return PoseMap(directions, statuses, _advised_direction(session, progress.advice), progress.advice,
-                   holes(directions))
-
-
-def _advised_direction(session: CalibrationSession, advice: str) -> np.ndarray | None:
-    """The direction progress' advice names: the fit's most informative next orientation ("turn x and y
-    down (45 deg)"), or a face not yet seen ("turn z down"); None when the advice is no turn (ready,
-    hold still)."""
-    last_fit = session.last_fit
-    turn = session.gates.next_orientation(last_fit) if last_fit is not None else None
-    if turn is not None and turn.text == advice:
-        return np.asarray(turn.direction, dtype=float)
-    for face, (axis, sign) in _FACES.items():
-        if advice == "turn " + face.replace(" pointing ", " "):
-            direction = np.zeros(3)
-            direction[axis] = sign
-            return direction
-    return None
+    advised = None if progress.advised_direction is None else np.array(progress.advised_direction)
+    return PoseMap(directions, statuses, advised, progress.advice, holes(directions))

@@ -15,9 +15,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .calibration import Calibration, MeasuredNoise
-from .coverage import missing_directions
+from .coverage import Face, missing_directions, missing_faces
 from .errors import CalibrationError, SettingsError
 from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
@@ -26,6 +27,7 @@ from .models import parameter_count
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
+from .refusal import OPENED_BY_POSES, Gate, Refusal
 from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
@@ -33,12 +35,11 @@ from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
-from .units import MG, units_problem
+from .units import MG, units_text
 
 # |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
 # m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
 PLAUSIBLE_GRAVITY = (0.5, 1.5)
-ALL_FACES = ("x pointing up", "x pointing down", "y pointing up", "y pointing down", "z pointing up", "z pointing down")
 
 
 @dataclass(frozen=True)
@@ -52,12 +53,8 @@ class Progress:
     advice: str
     temperature_span_degc: tuple[float, float] | None = None  # lowest and highest pose temperature
     temperature_status: str = "no temperature"
-
-
-def advice_for(missing: Sequence[str]) -> str:
-    """'turn x down' style advice for the first face not yet covered."""
-    axis, _, way = missing[0].partition(" pointing ")
-    return f"turn {axis} {way}"
+    # The unit specific force of the orientation the advice turns to; None when the advice is no turn.
+    advised_direction: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -65,11 +62,17 @@ class Verdict:
     """What /calibrate (or replay) decides: a calibration ready to apply, or the gate that refused."""
 
     success: bool
-    message: str  # "gate <name>: <reason>" on refusal
+    message: str  # "gate <name>: <reason>" on refusal, with the poses left out as outliers
     result: FitResult | None = None
     calibration: Calibration | None = None  # with gyro bias, frame_id and sensor_id filled in
     gyro: GyroFitResult | None = None  # the gyro fit tried with it (applied when its gates passed)
     gyro_refusal: str | None = None  # why it was not applied ("gyro: gate ...: ..."), None when it was or none ran
+    refusal: Refusal | None = None  # the gate that refused, None on success
+
+    @classmethod
+    def refused(cls, refusal: Refusal, said: str = "", result: FitResult | None = None) -> Verdict:
+        """A refusal: `said` (the outliers left out, what else helps) follows the gate's own text."""
+        return cls(False, str(refusal) + said, result, refusal=refusal)
 
 
 class CalibrationSession:
@@ -95,6 +98,8 @@ class CalibrationSession:
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
+        # The last cold fit and the poses it fitted (held, not compared by value: a merge makes a new pose).
+        self._cold_fit: tuple[tuple[Pose, ...], FitResult] | None = None
         # The raw gyro between consecutive poses (the gyro fit's motions), fed by the same sample path.
         self.motions = MotionRecorder(max_motion_s=settings.gyro_max_motion_s,
                                       trailing_s=2.0 + 4 * settings.static_window_s, capacity=settings.max_poses,
@@ -121,6 +126,7 @@ class CalibrationSession:
             raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
         self.gates = QualityGates.from_settings(settings)
         self.settings = settings
+        self._cold_fit = None
 
     # ------------------------------------------------------------------ stream side
     @property
@@ -206,6 +212,7 @@ class CalibrationSession:
         self.store.clear()
         self.motions.clear()
         self.last_fit = None
+        self._cold_fit = None
         return dropped
 
     def temperature_problem(self, poses: Sequence[Pose] | None = None) -> str | None:
@@ -231,6 +238,21 @@ class CalibrationSession:
         poses = store.poses
         if len(poses) < parameter_count(self.model):
             return None
+        initial = self.last_fit.calibration if warm and self.last_fit is not None and self.last_fit.success else None
+        if initial is None and self._cold_fit is not None and _same_poses(self._cold_fit[0], poses):
+            # A cold fit is a function of the poses alone: these were fitted already (an auto-calibration's
+            # verdict, then /calibrate's).
+            self.last_fit = self._cold_fit[1]
+            return self.last_fit
+        result = self._fit(poses, initial)
+        if initial is None:
+            self._cold_fit = (tuple(poses), result)
+        self.last_fit = result
+        return result
+
+    def _fit(self, poses: Sequence[Pose], initial: Calibration | None) -> FitResult:
+        """The fit of `poses`: with the temperature model when their span allows it and it succeeds, else
+        blind to temperature, started from `initial` (None: cold)."""
         accel = [p.accel_mps2 for p in poses]
         gravity = self.settings.gravity
         # A pose off the sphere with the rest is left out (and named) by the fit itself.
@@ -242,10 +264,8 @@ class CalibrationSession:
                          temperature_model=options.model, temperature_options=options,
                          outlier_options=outliers, pose_sigma_mps2=noise)
             if result.success:
-                self.last_fit = result
                 return result
             # Not yet enough poses per temperature: the temperature-blind fit, said in progress.
-        initial = self.last_fit.calibration if warm and self.last_fit is not None and self.last_fit.success else None
         if initial is not None and initial.temperature is not None:
             initial = initial.replace(temperature=None)
         result = fit(accel, model=self.model, gravity=gravity, initial=initial, outlier_options=outliers,
@@ -253,7 +273,6 @@ class CalibrationSession:
         if initial is not None and not result.success:
             # A warm start from a calibration that no longer fits (the poses changed) must not decide.
             result = fit(accel, model=self.model, gravity=gravity, outlier_options=outliers, pose_sigma_mps2=noise)
-        self.last_fit = result
         return result
 
     def _too_noisy_text(self) -> str:
@@ -315,24 +334,30 @@ class CalibrationSession:
         self.prior = given
         return None
 
+    def verdict_for(self, poses: Iterable[Pose], holding: Pose | None = None) -> tuple[list[StoreEvent], Verdict]:
+        """/calibrate's verdict once `poses` (those found since the last) are in the store: where each went
+        (the store's events, in order) and the verdict, with the pose being held."""
+        events = [self.add_pose(pose) for pose in poses]
+        return events, self.calibrate(holding)
+
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
         extra = () if holding is None else (holding,)
         if self.prior is not None:
             return self._calibrate_with_prior(self.store.poses + list(extra), self.prior)
         poses = self.store.poses + list(extra)
-        need = max(self.settings.min_poses, parameter_count(self.model) + 1)
+        need = self.poses_needed()
         if len(poses) < need:
             # Still intervals that were no gravity: a stream in g or in counts says so, not "0 poses".
             dropped = self.implausible_means
-            problem = units_problem(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
+            problem = units_text(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
             if problem is not None:
-                return Verdict(False, "gate " + problem)
-            return Verdict(False, f"gate poses: have {len(poses)} poses, need min_poses={need}"
-                           f" ({self._missing_text(poses)}){self._too_noisy_text()}")
-        problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
+                return Verdict.refused(Refusal(Gate.UNITS, problem))
+            return Verdict.refused(Refusal(Gate.POSES, f"have {len(poses)} poses, need min_poses={need}"
+                                           f" ({self._missing_text(poses)}){self._too_noisy_text()}"))
+        problem = units_text([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
-            return Verdict(False, "gate " + problem)
+            return Verdict.refused(Refusal(Gate.UNITS, problem))
         # Cold: the verdict depends on the poses alone, not on how many warm refits the node's worker
         # happened to run while they arrived (live and replay then agree exactly, whatever the load).
         result = self.refit(extra, warm=False)
@@ -340,23 +365,28 @@ class CalibrationSession:
         # Poses left out as outliers are said either way, counted from 1 as the node's log counts them.
         left_out = "" if result is None else "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result is None or result.calibration is None or refusal is not None:
-            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+            return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
+
+    def poses_needed(self) -> int:
+        """The poses a fit without a prior needs: min_poses, and at least one more than the model has
+        parameters (so the residual can say whether the poses agree)."""
+        return max(self.settings.min_poses, parameter_count(self.model) + 1)
 
     def _calibrate_with_prior(self, poses: list[Pose], prior: Prior) -> Verdict:
         """With a prior the pose count is no gate: what poses and prior support together decides (the fit's
         own checks, then every gate but the count). No temperature model: a prior fits b and M alone."""
         if not poses:
-            return Verdict(False, "gate poses: no pose held (a fit with a prior still needs poses)")
-        problem = units_problem([p.accel_mps2 for p in poses], self.settings.gravity)
+            return Verdict.refused(Refusal(Gate.POSES, "no pose held (a fit with a prior still needs poses)"))
+        problem = units_text([p.accel_mps2 for p in poses], self.settings.gravity)
         if problem is not None:
-            return Verdict(False, "gate " + problem)
+            return Verdict.refused(Refusal(Gate.UNITS, problem))
         result = fit([p.accel_mps2 for p in poses], model=self.model, gravity=self.settings.gravity,
                      outlier_options=self.settings.outliers, pose_sigma_mps2=pose_mean_sigma(poses), prior=prior)
         refusal = self.gates.check_fit(result)
         left_out = "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
         if result.calibration is None or refusal is not None:
-            return Verdict(False, (refusal or f"gate fit: no fit from {len(poses)} poses") + left_out, result)
+            return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
 
     def _passed(self, result: FitResult, left_out: str) -> Verdict:
@@ -374,7 +404,7 @@ class CalibrationSession:
         # Never hand on what the file's readers would refuse: every writer (node, replay, fleet) saves this.
         loadable, left_aside = self.gates.loadable(calibration)
         if loadable is None:
-            return Verdict(False, f"gate plausibility: {left_aside}" + left_out, result)
+            return Verdict.refused(Refusal(Gate.PLAUSIBILITY, str(left_aside)), left_out, result)
         if left_aside is not None:
             said, gyro_text = f"; {left_aside}; the accelerometer calibration is kept", left_aside
         return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=loadable),
@@ -438,7 +468,7 @@ class CalibrationSession:
         return verdict if verdict.success else None
 
     def _missing_text(self, poses: Sequence[Pose]) -> str:
-        missing = missing_directions(_directions(poses)) if poses else list(ALL_FACES)
+        missing = missing_directions(_directions(poses)) if poses else [str(face) for face in Face]
         return "still missing: " + ", ".join(missing) if missing else "every face seen; hold more orientations"
 
     def gyro_bias_radps(self) -> np.ndarray | None:
@@ -456,7 +486,7 @@ class CalibrationSession:
         """Poses held, faces missing, the last fit and what to do next; `calibration` (the one in force)
         turns the poses into directions, `calibrate_service` is the service name as the node resolves it."""
         n = len(self.store)
-        missing = tuple(missing_directions(self.directions(calibration))) if n else ALL_FACES
+        faces = missing_faces(self.directions(calibration)) if n else list(Face)
         fit_ = self.last_fit if self.last_fit is not None and self.last_fit.success else None
         rms = sigma = None
         fitted_temperature = None
@@ -466,13 +496,13 @@ class CalibrationSession:
             rms = fit_.calibration.quality.residual_rms_mg
             sigma = float(np.max(fit_.sigma.bias) / MG) if np.all(np.isfinite(fit_.sigma.bias)) else None
             fitted_temperature = fit_.calibration.temperature
-        need = max(self.settings.min_poses, parameter_count(self.model) + 1)
+        need = self.poses_needed()
         refusal = None if self.last_fit is None else self.gates.check(self.last_fit)
         ready = fit_ is not None and refusal is None and n >= need
         # Once there is a fit (one that failed for want of observability too), the orientation that would
         # pin the loosest parameter down most; before, the first face not yet seen.
         turn = None
-        if self.last_fit is not None and (refusal or "").startswith(("gate poses", "gate fit", "gate sigma")):
+        if self.last_fit is not None and refusal is not None and refusal.gate in OPENED_BY_POSES:
             turn = self.gates.next_orientation(self.last_fit)
         temps = [p.temperature_degc for p in self.store.poses if p.temperature_degc is not None]
         span = (float(min(temps)), float(max(temps))) if temps else None
@@ -486,17 +516,20 @@ class CalibrationSession:
                 "temperature span sufficient; needs more poses per temperature"
         else:
             status = problem
+        direction: ArrayLike | None = None
         if ready:
             advice = f"ready: call {calibrate_service}"
         elif turn is not None:
-            advice = turn.text
-        elif missing:
-            advice = advice_for(missing)
+            advice, direction = turn.text, turn.direction
+        elif faces:
+            advice, direction = faces[0].turn, faces[0].direction
         elif n < need:
             advice = f"hold still in a new orientation ({n} of {need} poses)"
         else:
             advice = "hold still in more orientations (fit not yet within the gates)"
-        return Progress(n, need, missing, rms, sigma, ready, advice, span, status)
+        missing = tuple(str(face) for face in faces)
+        return Progress(n, need, missing, rms, sigma, ready, advice, span, status,
+                        None if direction is None else _unit_tuple(direction))
 
 
 def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -> np.ndarray:
@@ -505,6 +538,15 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
         accel = calibration.apply(accel)
     norms = np.linalg.norm(accel, axis=1)
     return accel / norms[:, None] if len(accel) else accel
+
+
+def _same_poses(fitted: Sequence[Pose], poses: Sequence[Pose]) -> bool:
+    return len(fitted) == len(poses) and all(a is b for a, b in zip(fitted, poses, strict=True))
+
+
+def _unit_tuple(direction: ArrayLike) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in np.asarray(direction, dtype=float).reshape(3))
+    return (x, y, z)
 
 
 def _rounded_up(value: float, highest: float | None) -> float:

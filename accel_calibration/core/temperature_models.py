@@ -40,12 +40,12 @@ from numpy.typing import ArrayLike
 from .coverage import CONDITION_LIMIT, scaled_condition_number
 from .errors import CalibrationError
 from .gauss_newton import LeastSquaresSolution, gauss_newton
+from .units import AXES
 
 if TYPE_CHECKING:
     from .models import SphereModel
 
 TEMPERATURE_MODELS = ("none", "polynomial", "segmented")
-AXES = "xyz"
 # The orientations a segment's advice is phrased in, as the cosine between an axis and the measured
 # gravity reaction: "x pointing up" within ~32 deg of vertical, "x level" within ~17 deg of horizontal,
 # "x tilted about 45 deg" in between (what separates l from n on the sphere).

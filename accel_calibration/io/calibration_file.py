@@ -257,63 +257,10 @@ def _require_numbers(value: object, name: str, source: str) -> None:
 
 def calibration_from_dict(document: object, source: str = "calibration") -> Calibration:
     """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
-    if not isinstance(document, dict) or ROOT_KEY not in document:
-        raise CalibrationFileError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
-    body = document[ROOT_KEY]
-    if not isinstance(body, dict):
-        raise CalibrationFileError(f"{source}: '{ROOT_KEY}' must be a mapping")
-    version = body.get("format_version", 1)
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise CalibrationFileError(f"{source}: format_version must be an integer, got {version!r:.40}")
-    if version < 1:
-        raise CalibrationFileError(f"{source}: format_version must be 1 or more, got {version}")
-    if version > FORMAT_VERSION:
-        raise CalibrationFileError(
-            f"{source}: written by a newer accel_calibration (format {version}; this version reads up to "
-            f"{FORMAT_VERSION}): upgrade to use it"
-        )
-    for key in ("model", "bias", "matrix"):
-        if key not in body:
-            raise CalibrationFileError(f"{source}: missing key '{key}'")
-    absurd = _first_absurd_number(body)
-    if absurd is not None:
-        raise CalibrationFileError(f"{source}: {absurd}")
-    blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality", "noise")}
-    uncertainty_block: dict[str, Any] = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
-    temperature_block: dict[str, Any] = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
-    gyro_quality_block: dict[str, Any] = (blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict)
-                                          else {})
-    noise_block: dict[str, Any] = blocks["noise"] if isinstance(blocks["noise"], dict) else {}
-    for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps",
-                                                          "gyro_matrix")] + [
-            (f"gyro_quality.{key}", gyro_quality_block.get(key)) for key in (
-                "matrix_sigma", "bias_sigma_radps", "residual_rms_mrad", "residual_max_mrad")] + [
-            (f"uncertainty.{key}", uncertainty_block.get(key)) for key in ("bias", "matrix")] + [
-            (f"noise.{key}", noise_block.get(key)) for key in ("rate_hz", *NOISE_KEYS.values())] + [
-            (f"temperature.{key}", temperature_block.get(key)) for key in (
-                "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
-                "segment_temperatures_degc", "segment_coefficients", "segment_poses")]:
-        _require_numbers(value, name, source)
+    body = _body(document, source)
+    _require_block_numbers(body, source)
     try:
-        quality = None
-        if body.get("quality") is not None:
-            q = body["quality"]
-            if not isinstance(q, dict):
-                raise CalibrationFileError("quality must be a mapping")
-            poses = q.get("poses", 0)
-            if isinstance(poses, bool) or not isinstance(poses, int) or not 0 <= poses <= MAX_POSES:
-                raise CalibrationFileError(f"quality.poses must be an integer 0..{MAX_POSES}, got {poses!r:.40}")
-            cond = q.get("condition_number")
-            quality = Quality(
-                residual_rms_mg=_number(q.get("residual_rms_mg", float("nan")), "quality.residual_rms_mg")
-                if "residual_rms_mg" in q
-                else float("nan"),
-                residual_max_mg=_number(q.get("residual_max_mg"), "quality.residual_max_mg")
-                if "residual_max_mg" in q
-                else float("nan"),
-                poses=poses,
-                condition_number=None if cond is None else _number(cond, "quality.condition_number"),
-            )
+        quality = None if body.get("quality") is None else _quality(body["quality"])
         uncertainty = body.get("uncertainty") or {}
         if not isinstance(uncertainty, dict):
             raise CalibrationFileError("uncertainty must be a mapping")
@@ -321,29 +268,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
         model = body["model"]
         if not isinstance(model, str):
             raise CalibrationFileError(f"model must be a name, got {model!r:.40}")
-        temperature = None
-        if body.get("temperature") is not None:
-            t = body["temperature"]
-            if not isinstance(t, dict) or "model" not in t:
-                raise CalibrationFileError("temperature must be a mapping with a 'model' key")
-            _check_segment_block(t)
-            try:
-                temperature = TemperatureModel(
-                    kind=t["model"],
-                    reference_degc=_number(t.get("reference_degc"), "temperature.reference_degc"),
-                    # Any length: TemperatureModel rejects one that is not (low, high) with a ValueError.
-                    range_degc=cast(tuple[float, float],
-                                    tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", []))),
-                    bias_coefficients=t.get("bias_coefficients") or np.zeros((0, 3)),
-                    scale_coefficients=t.get("scale_coefficients") or np.zeros((0, 3)),
-                    segment_bounds_degc=t.get("segment_bounds_degc") or np.zeros((0, 2)),
-                    segment_temperatures_degc=t.get("segment_temperatures_degc") or np.zeros(0),
-                    segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
-                    segment_poses=tuple(_list(t.get("segment_poses"), "temperature.segment_poses")),
-                    segment_blend=t.get("segment_blend", True),
-                )
-            except (TypeError, ValueError) as error:
-                raise CalibrationFileError(f"temperature block: {error}") from None
+        temperature = None if body.get("temperature") is None else _temperature(body["temperature"])
         dividing_head = None if body.get("dividing_head") is None else _dividing_head_terms(body["dividing_head"])
         return Calibration(
             dividing_head=dividing_head,
@@ -369,6 +294,98 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
         )
     except CalibrationError as error:
         raise CalibrationFileError(f"{source}: {error}") from None
+
+
+def _body(document: object, source: str) -> dict[str, Any]:
+    """The document's calibration mapping, once its root, its format version and its required keys are
+    found, and no number in it is absurd."""
+    if not isinstance(document, dict) or ROOT_KEY not in document:
+        raise CalibrationFileError(f"{source}: not an accel_calibration file (no top-level '{ROOT_KEY}:' key)")
+    body = document[ROOT_KEY]
+    if not isinstance(body, dict):
+        raise CalibrationFileError(f"{source}: '{ROOT_KEY}' must be a mapping")
+    version = body.get("format_version", 1)
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise CalibrationFileError(f"{source}: format_version must be an integer, got {version!r:.40}")
+    if version < 1:
+        raise CalibrationFileError(f"{source}: format_version must be 1 or more, got {version}")
+    if version > FORMAT_VERSION:
+        raise CalibrationFileError(
+            f"{source}: written by a newer accel_calibration (format {version}; this version reads up to "
+            f"{FORMAT_VERSION}): upgrade to use it"
+        )
+    for key in ("model", "bias", "matrix"):
+        if key not in body:
+            raise CalibrationFileError(f"{source}: missing key '{key}'")
+    absurd = _first_absurd_number(body)
+    if absurd is not None:
+        raise CalibrationFileError(f"{source}: {absurd}")
+    return body
+
+
+def _require_block_numbers(body: dict[str, Any], source: str) -> None:
+    """Every array of the body and of its blocks holds numbers only (a block that is no mapping is
+    refused later, by its own reader)."""
+    blocks = {key: body.get(key) for key in ("uncertainty", "temperature", "gyro_quality", "noise")}
+    uncertainty_block: dict[str, Any] = blocks["uncertainty"] if isinstance(blocks["uncertainty"], dict) else {}
+    temperature_block: dict[str, Any] = blocks["temperature"] if isinstance(blocks["temperature"], dict) else {}
+    gyro_quality_block: dict[str, Any] = (blocks["gyro_quality"] if isinstance(blocks["gyro_quality"], dict)
+                                          else {})
+    noise_block: dict[str, Any] = blocks["noise"] if isinstance(blocks["noise"], dict) else {}
+    for name, value in [(key, body.get(key)) for key in ("bias", "matrix", "quadratic", "gyro_bias_radps",
+                                                          "gyro_matrix")] + [
+            (f"gyro_quality.{key}", gyro_quality_block.get(key)) for key in (
+                "matrix_sigma", "bias_sigma_radps", "residual_rms_mrad", "residual_max_mrad")] + [
+            (f"uncertainty.{key}", uncertainty_block.get(key)) for key in ("bias", "matrix")] + [
+            (f"noise.{key}", noise_block.get(key)) for key in ("rate_hz", *NOISE_KEYS.values())] + [
+            (f"temperature.{key}", temperature_block.get(key)) for key in (
+                "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
+                "segment_temperatures_degc", "segment_coefficients", "segment_poses")]:
+        _require_numbers(value, name, source)
+
+
+def _quality(q: object) -> Quality:
+    """The quality block."""
+    if not isinstance(q, dict):
+        raise CalibrationFileError("quality must be a mapping")
+    poses = q.get("poses", 0)
+    if isinstance(poses, bool) or not isinstance(poses, int) or not 0 <= poses <= MAX_POSES:
+        raise CalibrationFileError(f"quality.poses must be an integer 0..{MAX_POSES}, got {poses!r:.40}")
+    cond = q.get("condition_number")
+    return Quality(
+        residual_rms_mg=_number(q.get("residual_rms_mg", float("nan")), "quality.residual_rms_mg")
+        if "residual_rms_mg" in q
+        else float("nan"),
+        residual_max_mg=_number(q.get("residual_max_mg"), "quality.residual_max_mg")
+        if "residual_max_mg" in q
+        else float("nan"),
+        poses=poses,
+        condition_number=None if cond is None else _number(cond, "quality.condition_number"),
+    )
+
+
+def _temperature(t: object) -> TemperatureModel:
+    """The temperature block."""
+    if not isinstance(t, dict) or "model" not in t:
+        raise CalibrationFileError("temperature must be a mapping with a 'model' key")
+    _check_segment_block(t)
+    try:
+        return TemperatureModel(
+            kind=t["model"],
+            reference_degc=_number(t.get("reference_degc"), "temperature.reference_degc"),
+            # Any length: TemperatureModel rejects one that is not (low, high) with a ValueError.
+            range_degc=cast(tuple[float, float],
+                            tuple(_number(v, "temperature.range_degc") for v in t.get("range_degc", []))),
+            bias_coefficients=t.get("bias_coefficients") or np.zeros((0, 3)),
+            scale_coefficients=t.get("scale_coefficients") or np.zeros((0, 3)),
+            segment_bounds_degc=t.get("segment_bounds_degc") or np.zeros((0, 2)),
+            segment_temperatures_degc=t.get("segment_temperatures_degc") or np.zeros(0),
+            segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
+            segment_poses=tuple(_list(t.get("segment_poses"), "temperature.segment_poses")),
+            segment_blend=t.get("segment_blend", True),
+        )
+    except (TypeError, ValueError) as error:
+        raise CalibrationFileError(f"temperature block: {error}") from None
 
 
 def _gyro_quality(block: object) -> GyroQuality | None:

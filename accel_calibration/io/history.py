@@ -28,13 +28,12 @@ from urllib.parse import unquote
 
 from ..core.change_rule import ChangeRule
 from ..core.errors import AccelCalibrationError
-from ..core.units import MG
+from ..core.units import AXES, MG
 
 SCHEMA_VERSION = 1
 SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up
 _SCHEMA_LOCK = 0x616363656C5F6869  # PostgreSQL advisory lock key held while creating the schema ("accel_hi")
 _IDENTITY_CHUNK = 1 << 20  # bytes read at a time for the identity digest
-AXES = "xyz"
 STATUSES = ("calibrated", "refused", "failed")
 
 

@@ -10,8 +10,8 @@ import os
 import numpy as np
 
 from ..core.errors import CalibrationError
-from ..core.units import MG
-from .history import AXES, DriftFlag, HistoryRecord, sensor_series
+from ..core.units import AXES, MG
+from .history import DriftFlag, HistoryRecord, sensor_series
 from .output_paths import write_bytes_atomically
 
 COLOURS = ("tab:red", "tab:green", "tab:blue")

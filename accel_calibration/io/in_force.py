@@ -10,6 +10,7 @@ correction is never built from one calibration and written back over a newer one
 """
 from __future__ import annotations
 
+import enum
 import hashlib
 import os
 import stat
@@ -28,7 +29,16 @@ from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
 from .calibration_file import MAX_CALIBRATION_BYTES, load_calibration, remove_stale_temp_files, save_calibration
 
-OK, WARN, ERROR = "ok", "warn", "error"
+
+class Level(enum.StrEnum):
+    """The diagnostics' level of the calibration in force (a str: logs and tests read it as one)."""
+
+    OK = "ok"
+    WARN = "warn"
+    ERROR = "error"
+
+
+OK, WARN, ERROR = Level.OK, Level.WARN, Level.ERROR
 
 
 @dataclass(frozen=True)
@@ -86,7 +96,7 @@ class CalibrationInForce:
     def remove_stale_temp_files(self) -> int:
         return remove_stale_temp_files(self.path)
 
-    def load(self) -> tuple[str, str]:
+    def load(self) -> tuple[Level, str]:
         """Load the file at start: (level, what happened, one line)."""
         self._file = FileIdentity.of(self.path)
         if not self.path.exists():

@@ -26,7 +26,7 @@ from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
 from .calibration_file import calibration_to_yaml
-from .in_force import ERROR, OK, WARN, CalibrationInForce
+from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
 
 __all__ = ["LOG_THROTTLE_S", "MAX_BUFFERED", "TEMPERATURE_AHEAD_NS", "LiveCalibration", "Log"]
 
@@ -55,7 +55,8 @@ class LiveCalibration:
         self.frame_id: str | None = None
         self.still = False  # the detector's state at the last feed
         self.counts: collections.Counter[str] = collections.Counter()  # what the node set aside, by name
-        self.status = (OK, "")  # the level and first words of the diagnostics
+        self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
+        self._changed_underneath: tuple[Level, str] | None = None  # the status a save refused for it set
         self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
         self._log = log
         self._calibrate_service = calibrate_service
@@ -161,7 +162,7 @@ class LiveCalibration:
         self.enabled = on
         return "correction on" if on else "correction off: raw passes through"
 
-    def reported_status(self) -> tuple[str, str]:
+    def reported_status(self) -> tuple[Level, str]:
         """The diagnostics' level and first words: the node's status, warned when the watch says the
         calibration in force moved (nothing is applied for it)."""
         level, message = self.status
@@ -294,7 +295,7 @@ class LiveCalibration:
         """A save refused because the file changed underneath is a WARN (nothing is broken: two writers
         share the file); any other failed save an ERROR (a file we could not read keeps its own)."""
         if self.in_force.changed_underneath is not None:
-            self.status = (WARN, message)
+            self.status = self._changed_underneath = (WARN, message)
             self._log.warning(message)
         elif not self.in_force.file_unreadable:
             self.status = (ERROR, f"save failed: {message}")
@@ -304,10 +305,8 @@ class LiveCalibration:
         self.feed()
         self._live.drain()
         last = self._live.take_poses()
-        for pose in last:
-            self.session.add_pose(pose)
+        _, verdict = self.session.verdict_for(last, self._live.holding())
         self.watch.add(last)
-        verdict = self.session.calibrate(self._live.holding())
         self.refresh_progress()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
@@ -331,7 +330,7 @@ class LiveCalibration:
 
     def save(self) -> tuple[bool, str]:
         saved, message = self.in_force.save()
-        if saved and self.status[0] == WARN and self.status[1].startswith("not saved: "):
+        if saved and self._changed_underneath is not None and self.status == self._changed_underneath:
             self.status = (OK, "calibrated")  # the change underneath is overwritten on purpose
         elif not saved and self.in_force.changed_underneath is not None:
             self._say_unsaved(message)

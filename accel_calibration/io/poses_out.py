@@ -17,12 +17,13 @@ from collections.abc import Sequence
 
 from ..core.fit import pose_mean_sigma
 from ..core.pose import Pose
+from ..core.pose_map import PoseStatus
 from ..core.units import MG
 
-STATUSES = ("used", "outlier", "dropped", "not fitted")
+STATUSES = tuple(status.value for status in PoseStatus if status is not PoseStatus.MERGED)
 
 
-def poses_table_text(poses: Sequence[Pose], statuses: Sequence[str]) -> str:
+def poses_table_text(poses: Sequence[Pose], statuses: Sequence[PoseStatus]) -> str:
     if len(poses) != len(statuses):
         raise ValueError(f"{len(poses)} poses but {len(statuses)} statuses")
     with_temperature = any(p.temperature_degc is not None for p in poses)
@@ -39,7 +40,7 @@ def poses_table_text(poses: Sequence[Pose], statuses: Sequence[str]) -> str:
         row.append(repr(float(sigma) / MG))
         if with_temperature:
             row += [_number(pose.temperature_degc), _number(pose.temperature_spread_degc)]
-        row.append(status)
+        row.append(status.value)
         writer.writerow(row)
     return out.getvalue()
 

@@ -15,6 +15,7 @@ from accel_calibration import load_calibration
 from accel_calibration.bag.recording import RecordingError, detect_format, open_recording
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
 from accel_calibration.cli.main import main
+from accel_calibration.core.pose_map import PoseStatus
 from accel_calibration.io.pose_table import read_table
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
@@ -119,7 +120,7 @@ def test_poses_out_reads_back_into_fit_and_report(recorded, tmp_path, capsys):
     replay = replay_bag(forms["csv t g"][0], ReplaySettings(units="g"))
     rows = list(csv.DictReader(io.StringIO(poses.read_text())))
     assert len(rows) == len(replay.poses) and {r["status"] for r in rows} <= {"used", "outlier"}
-    assert [r["status"] == "outlier" for r in rows] == [s == "outlier" for s in replay.pose_status]
+    assert [r["status"] == "outlier" for r in rows] == [s is PoseStatus.OUTLIER for s in replay.pose_status]
     for row, pose in zip(rows, replay.poses):
         assert (int(row["start_ns"]), int(row["end_ns"]), int(row["samples"])) == \
             (pose.start_ns, pose.end_ns, pose.samples)

@@ -13,6 +13,7 @@ from accel_calibration.cli.main import main
 from accel_calibration.core.fit import OutlierOptions, fit
 from accel_calibration.core.models import SphereModel
 from accel_calibration.core.pose import Pose
+from accel_calibration.core.pose_map import PoseStatus
 from accel_calibration.core.pose_weights import extra_variance, pose_weights
 from accel_calibration.io.pose_table import read_table
 from accel_calibration.io.poses_out import poses_table_text
@@ -119,7 +120,7 @@ def test_poses_out_carries_sigma_mg_and_fit_reads_it_back(tmp_path, capsys):
     spread = (3 * MG) ** 2  # per axis, of one sample
     noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.sqrt(spread / samples)[:, None]
     poses = [Pose(a, np.eye(3) * spread, int(n), 0, int(n) * 10_000_000) for a, n in zip(noisy, samples)]
-    text = poses_table_text(poses, ["used"] * len(poses))
+    text = poses_table_text(poses, [PoseStatus.USED] * len(poses))
     rows = list(csv.DictReader(io.StringIO(text)))
     np.testing.assert_allclose([float(r["sigma_mg"]) for r in rows], 3.0 / np.sqrt(samples), rtol=1e-12)
     (tmp_path / "poses.csv").write_text(text)

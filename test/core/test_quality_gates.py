@@ -89,3 +89,36 @@ def test_bad_gate_settings_are_refused(gates, name):
         QualityGates(**{("scale_band" if k.startswith("scale") else k): v for k, v in gates.items()}
                      if "scale_min" not in gates
                      else {"scale_band": (gates["scale_min"], gates["scale_max"])})
+
+
+@pytest.mark.parametrize("bias", [(0.6, 0.0, 0.0), (float("nan"), 0.0, 0.0)])
+def test_the_gates_and_the_file_check_judge_bias_and_scale_by_one_rule(bias):
+    """What /calibrate refuses and what the node refuses to put in force agree, text and all: a NaN bias
+    (only arrays, not a Calibration, can hold one) is refused by both."""
+    from types import SimpleNamespace
+
+    from accel_calibration.core.plausibility import plausibility_problem
+
+    gates = QualityGates(max_bias_mps2=0.5)
+    terms = SimpleNamespace(bias=np.array(bias), matrix=np.eye(3), model="sphere9", quadratic=None,
+                            temperature=None, gyro_bias_radps=None, gyro_matrix=None)
+    from_gate = gates.plausibility(terms)
+    assert from_gate is not None
+    assert str(from_gate) == plausibility_problem(terms, max_bias_mps2=0.5)
+    assert str(from_gate).startswith("gate bias: |b| ")
+
+
+def test_a_verdict_over_the_same_poses_fits_them_once(monkeypatch):
+    """The cold fit is a function of the poses: a second verdict over them (an auto-calibration's, then
+    /calibrate's) takes the first's fit, and gives the same verdict."""
+    import accel_calibration.core.session as session_module
+
+    fits = []
+    real_fit = session_module.fit
+    monkeypatch.setattr(session_module, "fit", lambda *a, **k: fits.append(1) or real_fit(*a, **k))
+    calibration_session = CalibrationSession(Settings())
+    _, first = calibration_session.verdict_for(poses_from(session()))
+    fitted = len(fits)
+    _, second = calibration_session.verdict_for([])
+    assert first.success and second.success and fitted >= 1 and len(fits) == fitted
+    assert second.message == first.message and second.calibration.bias.tolist() == first.calibration.bias.tolist()

@@ -57,6 +57,7 @@ def test_a_file_changed_underneath_is_not_overwritten_unnoticed(tmp_path, servic
     success, message = job()  # the same call again: on purpose
     assert success, message
     assert path.read_bytes() != theirs
+    assert node.status == ("ok", "calibrated")  # the warning about the change is over
 
 
 def test_the_same_bytes_rewritten_are_no_change(tmp_path):

@@ -20,6 +20,8 @@ from accel_calibration import Calibration, load_calibration, save_calibration
 from msg_tools.node_process import NodeProcess
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
+from helpers.ci import under_ci
+
 START_NS = 1_700_000_000 * 10**9
 IN_FORCE = Calibration(bias=[0.1, -0.2, 0.3], matrix=[[1.01, 0, 0], [0.01, 0.99, 0], [0.0, 0.02, 1.02]])
 
@@ -37,7 +39,7 @@ def unwritable(directory, kind):
     root = os.geteuid() == 0
     if kind == "full disk":
         if not root:
-            if os.environ.get("CI", "").lower() == "true":
+            if under_ci():
                 pytest.fail("CI must run as root to mount a small full tmpfs")
             pytest.skip("mounting a small full tmpfs needs root (CI runs as root)")
         subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(directory)], check=True)
