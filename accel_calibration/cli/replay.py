@@ -120,8 +120,8 @@ def replay_one(job: ReplayJob) -> Outcome:
             f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
     assert replay.result is not None, "a calibration comes with its fit"
-    unit = replay.recording.unit if replay.recording is not None else "messages"
-    lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
+    source = replay.source
+    lines = [f"{bag}: {source.messages} {source.recording.unit} on {source.imu_topic} over {source.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
              replay.result.summary(), *gyro_lines(replay),
              *([calibration.noise.describe()] if calibration.noise is not None else []), *notes]
@@ -193,12 +193,12 @@ def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     lines = []
     if replay.calibration is not None and replay.calibration.fitted_to:
         lines.append(f"fitted to {replay.calibration.fitted_to}")
-    if replay.flight_state_line:
-        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
-    if replay.autopilot_calibration is not None:
-        lines.append(replay.autopilot_calibration.describe())
-        if replay.autopilot_difference_mg is not None:
-            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot_difference_mg:.1f} mg at 1 g "
+    if replay.flight_state is not None:
+        lines.append(replay.flight_state.report_line())
+    if replay.autopilot is not None:
+        lines.append(replay.autopilot.calibration.describe())
+        if replay.autopilot.difference_mg is not None:
+            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot.difference_mg:.1f} mg at 1 g "
                          "(worst orientation)")
     return lines
 
