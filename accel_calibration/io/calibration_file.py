@@ -182,7 +182,7 @@ def _dividing_head_terms(block: object) -> DividingHeadTerms:
                                                                             "dividing_head.residual_sigma_mg"))
 
 
-# The segmented block (issue 11 on): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
+# The segmented block (the seed paper's model): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
 # output in m/s^2, added after M (a_raw - b). Written with every file, checked on reading.
 SEGMENT_UNITS = {
     "segment_bounds_degc": "degC", "segment_temperatures_degc": "degC",

@@ -1,4 +1,4 @@
-"""Flight recordings carry their own flight state (issue 21): a ULog's vehicle_status and
+"""Flight recordings carry their own flight state: a ULog's vehicle_status and
 vehicle_land_detected, a bag's /mavros/state, /fmu/out/vehicle_status(+land detected) or a topic named with
 --armed-topic, a DataFlash log's ARM and EV records. The recording written here: a ground session (8
 orientations), the vehicle set level, armed and still for 3 s on the ground, a quiet hover (tilted 4 deg,
@@ -500,7 +500,7 @@ def test_written_out_jazzy_definitions_are_rosbags_own():
 
 
 def test_help_and_a_replay_that_draws_nothing_import_no_scipy_linalg_nor_matplotlib(flight, tmp_path):
-    """In a fresh interpreter, as a user starts it (issue 21: --help spent 0.36 s importing scipy.linalg).
+    """In a fresh interpreter, as a user starts it: scipy.linalg alone costs ~0.36 s of start-up.
     A bag of standard messages only is read without rosbags' Jazzy store (~0.2 s) too."""
     import subprocess
     import sys

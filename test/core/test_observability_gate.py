@@ -1,4 +1,4 @@
-"""Issue 10, "Observability judged by uncertainty, not by faces": the gate refuses a fit when the sigma of
+"""Observability judged by uncertainty, not by faces: the gate refuses a fit when the sigma of
 a parameter (bias, scale, misalignment) is above its bound, names that parameter, and advises the
 orientation that would lower the largest sigma most, spoken as "turn x down" or "turn x and y down
 (45 deg)". A session that never had y pointing down but fits to 0.1 mg is no longer refused."""

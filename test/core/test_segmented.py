@@ -1,4 +1,4 @@
-"""The seed paper's segmented temperature model (Gui Yi, eqs. 4-5; issue 11): the chamber protocol it was
+"""The seed paper's segmented temperature model (Gui Yi, eqs. 4-5): the chamber protocol it was
 made for with known orientations (its Tables 3-5), orientation-free fits and their refusals, fresh
 temperatures with the paper's segment pick and with blending, the CLI on ten temperature levels, the
 calibration file, the per-message correction, and the session learning segments online."""
