@@ -189,7 +189,7 @@ SEGMENT_UNITS = {
     "segment_coefficients": "per segment rows l (s^2/m), m (1), n (m/s^2); columns x, y, z; "
                             "sigma = l a_raw^2 + m a_raw + n added to M (a_raw - b)",
 }
-OLD_SEGMENTED = ("holds the segmented temperature model of before issue 11 (segment_edges_degc: a per-segment "
+OLD_SEGMENTED = ("holds the earlier segmented temperature model (segment_edges_degc: a per-segment "
                  "quadratic in temperature), whose format changed to the seed paper's model (segment_bounds_degc: a "
                  "per-axis quadratic in the measured acceleration per segment) and is no longer read: refit it with "
                  "accel-calib fit --temperature-model segmented")

@@ -426,7 +426,7 @@ def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp
     recording = tmp_path / ("a" * 40 + "!") / "x.csv"
     recording.parent.mkdir()
     recording.write_text("t,ax,ay,az\n0,0,0,9.8\n")
-    # The rule: Python's re backtracks for minutes on this path; the regex engine sees through it.
+    # A catastrophic rule: Python's re backtracks for minutes on this path; the regex engine sees through it.
     outcome = finishes_within(10, calibrate_recording, str(recording), None, "(a+)+$")
     assert outcome.record.vehicle == recording.parent.name and outcome.record.vehicle_source == "folder"
     # One that backtracks in any engine: refused before any work, in one line, within its time limit.
