@@ -1,4 +1,4 @@
-"""Temperature compensation on a simulated sensor with known drift (issue targets), refusals, files,
+"""Temperature compensation on a simulated sensor with known drift (against stated targets), refusals, files,
 the CLI, and the real MPU-6050 recording whose span is too small."""
 import numpy as np
 import pytest
