@@ -1,4 +1,4 @@
-"""How efficient is the fit when poses differ in length? Monte Carlo against the Cramér-Rao bound (issue 22).
+"""How efficient is the fit when poses differ in length? Monte Carlo against the Cramér-Rao bound.
 
 Each geometry: 24 random orientations, a random sphere9 truth (bias ~50 mg, M = I + lower-triangular
 ~5e-3), pose lengths uniform in 1..10 s, so each pose mean's noise is s_i = rate / sqrt(length) per axis

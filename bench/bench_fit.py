@@ -3,8 +3,8 @@
 Both solve the same problem (sphere9, same analytic Jacobian, evaluated once per point; same start:
 fit()'s own seed, the general ellipsoid through the poses; tight tolerances) and must land on the same
 optimum; the figures are ratios of median times. The peer is least_squares with its default method
-('trf', what the issue's figures were measured with) and with 'lm' (MINPACK), which is faster on a
-problem this small. Target (issue 13): the whole fit()
+('trf', its default, what a user reaching for scipy gets) and with 'lm' (MINPACK), which is faster on a
+problem this small. Target: the whole fit()
 >= 5x faster than the same fit() with least_squares as its solver; the solver alone is printed too.
 """
 import sys

@@ -1,4 +1,4 @@
-"""Fleet scaling and worker memory (issue 13).
+"""Fleet scaling and worker memory.
 
 1. Scaling: 16 distinct 1 kHz recordings (mcap) through `accel-calib fleet` on a local Dask cluster of 2
    workers against 1 worker, in the same run; clusters started (and their workers' imports warmed)

@@ -1,7 +1,7 @@
 """calibration_node against a bare rclpy relay, same machine, same run: delivery, p99 added latency,
 CPU per message. Separate publisher, relay/node and subscriber processes, as in the field.
 
-Targets (issue 20), at 1, 2 and 4 kHz, each against the relay measured in the same run: the node
+Targets, at 1, 2 and 4 kHz, each against the relay measured in the same run: the node
 delivers >= 99.5 %, uses at most 1.1x the relay's CPU per message, and its p99 latency is within
 max(2x the relay's, the relay's + 1 ms). BENCH_RATES="1000,2000" to choose the rates.
 """

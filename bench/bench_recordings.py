@@ -1,4 +1,4 @@
-"""Recordings other than bags, 1 M IMU samples each, against a peer measured in the same run (issue 12):
+"""Recordings other than bags, 1 M IMU samples each, against a peer measured in the same run:
 
 - CSV stream (t,ax,ay,az,gx,gy,gz,temperature, as a logger writes it), end to end to the calibration,
   against numpy.genfromtxt merely loading the same file. Target: >= 3x faster.

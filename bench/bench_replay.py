@@ -3,7 +3,7 @@ reading and deserializing the same IMU messages one by one with rosbags, in the 
 storages: in process (replay_bag), through the CLI entry in process (`accel-calib replay BAG -o ...`,
 cli.main.main) and as a subprocess (a fresh interpreter: imports included, as a user runs it; against
 the rosbags read in a fresh interpreter too).
-Target (issue 13): replay through the CLI >= 5x faster than rosbags, for mcap and for sqlite3."""
+Target: replay through the CLI >= 5x faster than rosbags, for mcap and for sqlite3."""
 import contextlib
 import io
 import shutil

@@ -1,4 +1,4 @@
-"""Start-up of the command line, measured as a user meets it (issue 21):
+"""Start-up of the command line, measured as a user meets it:
 
 1. Importing the CLI's entry module against numpy's own import, both read from ONE
    `python -X importtime -c "import accel_calibration.cli.main"` run (numpy's cumulative time is part of

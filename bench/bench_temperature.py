@@ -1,4 +1,4 @@
-"""Temperature models side by side (issue 11's figure): no model, bias only (the autopilots' choice: a
+"""Temperature models side by side (the table in docs/temperature.md): no model, bias only (the autopilots' choice: a
 per-axis bias polynomial in temperature), the seed paper's segmented model with its segment pick and
 blended, and the polynomial model. Error: rms over 400 fresh orientations at fresh temperatures, mg,
 median and worst of 5 simulated sessions per protocol.

@@ -2,16 +2,22 @@
 give), for tests, benchmarks and the demo: serialized by rosbags itself, in either storage."""
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from .synthetic_imu import SyntheticSamples
 
 IMU, TEMPERATURE = "sensor_msgs/msg/Imu", "sensor_msgs/msg/Temperature"
 
 
-def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3", frame_id: str = "imu_link",
-                      temperature_period_s: float = 0.1, imu_topic: str = "/imu/data_raw",
+def write_session_bag(path: Path | str, samples: SyntheticSamples, *, start_ns: int, storage: str = "sqlite3",
+                      frame_id: str = "imu_link", temperature_period_s: float = 0.1, imu_topic: str = "/imu/data_raw",
                       temperature_topic: str | None = "/imu/temperature", shuffle_seed: int | None = None,
-                      chunk_compression: str = "", typestore=None, accel_covariance=None,
-                      gyro_covariance=None) -> int:
+                      chunk_compression: str = "", typestore: Any = None, accel_covariance: Any = None,
+                      gyro_covariance: Any = None) -> int:
     """Record a SyntheticSamples session as a rosbag2 (what `ros2 bag record` of the synthetic publisher
     would give), serialized by rosbags itself. `shuffle_seed` swaps neighbouring IMU messages in the
     file order, as recorders do when messages arrive out of order. `chunk_compression` ("zstd", "lz4"):
@@ -30,12 +36,12 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
     no_orientation = np.zeros(9)
     no_orientation[0] = -1.0
 
-    def header(t):
+    def header(t: int) -> Any:
         sec, nanosec = divmod(int(t), 1_000_000_000)
         return Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    records = []
+    records: list[tuple[int, str, int]] = []
     next_temperature = -1
     for i, t in enumerate(samples.t_ns.tolist()):
         stamp = start_ns + t
@@ -56,7 +62,8 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
         if chunk_compression == "lz4" and storage == "mcap":
             from lz4.frame import compress
 
-            writer.storage.compression, writer.storage.compressor = "lz4", compress  # rosbags writes zstd only
+            storage_writer: Any = writer.storage  # a private part of rosbags' Writer, set only in a bag's write
+            storage_writer.compression, storage_writer.compressor = "lz4", compress  # rosbags writes zstd only
         imu_connection = writer.add_connection(imu_topic, IMU, typestore=store)
         temperature_connection = (writer.add_connection(temperature_topic, TEMPERATURE, typestore=store)
                                   if temperature_topic else None)
@@ -64,6 +71,7 @@ def write_session_bag(path, samples, *, start_ns: int, storage: str = "sqlite3",
         for log_time, kind, i in records:
             if kind == "t":
                 msg = Temperature(header=header(log_time), temperature=float(temps[i]), variance=0.0)
+                assert temperature_connection is not None, "temperature records only with a temperature topic"
                 writer.write(temperature_connection, log_time, store.serialize_cdr(msg, TEMPERATURE))
                 continue
             msg = Imu(

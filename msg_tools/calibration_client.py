@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -13,6 +15,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, Temperature
 from std_srvs.srv import SetBool, Trigger
 
+if TYPE_CHECKING:
+    from .synthetic_imu import SyntheticSamples
+
 STREAM_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 # The node publishes imu/data_calibrated RELIABLE: collecting reliably loses nothing on a busy machine.
 COLLECT_QOS = QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -20,12 +25,12 @@ CHUNK = 25  # messages in flight at most: half the node's input depth (50), so b
 
 
 class CalibrationClient:
-    def __init__(self, name: str = "calibration_client", namespace: str = ""):
+    def __init__(self, name: str = "calibration_client", namespace: str = "") -> None:
         self.node = rclpy.create_node(name, namespace=namespace)
         self.imu_pub = self.node.create_publisher(Imu, "imu/data_raw", STREAM_QOS)
         self.temperature_pub = self.node.create_publisher(Temperature, "imu/temperature", STREAM_QOS)
         self.corrected: list[Imu] = []
-        self.diagnostics: list = []
+        self.diagnostics: list[dict[str, Any]] = []  # one per status of ours: level, message and its values
         self.node.create_subscription(Imu, "imu/data_calibrated", self.corrected.append, COLLECT_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.clients = {
@@ -40,25 +45,25 @@ class CalibrationClient:
         self._running = True
         self._thread.start()
 
-    def _spin(self):
+    def _spin(self) -> None:
         while self._running:
             self.executor.spin_once(timeout_sec=0.05)
 
-    def _on_diagnostics(self, msg):
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.startswith("accel_calibration"):
                 self.diagnostics.append({"level": status.level, "message": status.message,
                                          **{kv.key: kv.value for kv in status.values}})
 
-    def spin_until(self, predicate, timeout: float = 20.0, poll_s: float = 0.02) -> bool:
+    def spin_until(self, predicate: Callable[[], object], timeout: float = 20.0, poll_s: float = 0.02) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if predicate():
                 return True
             time.sleep(poll_s)
-        return predicate()
+        return bool(predicate())
 
-    def wait_ready(self, timeout: float = 20.0):
+    def wait_ready(self, timeout: float = 20.0) -> None:
         """The node answers services and echoes the stream. Matching alone is not proof: DDS remembers a
         node that just exited until its lease ends, so a restarted node is only up once a live answer
         and a probe message have come back. Probes carry stamps near 0, before any real session."""
@@ -88,14 +93,15 @@ class CalibrationClient:
         self.spin_until(lambda: False, 0.2)  # late probe echoes
         self.corrected.clear()
 
-    def call(self, name: str, data: bool | None = None, timeout: float = 20.0):
+    def call(self, name: str, data: bool | None = None, timeout: float = 20.0) -> Any:
         client = self.clients[name]
         request = SetBool.Request(data=data) if name == "calibration/enable" else Trigger.Request()
         future = client.call_async(request)
         assert self.spin_until(future.done, timeout), f"{name} did not answer"
         return future.result()
 
-    def play(self, samples, *, start_ns: int, indices=None, temperature: bool = True, frame_id: str = "imu_link",
+    def play(self, samples: SyntheticSamples, *, start_ns: int, indices: Sequence[int] | None = None,
+             temperature: bool = True, frame_id: str = "imu_link",
              temperature_period_s: float = 0.1, chunk: int = CHUNK, timeout: float = 20.0) -> int:
         """Closed-loop playback: publish `chunk` messages, wait until the node has echoed them on
         imu/data_calibrated, then the next chunk. Every message reaches the node however busy the
@@ -118,16 +124,20 @@ class CalibrationClient:
                     next_temperature_ns = t[i] + period_ns
                 self.imu_pub.publish(make_imu(stamp, accel[i], gyro[i], frame_id))
             expected = base + start + len(block)
-            if not self.spin_until(lambda expected=expected: len(self.corrected) >= expected, timeout, poll_s=0.0005):
+            if not self.spin_until(self._echoed(expected), timeout, poll_s=0.0005):
                 raise AssertionError(f"node echoed {len(self.corrected) - base} of {start + len(block)} messages "
                                      f"within {timeout:g} s")
         return len(order)
+
+    def _echoed(self, count: int) -> Callable[[], bool]:
+        """Whether `count` corrected messages have come back."""
+        return lambda: len(self.corrected) >= count
 
     def settle(self, count: int, timeout: float = 10.0) -> bool:
         """Wait until `count` corrected messages have arrived (or the timeout)."""
         return self.spin_until(lambda: len(self.corrected) >= count, timeout)
 
-    def destroy(self):
+    def destroy(self) -> None:
         self._running = False
         self._thread.join()
         self.executor.remove_node(self.node)

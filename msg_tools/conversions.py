@@ -2,6 +2,9 @@
 access (cheaper than numpy on 3-vectors); list helpers build arrays once."""
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
+
 import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Imu, Temperature
@@ -9,8 +12,9 @@ from sensor_msgs.msg import Imu, Temperature
 NS = 1_000_000_000
 
 
-def stamp_to_ns(stamp) -> int:
-    return stamp.sec * NS + stamp.nanosec
+def stamp_to_ns(stamp: Any) -> int:
+    """A builtin_interfaces Time (or anything with sec and nanosec) as integer nanoseconds."""
+    return int(stamp.sec) * NS + int(stamp.nanosec)
 
 
 def ns_to_stamp(t_ns: int) -> Time:
@@ -18,20 +22,21 @@ def ns_to_stamp(t_ns: int) -> Time:
     return Time(sec=sec, nanosec=nanosec)
 
 
-def imu_to_tuple(msg: Imu):
+def imu_to_tuple(msg: Imu) -> tuple[int, tuple[float, float, float], tuple[float, float, float]]:
     """(t_ns, (ax, ay, az), (gx, gy, gz)) in m/s^2 and rad/s."""
     a, w = msg.linear_acceleration, msg.angular_velocity
     return stamp_to_ns(msg.header.stamp), (a.x, a.y, a.z), (w.x, w.y, w.z)
 
 
-def imus_to_arrays(msgs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def imus_to_arrays(msgs: Iterable[Imu]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rows = [imu_to_tuple(m) for m in msgs]
     t = np.array([r[0] for r in rows], dtype=np.int64)
     return (t, np.array([r[1] for r in rows], dtype=float).reshape(-1, 3),
             np.array([r[2] for r in rows], dtype=float).reshape(-1, 3))
 
 
-def make_imu(t_ns: int, accel, gyro, frame_id: str = "imu_link", accel_cov=None, gyro_cov=None) -> Imu:
+def make_imu(t_ns: int, accel: Iterable[float], gyro: Iterable[float], frame_id: str = "imu_link",
+             accel_cov: Any = None, gyro_cov: Any = None) -> Imu:
     msg = Imu()
     msg.header.stamp = ns_to_stamp(t_ns)
     msg.header.frame_id = frame_id

@@ -2,9 +2,14 @@
 them; the ArduPilot 4.x formats a calibration session needs (IMU, PARM, ARM, EV)."""
 from __future__ import annotations
 
+import os
 import struct
+from typing import Any
 
 import numpy as np
+
+# (message name, its field values in order): strings as str
+Record = tuple[str, tuple[Any, ...]]
 
 HEAD = b"\xa3\x95"
 FMT_ID = 0x80
@@ -13,7 +18,7 @@ _STRUCT = {"Q": "Q", "q": "q", "B": "B", "b": "b", "H": "H", "h": "h", "I": "I",
            "n": "4s", "N": "16s", "Z": "64s", "M": "b"}
 
 
-def write_dataflash(path, formats: dict[str, tuple[str, str]], records: list[tuple[str, tuple]]) -> int:
+def write_dataflash(path: str | os.PathLike[str], formats: dict[str, tuple[str, str]], records: list[Record]) -> int:
     """A DataFlash log: `formats` {name: (format characters, comma-separated columns)}, `records` (name,
     values) in the order written (strings as str). Each message is 0xA3 0x95, its type id, its packed fields;
     FMT records (type 128: Type, Length, Name, Format, Columns) come first. Returns the records written."""
@@ -51,13 +56,13 @@ FORMATS_3X = {
 }
 
 
-def parameter_records(time_us: int, parameters: dict[str, float]) -> list[tuple[str, tuple]]:
+def parameter_records(time_us: int, parameters: dict[str, float]) -> list[Record]:
     """PARM records, as AP_Logger writes the parameters at the start of a log."""
     return [("PARM", (int(time_us), name, float(value))) for name, value in parameters.items()]
 
 
 def imu_records_3x(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, temperature_degc: np.ndarray,
-                   instance: int = 0) -> list[tuple[str, tuple]]:
+                   instance: int = 0) -> list[Record]:
     """IMU/IMU2/IMU3 records of one instance in the FORMATS_3X layout."""
     name = ("IMU", "IMU2", "IMU3")[instance]
     return [(name, (int(t), *map(float, g), *map(float, a), 0, 0, float(c), 1, 1, 1000, 1000))
@@ -65,7 +70,7 @@ def imu_records_3x(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndar
 
 
 def imu_records(t_us: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray, temperature_degc: np.ndarray,
-                instance: int = 0) -> list[tuple[str, tuple]]:
+                instance: int = 0) -> list[Record]:
     """IMU records of one instance in the FORMATS_4X layout."""
     return [("IMU", (int(t), instance, *map(float, g), *map(float, a), 0, 0, float(c), 1, 1, 1000, 1000))
             for t, a, g, c in zip(t_us.tolist(), accel_mps2, gyro_radps, temperature_degc)]

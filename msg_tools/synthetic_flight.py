@@ -86,7 +86,8 @@ def _lowpass(rng: np.random.Generator, n: int, rate_hz: float, cutoff_hz: float,
 
 def _smooth_step(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    smoothed: np.ndarray = x * x * (3.0 - 2.0 * x)
+    return smoothed
 
 
 def _legs(rng: np.random.Generator, t: np.ndarray, every_s: float, speed_mps: float, axes: int,

@@ -7,9 +7,11 @@ convention inverted: a_raw = M^-1 a_true + b (+ temperature drift) + noise.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 STANDARD_GRAVITY = 9.80665
@@ -31,8 +33,8 @@ class SensorErrors:
     scale_drift: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     t_ref_degc: float = 25.0
 
-    def raw_from_true(self, accel_true_mps2, temperature_degc=None) -> np.ndarray:
-        raw = np.asarray(accel_true_mps2, dtype=float) @ np.linalg.inv(self.matrix).T
+    def raw_from_true(self, accel_true_mps2: ArrayLike, temperature_degc: ArrayLike | None = None) -> np.ndarray:
+        raw: np.ndarray = np.asarray(accel_true_mps2, dtype=float) @ np.linalg.inv(self.matrix).T
         if temperature_degc is not None and (len(self.bias_drift) or len(self.scale_drift)):
             dt = (np.asarray(temperature_degc, dtype=float) - self.t_ref_degc).reshape(-1, 1)
             scale = np.ones_like(raw)
@@ -40,8 +42,10 @@ class SensorErrors:
                 scale = scale + row * dt**k
             raw = raw * scale
             bias = self.bias_mps2 + sum(row * dt**k for k, row in enumerate(self.bias_drift, start=1))
-            return raw + bias
-        return raw + self.bias_mps2
+            drifted: np.ndarray = raw + bias
+            return drifted
+        biased: np.ndarray = raw + self.bias_mps2
+        return biased
 
     @classmethod
     def mpu6050_like(cls, rng: np.random.Generator, noise_mps2: float = 0.04) -> SensorErrors:
@@ -60,7 +64,7 @@ class SensorErrors:
         )
 
 
-def rotation_with_up(direction) -> Rotation:
+def rotation_with_up(direction: ArrayLike) -> Rotation:
     """A body->world rotation under which the body vector `direction` points up (reads +g)."""
     direction = np.asarray(direction, dtype=float)
     rotation, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [direction / np.linalg.norm(direction)])
@@ -100,9 +104,9 @@ class SyntheticImu:
         move_s: float = 1.5,
         rate_hz: float = 200.0,
         gravity: float = STANDARD_GRAVITY,
-        temperature_degc=25.0,
+        temperature_degc: float | Callable[[np.ndarray], np.ndarray] = 25.0,
         seed: int = 0,
-    ):
+    ) -> None:
         if len(rotations) < 1 or dwell_s <= 0 or move_s <= 0 or rate_hz <= 0:
             raise ValueError("need at least one rotation and positive dwell_s, move_s, rate_hz")
         self.errors = errors

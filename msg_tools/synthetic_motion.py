@@ -41,9 +41,8 @@ def rotation_vector(matrix: np.ndarray) -> np.ndarray:
     cosine = np.clip((np.trace(matrix) - 1) / 2, -1.0, 1.0)
     angle = np.arccos(cosine)
     axis = np.array([matrix[2, 1] - matrix[1, 2], matrix[0, 2] - matrix[2, 0], matrix[1, 0] - matrix[0, 1]])
-    if angle < 1e-8:
-        return axis / 2
-    return axis * angle / (2 * np.sin(angle))
+    log: np.ndarray = axis / 2 if angle < 1e-8 else axis * angle / (2 * np.sin(angle))
+    return log
 
 
 def _right_jacobian(theta: np.ndarray) -> np.ndarray:

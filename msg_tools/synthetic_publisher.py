@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rclpy
@@ -18,10 +20,14 @@ from sensor_msgs.msg import Imu, Temperature
 from .conversions import make_imu, make_temperature
 from .synthetic_imu import SensorErrors, SyntheticImu, SyntheticSamples, spread_orientations
 
+if TYPE_CHECKING:
+    from rclpy.node import Node
+    from rclpy.publisher import Publisher
+
 STREAM_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 
 
-def wait_for_subscriber(node, publisher, timeout_s: float = 20.0) -> bool:
+def wait_for_subscriber(node: Node, publisher: Publisher, timeout_s: float = 20.0) -> bool:
     """Discovery takes 0.1-3 s: wait until someone listens instead of sleeping a fixed time."""
     deadline = time.monotonic() + timeout_s
     while publisher.get_subscription_count() == 0:
@@ -32,15 +38,15 @@ def wait_for_subscriber(node, publisher, timeout_s: float = 20.0) -> bool:
 
 
 def play(
-    imu_publisher,
-    temperature_publisher,
+    imu_publisher: Publisher,
+    temperature_publisher: Publisher | None,
     samples: SyntheticSamples,
     *,
     start_ns: int,
     speed: float = 1.0,
     temperature_period_s: float = 0.1,
     frame_id: str = "imu_link",
-    indices=None,
+    indices: Sequence[int] | np.ndarray | None = None,
 ) -> int:
     """Publish `samples` (or the given indices) paced at `speed` x real time; returns messages sent."""
     t = samples.t_ns
@@ -65,7 +71,7 @@ def play(
     return len(order)
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="synthetic_publisher", description=__doc__.splitlines()[0])
     parser.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
     parser.add_argument("--poses", type=int, default=16, help="number of static poses")

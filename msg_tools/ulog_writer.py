@@ -2,6 +2,7 @@
 of structured arrays, interleaved by timestamp, and the info messages a log carries (sys_name, sys_uuid)."""
 from __future__ import annotations
 
+import os
 import struct
 
 import numpy as np
@@ -16,7 +17,7 @@ def _record(kind: bytes, body: bytes) -> bytes:
     return struct.pack("<HB", len(body), kind[0]) + body
 
 
-def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 0,
+def write_ulog(path: str | os.PathLike[str], topics: list[tuple[str, int, np.ndarray]], start_us: int = 0,
                info: dict[str, str] | None = None, parameters: dict[str, float | int] | None = None) -> int:
     """Write a minimal ULog: `topics` are (name, multi_id, structured array with a uint64 `timestamp` field
     first and scalar fields of the C types ULog knows). Messages of all topics are interleaved by timestamp,
@@ -25,21 +26,23 @@ def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 
     Returns the data messages written."""
     out = [MAGIC + b"\x01" + struct.pack("<Q", start_us),
            _record(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
-    formats = {}
+    formats: dict[str, str] = {}
     for name, _, array in topics:
         if name not in formats:
+            if array.dtype.names is None:
+                raise ValueError(f"topic {name}: a structured array is needed (timestamp first)")
             fields = "".join(f"{_TYPES[array.dtype[field].newbyteorder('<')]} {field};" for field in array.dtype.names)
             formats[name] = fields
             out.append(_record(b"F", f"{name}:{fields}".encode()))
     for key, text in ({"sys_name": "accelcal"} if info is None else info).items():
-        value = text.encode()
-        field = f"char[{len(value)}] {key}".encode()
-        out.append(_record(b"I", bytes([len(field)]) + field + value))
-    for name, value in (parameters or {}).items():
-        kind, packed = ("int32_t", struct.pack("<i", value)) if isinstance(value, int) else \
-            ("float", struct.pack("<f", value))
-        key = f"{kind} {name}".encode()
-        out.append(_record(b"P", bytes([len(key)]) + key + packed))
+        encoded = text.encode()
+        declaration = f"char[{len(encoded)}] {key}".encode()
+        out.append(_record(b"I", bytes([len(declaration)]) + declaration + encoded))
+    for name, number in (parameters or {}).items():
+        kind, packed = ("int32_t", struct.pack("<i", number)) if isinstance(number, int) else \
+            ("float", struct.pack("<f", number))
+        parameter_key = f"{kind} {name}".encode()
+        out.append(_record(b"P", bytes([len(parameter_key)]) + parameter_key + packed))
     keys, blocks = [], []
     for msg_id, (name, multi_id, array) in enumerate(topics):
         out.append(_record(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))
@@ -48,8 +51,7 @@ def write_ulog(path, topics: list[tuple[str, int, np.ndarray]], start_us: int = 
         rows[:, 0:2] = np.frombuffer(struct.pack("<H", size), dtype=np.uint8)
         rows[:, 2] = ord("D")
         rows[:, 3:5] = np.frombuffer(struct.pack("<H", msg_id), dtype=np.uint8)
-        packed = np.ascontiguousarray(array).view(np.uint8).reshape(len(array), array.dtype.itemsize)
-        rows[:, 5:] = packed
+        rows[:, 5:] = np.ascontiguousarray(array).view(np.uint8).reshape(len(array), array.dtype.itemsize)
         blocks.append(rows)
         keys.append(np.asarray(array["timestamp"], dtype=np.int64))
     # Interleave: every message's bytes go to its place in timestamp order.

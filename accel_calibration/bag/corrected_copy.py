@@ -28,7 +28,8 @@ def corrected_samples(replay: ReplayResult, calibration: Calibration, t_ns: np.n
                       angular_covariance: np.ndarray | None = None) -> CorrectedSamples:
     """What the node would publish for these samples of the replayed recording (core.correction's one
     correction, at the temperatures the node would have used)."""
-    return correct_samples(calibration, t_ns, accel, gyro, covariance, replay.filtered_temperatures(),
+    held = replay.temperatures
+    return correct_samples(calibration, t_ns, accel, gyro, covariance, None if held is None else held.filtered(),
                            angular_covariance=angular_covariance)
 
 
@@ -46,7 +47,7 @@ def write_corrected_bag(replay: ReplayResult, calibration: Calibration, destinat
         return done.accel_mps2, done.gyro_radps, done.covariance, done.angular_covariance
 
     try:
-        return write_corrected(replay.bag, destination, replay.imu_topic, correct, **groups)
+        return write_corrected(replay.source.path, destination, replay.source.imu_topic, correct, **groups)
     except BagError as error:
         raise CalibrationError(str(error)) from None
 
@@ -114,9 +115,9 @@ def rename_no_replace(source: str | os.PathLike[str], target: str | os.PathLike[
 def stage_corrected_copy(replay: ReplayResult, calibration: Calibration, destination: str | os.PathLike[str]
                          ) -> StagedCopy:
     """The corrected copy (see write_corrected_copy) written aside, not yet in place."""
-    recording = replay.recording
-    kind = recording.format if recording is not None else "rosbag2"
-    source = Path(replay.bag)
+    recording = replay.source.recording
+    kind = recording.format
+    source = Path(replay.source.path)
     if Path(destination).resolve() == source.resolve():
         raise RecordingError(f"{destination}: is the recording itself; write the corrected copy elsewhere")
     if kind in BAGS:
@@ -152,13 +153,14 @@ def stage_corrected_copy(replay: ReplayResult, calibration: Calibration, destina
                 raise RecordingError(f"cannot write {destination}: {error.strerror or error}") from None
 
         what = "bag" if kind == "rosbag2" else f"{kind} file"
-        return StagedCopy(f"corrected {what} {destination} ({written} messages; {replay.imu_topic} corrected)",
+        return StagedCopy(f"corrected {what} {destination} ({written} messages; {replay.source.imu_topic} corrected)",
                           put_in_place, scratch)
     from ..io.calibration_file import write_text_atomically
     from .csv_stream import corrected_csv_text, samples_csv_text
 
     assert isinstance(recording, Recording), "anything but a bag is read whole"
-    temperatures = replay.temperatures_at_samples()
+    # The filtered temperature held at each sample (NaN where none or stale), as the correction uses it.
+    temperatures = None if replay.temperatures is None else replay.temperatures.at(recording.t_ns)
     rates: np.ndarray | None
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
     corrected, rates, _, _, valid = corrected_samples(replay, calibration, recording.t_ns, recording.accel_mps2, gyro)

@@ -8,6 +8,7 @@ import dataclasses
 import os
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -56,77 +57,89 @@ class ReplaySettings:
                 "counts_per_g": self.counts_per_g}
 
 
-@dataclass
-class ReplayResult:
-    bag: str
+@dataclass(frozen=True)
+class ReplaySource:
+    """What was read: the recording, its streams and its extent."""
+
+    path: str
     imu_topic: str
     temperature_topic: str | None
-    messages: int
-    duration_s: float
+    messages: int  # IMU samples read (messages of a bag, rows of a CSV)
+    duration_s: float  # from the earliest to the latest IMU stamp
+    start_ns: int | None  # the earliest IMU stamp; None without samples
+    frame_id: str
+    sensor_id: str  # as the recording names the sensor (a ULog's device), "" where it does not
+    recording: Recording | BagStream  # read whole, or streamed
+
+
+@dataclass(frozen=True)
+class HeldTemperatures:
+    """A recording's temperature readings (stamps ns, degC) as read, and the temperature the correction holds
+    at any sample from them: what a corrected copy corrects each sample at."""
+
+    readings: tuple[np.ndarray, np.ndarray]
+    timeout_s: float
+
+    @cached_property
+    def _held(self) -> tuple[TemperatureFilter, tuple[np.ndarray, np.ndarray]]:
+        # A copy asks once per group: the readings are filtered once, on first use.
+        held_filter = TemperatureFilter(timeout_s=self.timeout_s)
+        return held_filter, held_filter.take(*self.readings)
+
+    def filtered(self) -> tuple[np.ndarray, np.ndarray]:
+        """The readings filtered as the node takes them, (stamps ns, degC) in stamp order."""
+        return self._held[1]
+
+    def at(self, t_ns: np.ndarray) -> np.ndarray:
+        """The filtered temperature held at each of these sample stamps (NaN where none or stale), from all
+        the readings: a sample's value does not depend on the others asked with it, so a copy corrected a
+        group at a time gets what the whole recording at once gets."""
+        held_filter, held = self._held
+        return held_filter.held_at(*held, t_ns)[0]
+
+
+@dataclass(frozen=True)
+class FlightStateNote:
+    """What replay says of the flight state it kept out: "left out 14.2 s armed or airborne (...)", or, when
+    the recording carries none (`found` False), the warning that it does not."""
+
+    line: str
+    found: bool
+
+    def report_line(self) -> str:
+        return self.line if self.found else f"warning: {self.line}"
+
+
+@dataclass(frozen=True)
+class AutopilotComparison:
+    """The autopilot's calibration logged with the recording (DataFlash), and how far ours moves its output."""
+
+    calibration: AutopilotCalibration
+    difference_mg: float | None  # worst orientation at 1 g; None without a calibration of ours
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """One recording through the session: what was read, what the session found and decided, and notes."""
+
+    source: ReplaySource
     poses: list[Pose]
+    # Per pose found (in `poses`): used or outlier by the fit, dropped (the store gave it up at
+    # capacity) or not fitted (no fit was run: too few poses, wrong units).
+    pose_status: list[PoseStatus]
     result: FitResult | None
     problem: str | None  # why no calibration (None when `calibration` is usable)
     counts: dict[str, int]
     elapsed_s: float
-    frame_id: str = ""
-    temperature_at_samples: np.ndarray | None = None
-    recording: Recording | BagStream | None = None  # read whole, or streamed
-    # The temperature topic's readings (stamps ns, degC) as read, for correcting a copy at each sample's
-    # temperature; None without a temperature topic.
-    temperature_readings: tuple[np.ndarray, np.ndarray] | None = None
-    # Per pose found (in `poses`): used or outlier by the fit, dropped (the store gave it up at
-    # capacity) or not fitted (no fit was run: too few poses, wrong units).
-    pose_status: list[PoseStatus] = field(default_factory=list)
-    temperature_timeout_s: float = 5.0
-    start_ns: int | None = None  # the earliest IMU stamp
-    sensor_id: str = ""  # as the recording names the sensor (a ULog's device), where it does
-    # The readings filtered once (the filter and its held values), for temperatures_at's many calls.
-    _held_temperatures: tuple[TemperatureFilter, tuple[np.ndarray, np.ndarray]] | None = field(
-        default=None, repr=False, compare=False)
-    # One line on the flight state: "left out 14.2 s armed or airborne (...)", or the warning that the
-    # recording carries none (flight_state_found False); None where it was not looked for.
-    flight_state_line: str | None = None
-    flight_state_found: bool = False
-    autopilot_calibration: AutopilotCalibration | None = None  # logged with the recording (DataFlash)
+    temperatures: HeldTemperatures | None = None  # None without a temperature topic or readings
     gyro: GyroFitResult | None = None  # the gyro fit tried from the motions (None: none ran)
     gyro_refusal: str | None = None  # why it was not applied (None: it was, or none ran)
-    autopilot_difference_mg: float | None = None  # how far ours moves the autopilot's output, worst at 1 g
+    flight_state: FlightStateNote | None = None  # None where it was not looked for
+    autopilot: AutopilotComparison | None = None  # None: the recording logs no autopilot calibration
 
     @property
     def calibration(self) -> Calibration | None:
         return self.result.calibration if self.problem is None and self.result is not None else None
-
-    def temperatures_at_samples(self) -> np.ndarray | None:
-        """The filtered temperature held at each sample of a recording read whole (NaN where none or stale),
-        as the correction uses it; worked out on first use (a CSV may carry a reading on every row)."""
-        if self.temperature_at_samples is None:
-            from .recording import Recording
-
-            assert isinstance(self.recording, Recording), "only a recording read whole has its samples at hand"
-            self.temperature_at_samples = self.temperatures_at(self.recording.t_ns)
-        return self.temperature_at_samples
-
-    def filtered_temperatures(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The recording's temperature readings filtered once, (stamps ns, degC) in stamp order, as the node
-        takes them; None without readings."""
-        if self.temperature_readings is None or not len(self.temperature_readings[0]):
-            return None
-        if self._held_temperatures is None:
-            held_filter = TemperatureFilter(timeout_s=self.temperature_timeout_s)
-            self._held_temperatures = held_filter, held_filter.take(*self.temperature_readings)
-        return self._held_temperatures[1]
-
-    def temperatures_at(self, t_ns: np.ndarray) -> np.ndarray | None:
-        """The filtered temperature held at each of these sample stamps, from all the recording's readings:
-        a sample's value does not depend on the others asked with it, so a copy corrected a group at a
-        time gets what the whole recording at once gets. None without temperature readings."""
-        if self.temperature_readings is None or not len(self.temperature_readings[0]):
-            return None
-        if self._held_temperatures is None:  # a copy asks once per group: filter the readings once
-            held_filter = TemperatureFilter(timeout_s=self.temperature_timeout_s)
-            self._held_temperatures = held_filter, held_filter.take(*self.temperature_readings)
-        held_filter, held = self._held_temperatures
-        return held_filter.held_at(*held, t_ns)[0]
 
 
 class ReplayError(BagError):
@@ -212,7 +225,7 @@ def replay_recording(recording: Recording, settings: ReplaySettings | None = Non
                                               else (None, None))
     # No gyro (a CSV without gx,gy,gz): zeros, which never look like motion; taken out again below.
     gyro = recording.gyro_radps if recording.gyro_radps is not None else np.zeros_like(recording.accel_mps2)
-    flight = flight_state_of(recording.path, recording.format, getattr(recording, "flight_state", None), s)
+    flight = flight_state_of(recording.path, recording.format, recording.flight_state, s)
     collecting = None if flight is None else flight.collecting(t, s.armed_margin_s)
     poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values,
                                   collecting=collecting)
@@ -248,11 +261,13 @@ def _with_flight_state(result: ReplayResult, flight: FlightState | None, first_n
                        s: ReplaySettings) -> ReplayResult:
     """The flight-state line, and the autopilot's calibration beside ours, into the result."""
     from ..core.flight_state import report_line
+    from .recording import Recording
 
-    recording = result.recording
-    autopilot = getattr(recording, "autopilot_calibration", None)
+    recording = result.source.recording
+    # Only a log read whole carries an autopilot's calibration (DataFlash); a bag's messages say nothing.
+    autopilot = recording.autopilot_calibration if isinstance(recording, Recording) else None
+    logged = recording.logged_correction if isinstance(recording, Recording) else None
     difference = None
-    logged = getattr(recording, "logged_correction", None)
     if autopilot is not None and result.calibration is not None:
         from .dataflash import correction_on_top_mg
         from .logged_correction import difference_mg
@@ -260,9 +275,10 @@ def _with_flight_state(result: ReplayResult, flight: FlightState | None, first_n
         calibration = result.calibration
         difference = (correction_on_top_mg(calibration.matrix, calibration.bias, calibration.gravity) if logged is None
                       else difference_mg(calibration.matrix, calibration.bias, calibration.gravity, logged))
-    line = None if flight is None else report_line(flight, first_ns, last_ns, s.armed_margin_s)
-    return dataclasses.replace(result, flight_state_line=line, flight_state_found=flight is not None and flight.found,
-                               autopilot_calibration=autopilot, autopilot_difference_mg=difference)
+    note = None if flight is None else FlightStateNote(report_line(flight, first_ns, last_ns, s.armed_margin_s),
+                                                       flight.found)
+    return dataclasses.replace(result, flight_state=note,
+                               autopilot=None if autopilot is None else AutopilotComparison(autopilot, difference))
 
 
 def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recording | BagStream, samples: int,
@@ -270,6 +286,8 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
              start_ns: int | None, s: ReplaySettings, started: float, has_gyro: bool,
              temperature_readings: tuple[np.ndarray, np.ndarray] | None) -> ReplayResult:
     """The poses found into the store, /calibrate's verdict, and what replay reports of it."""
+    from .recording import Recording
+
     if not has_gyro:
         poses = [dataclasses.replace(p, gyro_radps=None) for p in poses]
         # The zeros standing in for a missing gyro are no motions to fit.
@@ -299,32 +317,29 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
             calibration = calibration.replace(gyro_bias_radps=None)
         if recording.sensor_id and not calibration.sensor_id:
             calibration = calibration.replace(sensor_id=recording.sensor_id)
-        fitted_to = getattr(recording, "fitted_to", "")  # a log's (Recording); a bag's messages say nothing
+        fitted_to = recording.fitted_to if isinstance(recording, Recording) else ""  # a bag's messages say nothing
         if fitted_to:
             calibration = calibration.replace(fitted_to=fitted_to)
         result = dataclasses.replace(verdict.result, calibration=calibration)
     # Poses the fit left out (fit.FitResult.outliers: each with its index into the store's poses).
-    outliers = {int(getattr(o, "index", o)) for o in getattr(result, "outliers", ()) or ()}
+    outliers = set(result.outlier_indices) if result is not None else set()
     status = [PoseStatus.DROPPED if slot is None else PoseStatus.NOT_FITTED if result is None
               else PoseStatus.OUTLIER if slot in outliers else PoseStatus.USED for slot in slots]
+    source = ReplaySource(path=str(recording.path), imu_topic=recording.stream,
+                          temperature_topic=recording.temperature_stream, messages=samples, duration_s=duration,
+                          start_ns=start_ns, frame_id=session.frame_id, sensor_id=recording.sensor_id,
+                          recording=recording)
+    held = (HeldTemperatures(temperature_readings, s.session.temperature_timeout_s)
+            if temperature_readings is not None and len(temperature_readings[0]) else None)
     return ReplayResult(
-        bag=str(recording.path),
-        imu_topic=recording.stream,
-        temperature_topic=recording.temperature_stream,
-        messages=samples,
-        duration_s=duration,
+        source=source,
         poses=poses,
+        pose_status=status,
         result=result,
         problem=problem,
         counts=counts,
         elapsed_s=time.perf_counter() - started,
-        frame_id=session.frame_id,
-        recording=recording,
-        temperature_readings=temperature_readings,
-        pose_status=status,
-        temperature_timeout_s=s.session.temperature_timeout_s,
-        start_ns=start_ns,
-        sensor_id=recording.sensor_id,
+        temperatures=held,
         gyro=verdict.gyro if has_gyro else None,
         gyro_refusal=verdict.gyro_refusal if has_gyro else None,
     )

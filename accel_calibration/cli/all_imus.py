@@ -53,7 +53,7 @@ def replay_every_imu(bag: str, settings: ReplaySettings) -> dict[int, ReplayResu
     from ..bag.replay import replay_bag
 
     first = replay_bag(bag, dataclasses.replace(settings, instance=0))
-    instances = first.recording.imu_instances if isinstance(first.recording, Recording) else (0,)
+    instances = first.source.recording.imu_instances if isinstance(first.source.recording, Recording) else (0,)
     replays = {0: first}
     for instance in instances:
         if instance != 0:
@@ -102,9 +102,9 @@ def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
         if replay.calibration is None or replay.result is None:
             errors.append(f"{bag}: IMU {instance}: {replay.problem}")
             continue
-        target = directory / file_name(instance, replay.sensor_id)
+        target = directory / file_name(instance, replay.source.sensor_id)
         texts[target] = checked_calibration_text(replay.calibration, str(target))
-        lines += [f"IMU {instance} ({replay.sensor_id or 'no device ID'}): {len(replay.poses)} static poses; "
+        lines += [f"IMU {instance} ({replay.source.sensor_id or 'no device ID'}): {len(replay.poses)} static poses; "
                   f"{replay.result.summary()}", f"fitted to {replay.calibration.fitted_to}"]
     lines += alignment_lines(replays)
     if texts:  # every file's text made: now the files

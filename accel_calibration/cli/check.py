@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
     replay = replay_bag(args.recording, settings)  # its errors are one line (bag/replay.ReplayError)
     result = check_calibration(calibration, replay.poses, rule, gravity=None if located is None else located[0])
     lines = describe(result)
-    if replay.flight_state_line:
-        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
+    if replay.flight_state is not None:
+        lines.append(replay.flight_state.report_line())
     print("\n".join(lines))
     if result.verdict == "moved":
         return DRIFT_EXIT_CODE

@@ -131,8 +131,8 @@ def _bag_metadata(path: Path) -> dict[str, Any]:
 def _recorded_vehicle(path: Path, replay: ReplayResult) -> str | None:
     """The vehicle as the recording names it: what the reader found (a ULog's sys_uuid), or a rosbag2
     directory's metadata custom_data."""
-    recording = replay.recording
-    if recording is not None and recording.vehicle:
+    recording = replay.source.recording
+    if recording.vehicle:
         return str(recording.vehicle)
     if path.is_dir():
         custom = _bag_metadata(path).get("custom_data") or {}
@@ -163,18 +163,7 @@ def _start_ns(path: Path, replay: ReplayResult) -> int | None:
         starting = _bag_metadata(path).get("starting_time")
         if isinstance(starting, dict) and isinstance(starting.get("nanoseconds_since_epoch"), int):
             return int(starting["nanoseconds_since_epoch"])
-    return replay.start_ns
-
-
-def _count(value: Any) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, int):
-        return value
-    try:
-        return len(value)
-    except TypeError:
-        return None
+    return replay.source.start_ns
 
 
 def _replay(path: str, settings: ReplaySettings | None) -> ReplayResult:
@@ -254,7 +243,7 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
     from ..bag.recording import Recording
     from ..bag.replay import ReplaySettings
 
-    recording = replay.recording
+    recording = replay.source.recording
     if not isinstance(recording, Recording) or recording.format not in ("ulog", "dataflash"):
         return []
     s = settings or ReplaySettings()
@@ -267,7 +256,8 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
         except AccelCalibrationError:
             continue
         # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
-        if recording.format == "dataflash" or not other.sensor_id or other.sensor_id != replay.sensor_id:
+        other_id = other.source.sensor_id
+        if recording.format == "dataflash" or not other_id or other_id != replay.source.sensor_id:
             found.append((instance, other))
     return found
 
@@ -280,19 +270,22 @@ def _described(replay: ReplayResult, identity: dict[str, Any], vehicle: str, veh
 
     path = str(where)
     result = replay.result
-    calibration = replay.calibration if replay.calibration is not None else getattr(result, "calibration", None)
+    # Refused by a gate: the fit's calibration still, kept in the history marked refused.
+    calibration = replay.calibration
+    if calibration is None and result is not None:
+        calibration = result.calibration
     temperatures = [p.temperature_degc for p in replay.poses if p.temperature_degc is not None]
     status = "calibrated" if replay.calibration is not None else "refused"
     values: dict[str, Any] = {
-        "imu_topic": replay.imu_topic, "frame_id": replay.frame_id or None,
-        "start_ns": _start_ns(where, replay), "duration_s": float(replay.duration_s),
-        "messages": int(replay.messages),
+        "imu_topic": replay.source.imu_topic, "frame_id": replay.source.frame_id or None,
+        "start_ns": _start_ns(where, replay), "duration_s": float(replay.source.duration_s),
+        "messages": int(replay.source.messages),
         "temperature_min_degc": min(temperatures) if temperatures else None,
         "temperature_max_degc": max(temperatures) if temperatures else None,
     }
     if result is not None:
         values["poses"] = int(result.poses) if result.poses else len(replay.poses)
-        values["outliers"] = _count(getattr(result, "outliers", None))
+        values["outliers"] = len(result.outliers)
         values["model"] = result.model
     if calibration is not None:  # refused by a gate: the numbers are kept, marked refused
         quality = calibration.quality
@@ -311,7 +304,7 @@ def _described(replay: ReplayResult, identity: dict[str, Any], vehicle: str, veh
         )
     reason = None if status == "calibrated" else f"{path}: {replay.problem}"
     # The sensor as the recording names it: a ULog's device id, a bag's frame_id, else the stream read.
-    sensor = replay.sensor_id or replay.frame_id or replay.imu_topic
+    sensor = replay.source.sensor_id or replay.source.frame_id or replay.source.imu_topic
     record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor=sensor,
                            status=status, reason=reason, **values)
     return outcome(status, reason, record, _line(record, where.name))

@@ -8,8 +8,9 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,24 @@ if TYPE_CHECKING:
 
 # What replay_one gives: (summary text, calibration, error), each None where there is none.
 Outcome = tuple["str | None", "Calibration | None", "str | None"]
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """One recording to replay and where each of its outputs goes (None: not asked)."""
+
+    bag: str
+    settings: ReplaySettings
+    output: str | None  # --output: the calibration file
+    corrected: str | None  # --corrected: the corrected copy
+    report: str | None  # --report: the figure
+    progress: bool  # a progress bar (one recording only: bars of parallel jobs would interleave)
+    poses_out: str | None = None  # --poses-out: the pose table
+
+    def outputs(self, corrected_flag: str = "--corrected") -> list[tuple[str, str | None]]:
+        """(option, path) of each output, as the output checks take them."""
+        return [("--output", self.output), (corrected_flag, self.corrected), ("--report", self.report),
+                ("--poses-out", self.poses_out)]
 
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -75,8 +94,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     return parser
 
 
-def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected_bag: str | None, report: str | None,
-               progress: bool, poses_out: str | None = None) -> Outcome:
+def replay_one(job: ReplayJob) -> Outcome:
     """Replay one recording and write what was asked; returns (summary text, calibration or None, error or None).
     The pose table (`poses_out`) is written whether or not the fit passed: it shows what was found.
     All the work (the replay, the calibration's file text, the corrected copy written aside, the report
@@ -87,8 +105,10 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
     from ..io.output_paths import write_bytes_atomically
     from ..io.poses_out import poses_table_text
 
+    bag, settings, output, corrected_bag, report, poses_out = (job.bag, job.settings, job.output, job.corrected,
+                                                               job.report, job.poses_out)
     try:
-        replay = replay_bag(bag, settings, progress=progress)
+        replay = replay_bag(bag, settings, progress=job.progress)
         poses_text = poses_table_text(replay.poses, replay.pose_status) if poses_out else ""
         if replay.calibration is None and poses_out:
             write_text_atomically(poses_out, poses_text)
@@ -100,8 +120,8 @@ def replay_one(bag: str, settings: ReplaySettings, output: str | None, corrected
             f" (poses written to {poses_out})" if poses_out else "")
     calibration = replay.calibration
     assert replay.result is not None, "a calibration comes with its fit"
-    unit = replay.recording.unit if replay.recording is not None else "messages"
-    lines = [f"{bag}: {replay.messages} {unit} on {replay.imu_topic} over {replay.duration_s:.1f} s, "
+    source = replay.source
+    lines = [f"{bag}: {source.messages} {source.recording.unit} on {source.imu_topic} over {source.duration_s:.1f} s, "
              f"{len(replay.poses)} static poses, {replay.elapsed_s:.2f} s",
              replay.result.summary(), *gyro_lines(replay),
              *([calibration.noise.describe()] if calibration.noise is not None else []), *notes]
@@ -155,11 +175,11 @@ def replay_prior(path: str, session: Settings) -> Prior:
     return prior
 
 
-def check_corrected_targets(jobs: Sequence[tuple[Any, ...]]) -> None:
+def check_corrected_targets(jobs: Sequence[ReplayJob]) -> None:
     """Before any work: a corrected copy of a bag directory is a new directory, and no corrected copy
     is written over a directory."""
     for job in jobs:
-        bag, destination = job[0], job[3]
+        bag, destination = job.bag, job.corrected
         if destination is None or not os.path.lexists(destination):
             continue
         if os.path.isdir(bag) or os.path.isdir(destination):
@@ -173,12 +193,12 @@ def flight_and_autopilot_lines(replay: ReplayResult) -> list[str]:
     lines = []
     if replay.calibration is not None and replay.calibration.fitted_to:
         lines.append(f"fitted to {replay.calibration.fitted_to}")
-    if replay.flight_state_line:
-        lines.append(replay.flight_state_line if replay.flight_state_found else f"warning: {replay.flight_state_line}")
-    if replay.autopilot_calibration is not None:
-        lines.append(replay.autopilot_calibration.describe())
-        if replay.autopilot_difference_mg is not None:
-            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot_difference_mg:.1f} mg at 1 g "
+    if replay.flight_state is not None:
+        lines.append(replay.flight_state.report_line())
+    if replay.autopilot is not None:
+        lines.append(replay.autopilot.calibration.describe())
+        if replay.autopilot.difference_mg is not None:
+            lines.append(f"ours differs from the autopilot's by up to {replay.autopilot.difference_mg:.1f} mg at 1 g "
                          "(worst orientation)")
     return lines
 
@@ -228,15 +248,14 @@ def run(args: argparse.Namespace) -> int:
             return option
         return str(Path(option) / (label + suffix))
 
-    jobs: list[tuple[Any, ...]]  # replay_one's arguments, as map_on_local_cluster takes them
-    jobs = [(bag, settings, target(args.output, label, ".yaml"), target(args.corrected_bag, label, ""),
-             target(args.report, label, ".png"), not several, target(args.poses_out, label, ".poses.csv"))
+    jobs = [ReplayJob(bag, settings, output=target(args.output, label, ".yaml"),
+                      corrected=target(args.corrected_bag, label, ""), report=target(args.report, label, ".png"),
+                      progress=not several, poses_out=target(args.poses_out, label, ".poses.csv"))
             for bag, label in zip(args.bags, labels)]
     # Before any work: no output may be an input (a bag, a file inside one, the params file) or another output.
     inputs = [*args.bags, args.params_file, args.prior]
-    check_outputs([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected-bag", 3),
-                                                                    ("--report", 4), ("--poses-out", 6))],
-                  inputs, directories=("--corrected-bag",))
+    check_outputs([place for job in jobs for place in job.outputs("--corrected-bag")], inputs,
+                  directories=("--corrected-bag",))
     if several:  # the directories holding one output per bag
         for flag, option in (("--output", args.output), ("--corrected-bag", args.corrected_bag),
                              ("--report", args.report), ("--poses-out", args.poses_out)):
@@ -246,15 +265,14 @@ def run(args: argparse.Namespace) -> int:
                     Path(option).mkdir(parents=True, exist_ok=True)
                 except OSError as error:
                     raise CalibrationError(f"cannot make output directory {option}: {error.strerror}") from None
-    check_output_places([(flag, job[k]) for job in jobs for flag, k in (("--output", 2), ("--corrected", 3),
-                                                                         ("--report", 4), ("--poses-out", 6))])
+    check_output_places([place for job in jobs for place in job.outputs()])
     check_corrected_targets(jobs)
     if args.jobs > 1 and several:  # one way to run many: the fleet's local Dask cluster of --jobs processes
         outcomes = map_on_local_cluster(
-            replay_one, jobs, workers=args.jobs,  # a lost worker (out of memory, a signal): that bag only
-            failed=lambda job, reason: (None, None, f"{job[0]}: its replay process died ({reason})"))
+            replay_one, [(job,) for job in jobs], workers=args.jobs,  # a lost worker (out of memory): that bag only
+            failed=lambda task, reason: (None, None, f"{task[0].bag}: its replay process died ({reason})"))
     else:
-        outcomes = [replay_one(*job) for job in jobs]
+        outcomes = [replay_one(job) for job in jobs]
     errors = [error for _, _, error in outcomes if error]
     for summary, _, _ in outcomes:
         if summary:

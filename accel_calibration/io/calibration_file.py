@@ -182,14 +182,14 @@ def _dividing_head_terms(block: object) -> DividingHeadTerms:
                                                                             "dividing_head.residual_sigma_mg"))
 
 
-# The segmented block (issue 11 on): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
+# The segmented block (the seed paper's model): sigma_i = l_i a_i^2 + m_i a_i + n_i per segment and axis, a_i the raw
 # output in m/s^2, added after M (a_raw - b). Written with every file, checked on reading.
 SEGMENT_UNITS = {
     "segment_bounds_degc": "degC", "segment_temperatures_degc": "degC",
     "segment_coefficients": "per segment rows l (s^2/m), m (1), n (m/s^2); columns x, y, z; "
                             "sigma = l a_raw^2 + m a_raw + n added to M (a_raw - b)",
 }
-OLD_SEGMENTED = ("holds the segmented temperature model of before issue 11 (segment_edges_degc: a per-segment "
+OLD_SEGMENTED = ("holds the earlier segmented temperature model (segment_edges_degc: a per-segment "
                  "quadratic in temperature), whose format changed to the seed paper's model (segment_bounds_degc: a "
                  "per-axis quadratic in the measured acceleration per segment) and is no longer read: refit it with "
                  "accel-calib fit --temperature-model segmented")

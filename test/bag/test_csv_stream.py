@@ -65,8 +65,8 @@ def test_imu_tk_xsens_as_a_csv_stream_equals_the_python_api(shared, tmp_path):
     replay = replay_bag(path, ReplaySettings(session=settings_, units="counts", counts_per_g=4060.0))
     t_ns = np.round(acc[:, 0] * 1e9).astype(np.int64)
     accel = counts * (G / 4060.0)
-    np.testing.assert_array_equal(replay.recording.t_ns, t_ns)
-    np.testing.assert_array_equal(replay.recording.accel_mps2, accel)
+    np.testing.assert_array_equal(replay.source.recording.t_ns, t_ns)
+    np.testing.assert_array_equal(replay.source.recording.accel_mps2, accel)
     poses, verdict = python_api(t_ns, accel, gyro, settings_)
     assert 30 <= len(poses) <= 42  # imu_tk's detector finds 38 still intervals
     assert_same_result(replay, poses, verdict)
@@ -92,7 +92,7 @@ def test_mpu6050_as_a_csv_stream_equals_the_python_api(shared, tmp_path):
                  "--poses-out", str(out)])
     assert code == (0 if verdict.success else 1)
     replay = replay_bag(path, ReplaySettings(session=settings_, units="counts", counts_per_g=16384.0))
-    np.testing.assert_array_equal(replay.recording.t_ns, t_ns)
+    np.testing.assert_array_equal(replay.source.recording.t_ns, t_ns)
     assert_same_result(replay, poses, verdict)
     rows = list(csv.DictReader(io.StringIO(out.read_text())))
     assert [int(r["start_ns"]) for r in rows] == [p.start_ns for p in poses]

@@ -1,4 +1,4 @@
-"""Flight recordings carry their own flight state (issue 21): a ULog's vehicle_status and
+"""Flight recordings carry their own flight state: a ULog's vehicle_status and
 vehicle_land_detected, a bag's /mavros/state, /fmu/out/vehicle_status(+land detected) or a topic named with
 --armed-topic, a DataFlash log's ARM and EV records. The recording written here: a ground session (8
 orientations), the vehicle set level, armed and still for 3 s on the ground, a quiet hover (tilted 4 deg,
@@ -126,9 +126,9 @@ def assert_ground_only(replay, flight: Flight, offset_ns: int, sources: str, bia
     assert replay.problem is None, replay.problem
     low, high = offset_ns + flight.arm_ns - int(MARGIN_S * 1e9), offset_ns + flight.disarm_ns + int(MARGIN_S * 1e9)
     assert replay.poses and all(p.end_ns < low or p.start_ns > high for p in replay.poses)
-    assert replay.flight_state_found
-    match = LINE.match(replay.flight_state_line)
-    assert match, replay.flight_state_line
+    assert replay.flight_state.found
+    match = LINE.match(replay.flight_state.line)
+    assert match, replay.flight_state.line
     assert float(match.group(1)) == pytest.approx((high - low) / 1e9, abs=0.051)
     assert match.group(2) == sources
     reference, poses = ground_alone(flight, offset_ns)
@@ -142,7 +142,7 @@ def assert_ground_only(replay, flight: Flight, offset_ns: int, sources: str, bia
 def assert_flight_leaks_without(path, flight: Flight, offset_ns: int, **options):
     """Without the flight state the hover and the 3 s armed on the ground are poses: the checks above can fail."""
     replay = replay_bag(path, ReplaySettings(ignore_flight_state=True, **options))
-    assert replay.flight_state_line is None
+    assert replay.flight_state is None
     arm, disarm = offset_ns + flight.arm_ns, offset_ns + flight.disarm_ns
     inside = [p for p in replay.poses if p.end_ns > arm and p.start_ns < disarm]
     assert len(inside) >= 2  # armed on the ground, the hover (and landed, before disarming)
@@ -150,8 +150,8 @@ def assert_flight_leaks_without(path, flight: Flight, offset_ns: int, **options)
 
 def assert_warns_none_found(path, capsys):
     replay = replay_bag(path)
-    assert not replay.flight_state_found
-    assert replay.flight_state_line.startswith("no flight state in this recording")
+    assert not replay.flight_state.found
+    assert replay.flight_state.line.startswith("no flight state in this recording")
     main(["replay", str(path)])
     out = capsys.readouterr().out
     warnings = [line for line in out.splitlines() if line.startswith("warning: no flight state")]
@@ -362,7 +362,7 @@ def test_dataflash_arm_and_ev_keep_the_flight_out_and_the_autopilot_calibration_
     # Replay undoes the logged correction: the raw samples again, to float32 logging (0.001 mg).
     assert_ground_only(replay, flight, START_US * 1000,
                        "ArduPilot ARM, EV armed/disarmed, EV not landed/land complete", bias_atol=1e-5)
-    autopilot = replay.autopilot_calibration
+    autopilot = replay.autopilot.calibration
     np.testing.assert_allclose(autopilot.offsets_mps2, [0.1, -0.2, 0.3], rtol=1e-6)
     np.testing.assert_allclose(autopilot.scale, [1.01, 0.99, 1.0], rtol=1e-6)
     assert autopilot.caltemp_degc == pytest.approx(31.5)
@@ -373,12 +373,12 @@ def test_dataflash_arm_and_ev_keep_the_flight_out_and_the_autopilot_calibration_
     raw = directions @ np.linalg.inv(ours.matrix).T + ours.bias
     theirs = (raw - DATAFLASH_OFFSETS) * DATAFLASH_SCALES
     brute = np.max(np.linalg.norm(theirs - directions, axis=1)) / (G / 1000)
-    assert replay.autopilot_difference_mg == pytest.approx(brute, abs=0.05)
-    assert replay.autopilot_difference_mg > 20  # an MPU-6050-like sensor: tens of mg
+    assert replay.autopilot.difference_mg == pytest.approx(brute, abs=0.05)
+    assert replay.autopilot.difference_mg > 20  # an MPU-6050-like sensor: tens of mg
     assert main(["replay", str(path)]) == 0
     out = capsys.readouterr().out
     assert "the autopilot's calibration at the time (instance 0): offsets +0.1000 -0.2000 +0.3000" in out
-    assert f"up to {replay.autopilot_difference_mg:.1f} mg at 1 g" in out
+    assert f"up to {replay.autopilot.difference_mg:.1f} mg at 1 g" in out
     assert "fitted to raw: DataFlash IMU instance 0 with the log's correction undone" in out
     samples = read_dataflash(path)  # the reader gives the records as logged
     np.testing.assert_array_equal(samples.t_ns, (START_US + flight.t_ns // 1000) * 1000)
@@ -500,7 +500,7 @@ def test_written_out_jazzy_definitions_are_rosbags_own():
 
 
 def test_help_and_a_replay_that_draws_nothing_import_no_scipy_linalg_nor_matplotlib(flight, tmp_path):
-    """In a fresh interpreter, as a user starts it (issue 21: --help spent 0.36 s importing scipy.linalg).
+    """In a fresh interpreter, as a user starts it: scipy.linalg alone costs ~0.36 s of start-up.
     A bag of standard messages only is read without rosbags' Jazzy store (~0.2 s) too."""
     import subprocess
     import sys

@@ -215,8 +215,8 @@ def test_another_imu_definition_is_read_through_its_own_never_at_the_standard_of
     standard, samples = replay_bag(standard_bag), open_recording(standard_bag)  # (replay streams it)
     for through_rosbags in (False, True):
         other = replay_bag(bag, through_rosbags=through_rosbags)  # not streamed: another definition is read whole
-        np.testing.assert_array_equal(other.recording.accel_mps2, samples.accel_mps2)
-        np.testing.assert_array_equal(other.recording.gyro_radps, samples.gyro_radps)
+        np.testing.assert_array_equal(other.source.recording.accel_mps2, samples.accel_mps2)
+        np.testing.assert_array_equal(other.source.recording.gyro_radps, samples.gyro_radps)
         assert len(other.poses) == len(standard.poses)
         if standard.calibration is not None:
             np.testing.assert_array_equal(other.calibration.bias, standard.calibration.bias)
@@ -233,10 +233,10 @@ def test_a_corrected_copy_of_another_definition_keeps_it(tmp_path, session):
     from accel_calibration.bag.corrected_copy import write_corrected_bag
 
     write_corrected_bag(replay, replay.calibration, tmp_path / "corrected")
-    again = replay_bag(tmp_path / "corrected", through_rosbags=True)
-    np.testing.assert_allclose(again.recording.accel_mps2, replay.calibration.apply(session.accel_raw), atol=1e-12)
+    again = replay_bag(tmp_path / "corrected", through_rosbags=True).source.recording
+    np.testing.assert_allclose(again.accel_mps2, replay.calibration.apply(session.accel_raw), atol=1e-12)
     # The gyro corrected too, as the node corrects it (core.correction's one correction; BLAS: 1e-15).
-    np.testing.assert_allclose(again.recording.gyro_radps, replay.calibration.apply_gyro(session.gyro_raw),
+    np.testing.assert_allclose(again.gyro_radps, replay.calibration.apply_gyro(session.gyro_raw),
                                rtol=0, atol=1e-15)
 
 

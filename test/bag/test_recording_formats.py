@@ -73,7 +73,7 @@ def test_every_form_gives_the_same_calibration(recorded):
     # Right, too: within 4 sigma of the part's true errors.
     assert np.all(np.abs(reference.calibration.bias - errors.bias_mps2) <= 4 * reference.calibration.bias_sigma)
     for name, replay in results.items():
-        assert replay.messages == len(samples.t_ns), name
+        assert replay.source.messages == len(samples.t_ns), name
         assert [(p.start_ns, p.end_ns, p.samples) for p in replay.poses] == \
             [(p.start_ns, p.end_ns, p.samples) for p in reference.poses], name
         temps = [p.temperature_degc for p in replay.poses]
@@ -81,7 +81,7 @@ def test_every_form_gives_the_same_calibration(recorded):
         # g and counts are scaled back by one multiplication: a rounding of the last bit, no more.
         np.testing.assert_allclose(replay.calibration.bias, reference.calibration.bias, rtol=0, atol=1e-9)
         np.testing.assert_allclose(replay.calibration.matrix, reference.calibration.matrix, rtol=0, atol=1e-9)
-    assert {r.recording.format for r in results.values()} == {"rosbag2", "sqlite3", "mcap", "csv"}
+    assert {r.source.recording.format for r in results.values()} == {"rosbag2", "sqlite3", "mcap", "csv"}
 
 
 def test_the_format_is_found_from_the_content(recorded, tmp_path):
@@ -168,7 +168,8 @@ def test_corrected_csv_keeps_the_file_and_its_units(recorded, tmp_path, capsys):
                                    calibration.apply_gyro([float(v) for v in old[4:7]]), rtol=0, atol=1e-15)
     raw_g = np.array([[float(v) for v in row[1:4]] for row in before[1:]])
     new_g = np.array([[float(v) for v in row[1:4]] for row in after[1:]])
-    temps = replay_bag(source, ReplaySettings(units="g")).temperatures_at_samples()
+    replayed = replay_bag(source, ReplaySettings(units="g"))
+    temps = replayed.temperatures.at(replayed.source.recording.t_ns)
     expected = calibration.apply(raw_g * G, temps) if calibration.temperature is not None else \
         calibration.apply(raw_g * G)
     np.testing.assert_allclose(new_g * G, expected, rtol=1e-15, atol=1e-12)  # still in g

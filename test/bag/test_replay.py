@@ -93,7 +93,7 @@ def test_replay_calibrates_and_writes_a_corrected_bag(tmp_path, storage):
     assert temperatures == [(t, m.temperature) for topic, t, m in after if topic == "/imu/temperature"]
     # The corrected recording, replayed, needs no further correction.
     again = replay_bag(out)
-    # To 0.1 ug, not 1e-9: the poses are weighted by their own noise (issue 22), whose sample covariance M
+    # To 0.1 ug, not 1e-9: the poses are weighted by their own noise, whose sample covariance M
     # reshapes pose by pose (it is not quite isotropic), so the copy's weights differ by ~1e-3 (~0.04 ug here).
     assert np.abs(again.calibration.bias).max() < 1e-6
     assert (tmp_path / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -45,8 +45,8 @@ def same_replay(streamed, whole):
     assert [(p.start_ns, p.end_ns, p.samples, *p.accel_mps2.tolist(), p.temperature_degc) for p in streamed.poses] \
         == [(p.start_ns, p.end_ns, p.samples, *p.accel_mps2.tolist(), p.temperature_degc) for p in whole.poses]
     assert streamed.counts == whole.counts
-    assert (streamed.messages, streamed.duration_s, streamed.frame_id, streamed.start_ns) == \
-        (whole.messages, whole.duration_s, whole.frame_id, whole.start_ns)
+    a, b = streamed.source, whole.source
+    assert (a.messages, a.duration_s, a.frame_id, a.start_ns) == (b.messages, b.duration_s, b.frame_id, b.start_ns)
     assert streamed.problem == whole.problem
     if whole.calibration is not None:
         np.testing.assert_array_equal(streamed.calibration.bias, whole.calibration.bias)
@@ -59,12 +59,12 @@ def test_a_streamed_bag_replays_as_read_whole(bags, kind, group, part, monkeypat
     monkeypatch.setattr(recording_module, "STREAM_GROUP_MESSAGES", group)
     monkeypatch.setattr(RecordingFeed, "PART_ROWS", part)
     streamed = replay_bag(bags[kind])
-    assert isinstance(streamed.recording, BagStream)  # it was streamed, not read whole
+    assert isinstance(streamed.source.recording, BagStream)  # it was streamed, not read whole
     whole = replay_recording(open_recording(bags[kind]))
-    assert isinstance(whole.recording, Recording)
+    assert isinstance(whole.source.recording, Recording)
     same_replay(streamed, whole)
     assert len(streamed.poses) >= 12 and streamed.calibration is not None, streamed.problem
-    assert streamed.temperature_topic == "/imu/temperature"
+    assert streamed.source.temperature_topic == "/imu/temperature"
     assert all(p.temperature_degc is not None for p in streamed.poses)
 
 
@@ -83,7 +83,7 @@ def test_log_times_going_back_across_chunks_read_whole(tmp_path, bags, monkeypat
                 timestamp -= 30 * 10**9  # the last message logged 30 s early: its place is chunks back
             writer.write(out[connection.id], timestamp, raw)
     streamed = replay_bag(bag)
-    assert isinstance(streamed.recording, Recording)  # read whole
+    assert isinstance(streamed.source.recording, Recording)  # read whole
     same_replay(streamed, replay_recording(open_recording(bag)))
 
 
@@ -145,7 +145,7 @@ def test_a_corrected_copy_is_written_a_group_at_a_time_with_the_whole_recordings
     from accel_calibration.core.temperature_models import TemperatureModel
 
     replay = replay_bag(bags[name])  # streamed: no whole read behind the copy
-    assert isinstance(replay.recording, BagStream) and replay.calibration is not None
+    assert isinstance(replay.source.recording, BagStream) and replay.calibration is not None
     drift = TemperatureModel("polynomial", 22.0, (18.0, 30.0), bias_coefficients=[[0.1, -0.1, 0.05]])
     calibration = replay.calibration.replace(temperature=drift)
     assert calibration.gyro_bias_radps is not None

@@ -160,8 +160,8 @@ def test_corrected_copy_of_a_log_is_a_csv_of_corrected_samples(tmp_path, capsys)
     assert out.read_text().splitlines()[0] == "t_ns,ax,ay,az,gx,gy,gz"
     calibration = load_calibration(cal)
     again = replay_bag(out)  # the CSV reader takes it back; corrected samples need no more correction
-    assert again.recording.format == "csv" and again.messages == len(samples.t_ns)
-    np.testing.assert_allclose(again.recording.accel_mps2,
+    assert again.source.recording.format == "csv" and again.source.messages == len(samples.t_ns)
+    np.testing.assert_allclose(again.source.recording.accel_mps2,
                                calibration.apply(samples.accel_raw.astype(np.float32).astype(float)),
                                rtol=0, atol=1e-12)
     assert np.abs(again.calibration.bias).max() < 1e-6

@@ -83,13 +83,13 @@ def test_history_after_a_fleet_run_equals_the_per_recording_replays(fleet, sched
         if "." not in name:
             assert (row.sensor, row.imu_topic) == ("imu_link", "/imu/data_raw")
         else:  # no frame_id: the stream read names the sensor
-            assert row.sensor == replayed.imu_topic == row.imu_topic
+            assert row.sensor == replayed.source.imu_topic == row.imu_topic
         np.testing.assert_array_equal(row.bias, cal.bias)
         np.testing.assert_array_equal(row.bias_sigma, cal.bias_sigma)
         np.testing.assert_array_equal(np.reshape(row.matrix, (3, 3)), cal.matrix)
         np.testing.assert_array_equal(np.reshape(row.matrix_sigma, (3, 3)), cal.matrix_sigma)
         assert row.poses == cal.quality.poses >= 12 and row.residual_rms_mg == cal.quality.residual_rms_mg
-        assert row.messages == replayed.messages and row.model == "sphere9"
+        assert row.messages == replayed.source.messages and row.model == "sphere9"
         if not name.endswith(".ulg"):  # (this ULog has no temperature)
             assert row.temperature_min_degc == row.temperature_max_degc == pytest.approx(25.0)
         assert row.start_ns == (START_NS + WEEK_NS if name.endswith("2") else START_NS)
@@ -155,7 +155,7 @@ def test_vehicle_comes_from_the_rule_then_the_recording_then_its_folder(tmp_path
     bag = tmp_path / "fleet" / "hangar2" / "2026-11-02"
     bag.mkdir(parents=True)
     (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  custom_data: {vehicle: uav42}\n")
-    unread = SimpleNamespace(recording=None)
+    unread = SimpleNamespace(source=SimpleNamespace(recording=SimpleNamespace(vehicle="")))  # names no vehicle
     assert _vehicle(bag, unread, r"fleet/(?P<vehicle>hangar\d)") == ("hangar2", "rule")
     assert _vehicle(bag, unread, r"nomatch(\d)") == ("uav42", "metadata")
     assert _vehicle(bag, None, None) == ("hangar2", "folder")  # not read: nothing recorded is known

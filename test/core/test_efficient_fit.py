@@ -1,4 +1,4 @@
-"""Poses weighted by the inverse variance of their means, w_i = 1 / (s_i^2 + tau^2) (issue 22, part two):
+"""Poses weighted by the inverse variance of their means, w_i = 1 / (s_i^2 + tau^2):
 equal noise gives today's fit exactly, tau makes chi^2/dof = 1, the weighted fit is closer to the truth
 when poses differ in length, and --poses-out tables carry each pose's sigma back into `fit`."""
 import csv

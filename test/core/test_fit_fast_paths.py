@@ -1,4 +1,4 @@
-"""The fast paths of fit() (issue 13) give what the plain computations give: the stacked residuals and
+"""The fast paths of fit() give what the plain computations give: the stacked residuals and
 Jacobian, the stacked Gauss-Newton, the Cholesky seed, the leverages, sigma and condition number
 from one normal matrix, and the Calibration's float validation. Each is checked against a plain,
 independent numpy computation, to rounding."""

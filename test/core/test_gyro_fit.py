@@ -1,4 +1,4 @@
-"""Gyro scale and misalignment from the motions between still poses (issue 23): the integration and its
+"""Gyro scale and misalignment from the motions between still poses: the integration and its
 Jacobian against independent references, simulated hand-turned sessions against their truth (and sigma
 against Monte Carlo), refusals with what to do, and the imu_tk Xsens recording."""
 import gzip
@@ -113,7 +113,7 @@ def test_blocked_scan_equals_the_sequential_product(count, seed):
 @pytest.mark.parametrize("seed, poses, rate_hz", [(11, 18, 200.0), (12, 24, 1000.0), (13, 20, 400.0)])
 def test_simulated_session_recovers_scale_and_misalignment(seed, poses, rate_hz):
     """1-3 % scale, 2-20 mrad misalignment, MPU-6050 noise, drifting bias, earth rate: the scale within
-    0.05 %, the misalignment within 0.3 mrad (issue 23), from 18-24 poses."""
+    0.05 %, the misalignment within 0.3 mrad, from 18-24 poses."""
     simulated, result = simulated_fit(seed, poses, rate_hz)
     assert result.success, result.message
     assert result.motions_used == poses - 1 and not result.refused

@@ -1,4 +1,4 @@
-"""The gyro calibrated from the same session (issue 23): the motions between the poses the sample path
+"""The gyro calibrated from the same session: the motions between the poses the sample path
 found are kept (bounded) and fitted at /calibrate and in replay, behind the gyro.* gates; a refused gyro
 fit keeps the accelerometer's calibration and says why."""
 from __future__ import annotations
@@ -54,7 +54,7 @@ def test_a_hand_turned_session_calibrates_the_gyro_through_the_detector(seed):
 
 def test_sigma_through_the_detector_is_honest_over_sixty_sessions():
     """Monte Carlo through the sample path (the detector's poses, not ideal ones), 60 sessions of 18 poses
-    at 400 Hz: at least 95 % of the matrix errors within 2 sigma (issue 23's target; 0.959 here) and
+    at 400 Hz: at least 95 % of the matrix errors within 2 sigma (what an honest 2-sigma means; 0.959 here) and
     error/sigma of rms near 1 (0.98), so sigma is neither optimistic nor padded. The misalignment is
     within 0.3 mrad in 95 % of the sessions (median 0.18, worst 0.32): the sigma at 18 poses is
     0.10-0.25 mrad, so a bound of 0.3 mrad holds for most sessions, not for every one."""

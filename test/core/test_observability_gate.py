@@ -1,4 +1,4 @@
-"""Issue 10, "Observability judged by uncertainty, not by faces": the gate refuses a fit when the sigma of
+"""Observability judged by uncertainty, not by faces: the gate refuses a fit when the sigma of
 a parameter (bias, scale, misalignment) is above its bound, names that parameter, and advises the
 orientation that would lower the largest sigma most, spoken as "turn x down" or "turn x and y down
 (45 deg)". A session that never had y pointing down but fits to 0.1 mg is no longer refused."""
@@ -52,8 +52,8 @@ def random_sessions(count=20, seed=3, n=24):
 
 
 def test_random_24_orientation_sessions_that_fit_well_are_not_refused_for_a_missing_face():
-    """The issue's case: of 20 sessions, the face rule ("no pose with y pointing down") refused some
-    whose fit was within 0.15 mg of the truth. Now none is refused, and each is within its sigma."""
+    """What a face rule ("no pose with y pointing down") gets wrong: of 20 sessions it refused some whose fit
+    was within 0.15 mg of the truth. None is refused here, and each is within its sigma."""
     missing_a_face = 0
     entries = SphereModel("sphere9").entries
     for errors, d, raw, fresh in random_sessions():

@@ -58,7 +58,7 @@ def test_each_gate_refuses_with_its_name(raw, gates, gate):
 
 
 def test_a_missing_face_alone_is_not_refused_but_a_loose_parameter_is():
-    """Issue 10: the coverage gate ("no pose with x pointing down") is gone; what is judged is each
+    """No coverage gate ("no pose with x pointing down"): what is judged is each
     parameter's sigma against its bound, and the refusal says which orientation would help."""
     rng = np.random.default_rng(3)
     directions = Rotation.random(400, random_state=rng).apply([0.0, 0.0, 1.0])

@@ -1,4 +1,4 @@
-"""Issue 10, "In flight, no poses": the fit is robust to a bad pose. A pose that does not lie on the
+"""The fit is robust to a bad pose. A pose that does not lie on the
 sphere with the rest is named in the result, left out, and its removal shows in the summary, the
 session's verdict and the node's /calibrate answer. Clean data give exactly today's calibration."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The seed paper's segmented temperature model (Gui Yi, eqs. 4-5; issue 11): the chamber protocol it was
+"""The seed paper's segmented temperature model (Gui Yi, eqs. 4-5): the chamber protocol it was
 made for with known orientations (its Tables 3-5), orientation-free fits and their refusals, fresh
 temperatures with the paper's segment pick and with blending, the CLI on ten temperature levels, the
 calibration file, the per-message correction, and the session learning segments online."""
@@ -32,7 +32,7 @@ ROOM_DEGC = 20.0
 
 class ChamberSensor:
     """Gui Yi's room-temperature sensor (scale factors k and biases d from the literature README, plus a
-    little misalignment) drifting with temperature and input as the issue describes: bias ~1 mg/degC
+    little misalignment) drifting with temperature and input: bias ~1 mg/degC
     in all (0.6-0.65 mg/degC per axis) plus curvature, scale ~1e-4/degC, and a small quadratic in the
     input that grows with temperature (0.3 mg at 1 g per 40 degC)."""
 
@@ -243,8 +243,8 @@ accel_calibration:
 def test_old_segmented_files_are_refused_naming_the_format_change(tmp_path, capsys):
     path = tmp_path / "old.yaml"
     path.write_text(OLD_BLOCK)
-    with pytest.raises(CalibrationError, match=r"old.yaml: temperature block holds the segmented temperature model "
-                                               r"of before issue 11 .*format changed") as caught:
+    with pytest.raises(CalibrationError, match=r"old.yaml: temperature block holds the earlier segmented "
+                                               r"temperature model .*format changed") as caught:
         load_calibration(path)
     assert "\n" not in str(caught.value)
     (tmp_path / "in.csv").write_text("ax,ay,az,temperature\n0.1,0.2,9.8,25.0\n")

@@ -62,7 +62,7 @@ def test_live_and_replay_give_the_same_poses_and_calibration(faults, part_rows, 
 
 
 def test_a_frozen_sensor_never_becomes_a_pose():
-    """Finding (field): 3 s of all-zero messages became a pose with |a| = 0."""
+    """3 s of all-zero messages (a frozen driver, as seen in the field) must not become a pose with |a| = 0."""
     _, samples = stream(poses=4)
     session = CalibrationSession()
     n = 1000
@@ -92,7 +92,7 @@ def directions(n, seed=0):
 
 @pytest.mark.parametrize("model, n", [("sphere9", 9), ("six", 6)])
 def test_exactly_as_many_poses_as_parameters_is_a_refusal_not_a_crash(model, n):
-    """Finding 2: /calibrate (and the refit at the 9th pose) with exactly N poses raised."""
+    """/calibrate (and the refit at the 9th pose) with exactly N poses is a refusal, not an exception."""
     errors = SensorErrors.mpu6050_like(np.random.default_rng(4))
     session = CalibrationSession(Settings(model=model, min_poses=n + 1, temperature_model="none"))
     for pose in truth_poses(errors, directions(n)):
@@ -140,7 +140,7 @@ def test_too_few_poses_from_a_sensor_hardly_ever_still_says_so_with_its_noise(gy
 
 
 def test_pose_store_settings_are_honoured():
-    """Finding 4: `store or PoseStore()` dropped max_poses, merge_angle_deg and temperature.bin_degc."""
+    """max_poses, merge_angle_deg and temperature.bin_degc reach the pose store (`store or PoseStore()` lost them)."""
     session = CalibrationSession(Settings(max_poses=30, merge_angle_deg=2.0, temperature_bin_degc=3.0))
     assert (session.store.capacity, session.store.temperature_bin_degc) == (30, 3.0)
     errors = SensorErrors.mpu6050_like(np.random.default_rng(5))
@@ -150,8 +150,8 @@ def test_pose_store_settings_are_honoured():
 
 
 def test_poses_at_three_temperatures_are_kept_apart_and_learn_the_drift():
-    """Finding 4: poses at 10, 25 and 40 degC were merged, no temperature model was learned, and the
-    calibration applied was 27 mg off at 10 and 40 degC."""
+    """Poses at 10, 25 and 40 degC must not be merged: merged, no temperature model is learned and the
+    calibration applied is 27 mg off at 10 and 40 degC."""
     rng = np.random.default_rng(6)
     base = SensorErrors.mpu6050_like(rng)
     errors = SensorErrors(bias_mps2=base.bias_mps2, matrix=base.matrix,
@@ -175,7 +175,7 @@ def test_poses_at_three_temperatures_are_kept_apart_and_learn_the_drift():
 
 
 def test_the_node_correction_applies_the_reference15_quadratic():
-    """Finding 5: the per-message terms used only M and b (1.5 mg apart from `accel-calib apply`)."""
+    """The per-message terms carry the quadratic too (with M and b alone they are 1.5 mg from `accel-calib apply`)."""
     calibration = Calibration(bias=[0.1, -0.2, 0.05], matrix=[[1.01, 0.002, 0], [0.001, 0.99, 0.003], [0, 0, 1.02]],
                               model="reference15", quadratic=[2e-4, -3e-4, 1.5e-4])
     raw = np.random.default_rng(7).normal(0, 9.0, (200, 3))

@@ -1,4 +1,4 @@
-"""Stream faults that blinded or misled the calibrator (issue 10), in-process through the session, per
+"""Stream faults that blinded or misled the calibrator, in-process through the session, per
 message (the node's door) and per recording (replay's door) alike. Each fault is counted under a
 plain name, never becomes a pose, never feeds the noise floor, and the calibrator recovers by itself.
 

@@ -1,4 +1,4 @@
-"""Temperature compensation on a simulated sensor with known drift (issue targets), refusals, files,
+"""Temperature compensation on a simulated sensor with known drift (against stated targets), refusals, files,
 the CLI, and the real MPU-6050 recording whose span is too small."""
 import numpy as np
 import pytest
@@ -48,7 +48,7 @@ def test_polynomial_within_1_mg_and_uncompensated_over_50(session):
 
 
 def test_segmented_on_spread_temperatures_blended_within_2_mg_picked_coarse(session):
-    """Issue 11: `segmented` is the seed paper's model (per segment, a quadratic in the measured
+    """`segmented` is the seed paper's model (per segment, a quadratic in the measured
     acceleration, one set of coefficients per segment). Here each segment's poses are spread over its
     10 degC: blended (fitted as applied, every pose at its own temperature) it still follows the drift;
     the paper's pick gives every temperature in a segment the same coefficients, ~10 mg off at its ends

@@ -1,4 +1,4 @@
-"""The gyro calibration in the calibration file (issue 23): gyro_matrix beside gyro_bias_radps and a
+"""The gyro calibration in the calibration file: gyro_matrix beside gyro_bias_radps and a
 gyro_quality block; round trips, files without them as before, implausible values refused in one line."""
 import numpy as np
 import pytest

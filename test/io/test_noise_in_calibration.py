@@ -1,4 +1,4 @@
-"""The white noise measured at the poses travels with the calibration (issues 24 and 26): the file keeps it
+"""The white noise measured at the poses travels with the calibration: the file keeps it
 as Kalibr's noise densities at the rate they were measured at, a restart's covariance starts from it (it
 held the driver's, or nothing, until a still pose completed, and never did in a flight armed first), and
 the node says it on /diagnostics and in calibration/get. Files without it load as before; implausible

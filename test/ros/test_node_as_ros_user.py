@@ -1,4 +1,4 @@
-"""The node as a ROS user finds it (issue 26) and as a hostile round left it (issue 25), in-process: a real
+"""The node as a ROS user finds it, and against hostile inputs, in-process: a real
 rclpy node whose callbacks the test calls, its log and diagnostics captured. No DDS timing decides."""
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ def test_silence_on_the_input_is_a_warning_naming_the_resolved_topic(make_node, 
 
 
 def test_armed_flapping_at_1_khz_does_not_flood_the_log(make_node, log_lines):
-    """Finding (hostile round): the armed input flipping at 1 kHz logged 1,564 INFO lines in 6 s."""
+    """An armed input flipping at 1 kHz must not flood the log (a line per change was 1,564 INFO lines in 6 s)."""
     from std_msgs.msg import Bool
 
     node = make_node()
@@ -133,9 +133,9 @@ def test_armed_flapping_at_1_khz_does_not_flood_the_log(make_node, log_lines):
 
 @pytest.mark.parametrize("kind", ["fifo", "deep", "binary", "huge"])
 def test_a_params_file_that_would_hang_or_crash_rcl_is_one_line(kind, tmp_path, capsys):
-    """Finding (hostile round): a FIFO hung the node before it started, 100,000-deep nesting gave a
-    RecursionError traceback, a non-UTF-8 file a UnicodeDecodeError traceback (exit 1), a 50 MB file had not
-    started the node after 140 s. All are refused before rcl parses anything: exit 2, one line."""
+    """Left to rcl, a FIFO hangs the node before it starts, 100,000-deep nesting gives a RecursionError
+    traceback, a non-UTF-8 file a UnicodeDecodeError traceback (exit 1), a 50 MB file has not started the
+    node after 140 s. So all are refused before rcl parses anything: exit 2, one line."""
     from accel_calibration.ros.node import main
 
     path = tmp_path / "params.yaml"
@@ -158,9 +158,9 @@ def test_a_params_file_that_would_hang_or_crash_rcl_is_one_line(kind, tmp_path, 
 
 
 def test_a_temperature_stamped_an_hour_ahead_is_screened_and_counted(make_node, tmp_path):
-    """Issue 25 item 19: two temperature publishers, one stamped an hour ahead, drove the live correction
-    temperature to 60 degC while the sensor read 25 (and the true readings after it got no weight); no
-    counter moved. A reading stamped more than a minute ahead of the IMU stream is dropped and
+    """Two temperature publishers, one stamped an hour ahead, could drive the live correction temperature
+    to 60 degC while the sensor read 25 (and the true readings after it get no weight), with no counter
+    moving. A reading stamped more than a minute ahead of the IMU stream is dropped and
     counted (60 s: a pause of the IMU stream keeps its readings)."""
     from accel_calibration.core.temperature_models import TemperatureModel
     from msg_tools.conversions import make_temperature

@@ -1,4 +1,4 @@
-"""Finding 7 of the session issue: /calibrate must not stop the corrected stream, and the correction
+"""/calibrate must not stop the corrected stream, and the correction
 terms are written from two threads (temperature on the executor, a new calibration on the worker).
 
 The node runs in this process (its real spin loop, real rclpy/DDS to a client node), so a save can

@@ -28,7 +28,7 @@ def good_session(seed=11, poses=16):
 
 
 def test_calibrate_too_early_then_a_session_then_calibrate_reset_calibrate(tmp_path, tester, node_process):
-    """Finding 1: the second /calibrate killed the node (one log call site used at two severities)."""
+    """A second /calibrate must not kill the node (one log call site used at two severities is what did)."""
     cal_file = tmp_path / "cal.yaml"
     node = node_process(cal_file)
     tester.wait_ready()

@@ -105,8 +105,8 @@ def test_a_corrected_bag_is_what_the_node_publishes(ros, recording, tmp_path):
 
 
 def test_covariance_is_never_less_than_the_driver_said_until_the_noise_is_measured():
-    """Finding (ROS user): after a restart with a calibration file the node replaced the driver's 1.6e-3
-    (m/s^2)^2 by the calibration's sigma alone (2.6e-7), ~6,000x too little, until a still pose completed."""
+    """After a restart with a calibration file, the driver's 1.6e-3 (m/s^2)^2 must not give way to the
+    calibration's sigma alone (2.6e-7, ~6,000x too little) before a still pose has measured the noise."""
     calibration = calibration_with_drift()
     before = Correction.build(calibration, 22.0)
     out = before.covariance_for(COVARIANCE)

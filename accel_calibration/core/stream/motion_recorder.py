@@ -1,4 +1,4 @@
-"""The raw gyro between consecutive still poses, kept as the sample path goes (issue 23): what the gyro
+"""The raw gyro between consecutive still poses, kept as the sample path goes: what the gyro
 fit integrates. Fed by the one sample path (RecordingFeed), so the node, replay and every recording
 format keep the same motions.
 

@@ -1,5 +1,5 @@
-"""Hostile round three (issue 25): no result lost, nothing written where it must not be, no secret
-printed, no hang. One test (or a few) per item of the issue, each failing before its fix."""
+"""Hostile inputs and outputs: no result lost, nothing written where it must not be, no secret printed,
+no hang. One test (or a few) per failure docs/failures.md lists."""
 from __future__ import annotations
 
 import os
@@ -62,7 +62,7 @@ def bag(tmp_path_factory):
     rng = np.random.default_rng(25)
     imu = SyntheticImu(SensorErrors.mpu6050_like(rng, noise_mps2=0.02), spread_orientations(15, rng), dwell_s=2.0,
                        move_s=0.8, rate_hz=100.0, seed=25)
-    path = tmp_path_factory.mktemp("round3") / "session"
+    path = tmp_path_factory.mktemp("hostile") / "session"
     write_session_bag(path, imu.samples(), start_ns=1_700_000_000 * 10**9, storage="mcap")
     return path
 
@@ -426,7 +426,7 @@ def test_a_catastrophic_vehicle_rule_is_refused_in_one_line_within_its_limit(tmp
     recording = tmp_path / ("a" * 40 + "!") / "x.csv"
     recording.parent.mkdir()
     recording.write_text("t,ax,ay,az\n0,0,0,9.8\n")
-    # The issue's rule: Python's re backtracks for minutes on this path; the regex engine sees through it.
+    # A catastrophic rule: Python's re backtracks for minutes on this path; the regex engine sees through it.
     outcome = finishes_within(10, calibrate_recording, str(recording), None, "(a+)+$")
     assert outcome.record.vehicle == recording.parent.name and outcome.record.vehicle_source == "folder"
     # One that backtracks in any engine: refused before any work, in one line, within its time limit.
