@@ -28,6 +28,7 @@ from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
 from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
+from .stream.detector_batch import DetectorConfig
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
@@ -80,7 +81,7 @@ class CalibrationSession:
         self.counters = Counters()
         self.screen = SampleScreen(settings, self.counters)
         self.temperature = TemperatureFilter(timeout_s=settings.temperature_timeout_s)
-        self.detector = StaticDetector(
+        self.detector = StaticDetector(DetectorConfig(
             window_s=settings.static_window_s,
             min_hold_s=settings.static_min_hold_s,
             accel_var_threshold=settings.static_accel_var_threshold or None,
@@ -90,7 +91,7 @@ class CalibrationSession:
             accel_noise_ceiling=settings.static_max_noise_mg * MG,
             gyro_noise_ceiling=settings.static_max_gyro_noise_mradps * 1e-3,
             floor_min_magnitude=0.05 * settings.gravity,  # not a dead sensor's zeros (a stream in g is 0.1 g)
-        )
+        ))
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)

@@ -211,8 +211,8 @@ class RecordingFeed:
             session.counters.temperature_stale += stale
             session.counters.temperature_bad += session.temperature.rejected - rejected
         # Paused at the end: the interval then open was dropped when the pause began.
-        poses = detector.process(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
-                                 final=final)
+        found = detector.find(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
+                              final=final)
         # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it): the
         # segment in force when the part began, then one per break (the first part: from its first row).
         bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1]
@@ -223,6 +223,6 @@ class RecordingFeed:
             segment_bases = np.concatenate([[self._segment_base], bases[np.flatnonzero(breaks)]])
         if len(rows):
             self._segment_base = int(bases[-1])
-        for pose in poses:
-            session.motions.pose_found(pose)
-        self._found += [(p, int(segment_bases[segment])) for p, segment in zip(poses, detector.pose_segments)]
+        for each in found:
+            session.motions.pose_found(each.pose)
+        self._found += [(each.pose, int(segment_bases[each.segment])) for each in found]
