@@ -28,17 +28,14 @@ from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
 from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
-from .stream.detector_batch import DetectorConfig
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
+from .stream.stream_side import StreamSide
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
 from .units import MG, units_problem
 
-# |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
-# m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
-PLAUSIBLE_GRAVITY = (0.5, 1.5)
 ALL_FACES = ("x pointing up", "x pointing down", "y pointing up", "y pointing down", "z pointing up", "z pointing down")
 
 
@@ -78,33 +75,13 @@ class CalibrationSession:
         settings = settings if settings is not None else Settings()
         self.settings = settings
         self.gates = QualityGates.from_settings(settings)
-        self.counters = Counters()
-        self.screen = SampleScreen(settings, self.counters)
-        self.temperature = TemperatureFilter(timeout_s=settings.temperature_timeout_s)
-        self.detector = StaticDetector(DetectorConfig(
-            window_s=settings.static_window_s,
-            min_hold_s=settings.static_min_hold_s,
-            accel_var_threshold=settings.static_accel_var_threshold or None,
-            gyro_var_threshold=settings.static_gyro_var_threshold or None,
-            k_sigma=settings.static_k_sigma,
-            max_floor_rise=settings.static_max_floor_rise,
-            accel_noise_ceiling=settings.static_max_noise_mg * MG,
-            gyro_noise_ceiling=settings.static_max_gyro_noise_mradps * 1e-3,
-            floor_min_magnitude=0.05 * settings.gravity,  # not a dead sensor's zeros (a stream in g is 0.1 g)
-        ))
+        self.stream = StreamSide(settings)  # samples in parts -> poses and motions (core/stream/)
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
-        # The raw gyro between consecutive poses (the gyro fit's motions), fed by the same sample path.
-        self.motions = MotionRecorder(max_motion_s=settings.gyro_max_motion_s,
-                                      trailing_s=2.0 + 4 * settings.static_window_s, capacity=settings.max_poses,
-                                      overlap_s=settings.static_window_s)
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
         self._pause_reasons: frozenset[str] = frozenset()  # why collection is paused (armed, calibration/pause)
-        # Means of the latest still intervals dropped as implausible for gravity (the stream side writes,
-        # /calibrate reads: a tuple replaced whole): a stream in g says so instead of "0 poses".
-        self.implausible_means: tuple[np.ndarray, ...] = ()
         # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
         # rest at the prior; set it with `use_prior`.
         self.prior: Prior | None = None
@@ -124,6 +101,33 @@ class CalibrationSession:
         self.settings = settings
 
     # ------------------------------------------------------------------ stream side
+    # The stream side's parts, read by the pose side and the node (its counters, the detector's floors,
+    # the motions between poses, the screen's clock).
+    @property
+    def counters(self) -> Counters:
+        return self.stream.counters
+
+    @property
+    def screen(self) -> SampleScreen:
+        return self.stream.screen
+
+    @property
+    def temperature(self) -> TemperatureFilter:
+        return self.stream.temperature
+
+    @property
+    def detector(self) -> StaticDetector:
+        return self.stream.detector
+
+    @property
+    def motions(self) -> MotionRecorder:
+        return self.stream.motions
+
+    @property
+    def implausible_means(self) -> tuple[np.ndarray, ...]:
+        """Means of the latest still intervals dropped as implausible for gravity."""
+        return self.stream.implausible_means
+
     @property
     def collecting(self) -> bool:
         """False while collection is paused for any reason (the stream is still screened and corrected)."""
@@ -161,38 +165,13 @@ class CalibrationSession:
         as they come, then `finish()` for the poses. Memory stays bounded by a part, whatever the length.
         `has_temperature`: temperature readings will come (samples then wait for the readings of their
         time). Fresh session only."""
-        return RecordingFeed(self, has_temperature)
+        return RecordingFeed(self.stream, has_temperature)
 
     def live_feed(self) -> RecordingFeed:
         """The node's door: samples and temperature readings in whatever batches the stream gave, each part
         processed as soon as the readings of its time have come (at most LIVE_TEMPERATURE_WAIT_NS late), poses
         taken with `take_poses` as they end, the interval in progress seen with `holding`. Fresh session only."""
-        return RecordingFeed(self, has_temperature=True, live=True)
-
-    def _rejection(self, pose: Pose | None, time_base: int) -> str | None:
-        """Why a still interval is no pose: 'frozen' (it overlaps a frozen run), 'implausible' (|mean|
-        is no gravity: outside 0.5..1.5 g, e.g. a dead sensor's zeros), 'none'; None when it is one."""
-        if pose is None:
-            return "none"
-        if self.screen.overlaps_frozen(pose.start_ns, pose.end_ns, time_base):
-            return "frozen"
-        gravity = self.settings.gravity
-        low, high = PLAUSIBLE_GRAVITY
-        if not low * gravity <= float(np.linalg.norm(pose.accel_mps2)) <= high * gravity:
-            return "implausible"
-        return None
-
-    def usable_pose(self, pose: Pose | None, time_base: int | None = None) -> Pose | None:
-        """The pose when it is one (no frozen run overlaps it, its mean is gravity), else None, counted."""
-        why = self._rejection(pose, self.screen.time_base if time_base is None else time_base)
-        if why is None:
-            return pose
-        if why == "frozen":
-            self.counters.frozen_poses_dropped += 1
-        elif why == "implausible" and pose is not None:
-            self.counters.implausible_poses += 1
-            self.implausible_means = (*self.implausible_means[-15:], pose.accel_mps2)
-        return None
+        return RecordingFeed(self.stream, has_temperature=True, live=True)
 
     # ------------------------------------------------------------------ pose side
     def add_pose(self, pose: Pose) -> StoreEvent:

@@ -1,21 +1,17 @@
-"""A recording into a session in parts (replay's reader, or the node's buffer every few tens of
-milliseconds): screening, temperature filter and detector over arrays, the poses judged by the session.
-One sample path for node and replay: live equals replay by construction."""
+"""A recording into the session's stream side in parts (replay's reader, or the node's buffer every few
+tens of milliseconds): screening, temperature filter and detector over arrays, the poses judged by the
+stream side's rule. One sample path for node and replay: live equals replay by construction."""
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..pose import Pose
 from .detector import DISCARD, RESTART
-
-if TYPE_CHECKING:
-    from ..session import CalibrationSession
+from .stream_side import StreamSide
 
 
 class RecordingFeed:
-    """One recording into a session in parts of PART_ROWS samples: the cut points depend only on the
+    """One recording into a stream side in parts of PART_ROWS samples: the cut points depend only on the
     sample count, so any reader's chunking gives the same, deterministic poses (and a recording shorter
     than a part is one detector call). A part is processed once the temperature readings of its time have
     come (readings after its last stamp), or when the temperature stream lags by MAX_LAG_PARTS parts.
@@ -30,8 +26,8 @@ class RecordingFeed:
     # without a temperature topic then finds its poses this much later.
     LIVE_TEMPERATURE_WAIT_NS = 1_000_000_000
 
-    def __init__(self, session: CalibrationSession, has_temperature: bool, live: bool = False):
-        self.session = session
+    def __init__(self, stream: StreamSide, has_temperature: bool, live: bool = False):
+        self.stream = stream
         self.has_temperature = has_temperature
         self.live = live
         self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
@@ -41,7 +37,7 @@ class RecordingFeed:
         self._latest_reading: int | None = None
         self._paused_since = False  # a paused sample since the detector's last one
         self._restart_since = False  # a clock re-synchronisation since the detector's last one
-        self._segment_base = session.screen.time_base  # the clock of the detector's current segment
+        self._segment_base = stream.screen.time_base  # the clock of the detector's current segment
         self._found: list[tuple[Pose, int]] = []  # poses with the clock they were measured on
         self.samples = 0
 
@@ -79,8 +75,8 @@ class RecordingFeed:
         """The poses found that are poses; the others leave the motion recorder's sequence too."""
         usable = []
         for pose, base in found:
-            if self.session.usable_pose(pose, base) is None:
-                self.session.motions.drop(pose)
+            if self.stream.usable_pose(pose, base) is None:
+                self.stream.motions.drop(pose)
             else:
                 usable.append(pose)
         return usable
@@ -96,10 +92,10 @@ class RecordingFeed:
         pose expects /calibrate to count), None when there is none or it is no pose."""
         if self._paused_since:
             return None
-        pose = self.session.detector.peek_open()
+        pose = self.stream.detector.peek_open()
         if pose is None:
             return None
-        return self.session.usable_pose(pose, self._segment_base)
+        return self.stream.usable_pose(pose, self._segment_base)
 
     def _run(self, final: bool) -> None:
         if self.live and not final:
@@ -117,7 +113,7 @@ class RecordingFeed:
         if final:
             if self._buffered:
                 self._part(*self._take(self._buffered), final=True)
-            elif self.session.detector.continuing:
+            elif self.stream.detector.continuing:
                 self._part(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), None, final=True)
 
     def _run_live(self) -> None:
@@ -174,14 +170,14 @@ class RecordingFeed:
 
     def _part(self, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray, collecting: np.ndarray | None,
               final: bool) -> None:
-        session = self.session
-        detector = session.detector
+        stream = self.stream
+        detector = stream.detector
         fresh = not detector.continuing
-        time_base = session.screen.time_base
-        keep, restart = session.screen.screen_arrays(t, accel, gyro)
+        time_base = stream.screen.time_base
+        keep, restart = stream.screen.screen_arrays(t, accel, gyro)
         paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
-        session.counters.samples_paused += int(np.count_nonzero(keep & paused))
-        session.motions.add(t, gyro, keep, paused, restart)
+        stream.counters.samples_paused += int(np.count_nonzero(keep & paused))
+        stream.motions.add(t, gyro, keep, paused, restart)
         rows = np.flatnonzero(keep & ~paused)  # what the detector sees
         # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
         # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
@@ -206,10 +202,10 @@ class RecordingFeed:
             # Always an array (NaN: no temperature yet): the detector's parts keep one presence.
             readings = self._readings_upto(None if final or not len(t) else int(t.max()))
             stamps, values = readings if readings is not None else (np.zeros(0, np.int64), np.zeros(0))
-            rejected = session.temperature.rejected
-            temps, stale = session.temperature.series(stamps, values, t[rows])
-            session.counters.temperature_stale += stale
-            session.counters.temperature_bad += session.temperature.rejected - rejected
+            rejected = stream.temperature.rejected
+            temps, stale = stream.temperature.series(stamps, values, t[rows])
+            stream.counters.temperature_stale += stale
+            stream.counters.temperature_bad += stream.temperature.rejected - rejected
         # Paused at the end: the interval then open was dropped when the pause began.
         found = detector.find(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
                               final=final)
@@ -224,5 +220,5 @@ class RecordingFeed:
         if len(rows):
             self._segment_base = int(bases[-1])
         for each in found:
-            session.motions.pose_found(each.pose)
+            stream.motions.pose_found(each.pose)
         self._found += [(each.pose, int(segment_bases[each.segment])) for each in found]
