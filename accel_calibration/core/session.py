@@ -148,24 +148,26 @@ class CalibrationSession:
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,
                       temperature_degc: np.ndarray | None = None,
-                      collecting: np.ndarray | None = None) -> list[Pose]:
+                      collecting: np.ndarray | None = None,
+                      part_rows: int = RecordingFeed.PART_ROWS) -> list[Pose]:
         """A whole recording in arrival order: its poses (screening, temperature filter and detector rules,
         with array operations). `collecting` (one bool per sample, optional): False where collection was
         paused (armed, flying). Fresh session only. The same as feeding it in parts through
-        `recording_feed` (it is done so, in parts of RecordingFeed.PART_ROWS) or `live_feed`."""
+        `recording_feed` (it is done so, in parts of `part_rows`) or `live_feed`."""
         has_temperature = temperature_stamps_ns is not None and temperature_degc is not None
-        feed = self.recording_feed(has_temperature=has_temperature)
+        feed = self.recording_feed(has_temperature=has_temperature, part_rows=part_rows)
         if has_temperature:
             feed.add_temperatures(temperature_stamps_ns, temperature_degc)  # type: ignore[arg-type]
         feed.add_samples(t_ns, accel_mps2, gyro_radps, collecting)
         return feed.finish()
 
-    def recording_feed(self, has_temperature: bool) -> RecordingFeed:
+    def recording_feed(self, has_temperature: bool, part_rows: int = RecordingFeed.PART_ROWS) -> RecordingFeed:
         """A recording read in pieces (a bag streamed chunk by chunk): add samples and temperature readings
         as they come, then `finish()` for the poses. Memory stays bounded by a part, whatever the length.
         `has_temperature`: temperature readings will come (samples then wait for the readings of their
-        time). Fresh session only."""
-        return RecordingFeed(self.stream, has_temperature)
+        time); `part_rows`: samples per detector call (the poses do not depend on how the reader chunks).
+        Fresh session only."""
+        return RecordingFeed(self.stream, has_temperature, part_rows=part_rows)
 
     def live_feed(self) -> RecordingFeed:
         """The node's door: samples and temperature readings in whatever batches the stream gave, each part

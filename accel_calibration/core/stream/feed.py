@@ -11,7 +11,7 @@ from .stream_side import StreamSide
 
 
 class RecordingFeed:
-    """One recording into a stream side in parts of PART_ROWS samples: the cut points depend only on the
+    """One recording into a stream side in parts of `part_rows` samples: the cut points depend only on the
     sample count, so any reader's chunking gives the same, deterministic poses (and a recording shorter
     than a part is one detector call). A part is processed once the temperature readings of its time have
     come (readings after its last stamp), or when the temperature stream lags by MAX_LAG_PARTS parts.
@@ -26,10 +26,11 @@ class RecordingFeed:
     # without a temperature topic then finds its poses this much later.
     LIVE_TEMPERATURE_WAIT_NS = 1_000_000_000
 
-    def __init__(self, stream: StreamSide, has_temperature: bool, live: bool = False):
+    def __init__(self, stream: StreamSide, has_temperature: bool, live: bool = False, part_rows: int = PART_ROWS):
         self.stream = stream
         self.has_temperature = has_temperature
         self.live = live
+        self.part_rows = part_rows
         self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._buffered = 0
         self._readings: list[tuple[np.ndarray, np.ndarray]] = []  # as they came
@@ -85,7 +86,7 @@ class RecordingFeed:
         """Live: everything buffered goes through now, without waiting for later temperature readings
         (/calibrate counts what was held up to the moment it was called)."""
         while self._buffered:
-            self._part(*self._take(min(self._buffered, self.PART_ROWS)), final=False)
+            self._part(*self._take(min(self._buffered, self.part_rows)), final=False)
 
     def holding(self) -> Pose | None:
         """Live: the still interval in progress as the pose it would end as now (what a person holding a
@@ -101,10 +102,10 @@ class RecordingFeed:
         if self.live and not final:
             self._run_live()
             return
-        while self._buffered >= self.PART_ROWS:
-            t, accel, gyro, collecting = self._take(self.PART_ROWS)
+        while self._buffered >= self.part_rows:
+            t, accel, gyro, collecting = self._take(self.part_rows)
             waiting = (self.has_temperature and (self._latest_reading is None or self._latest_reading <= t.max())
-                       and self._buffered + len(t) < self.MAX_LAG_PARTS * self.PART_ROWS)
+                       and self._buffered + len(t) < self.MAX_LAG_PARTS * self.part_rows)
             if waiting and not final:  # the readings of this part's time have not all come yet
                 self._samples.insert(0, (t, accel, gyro, collecting))
                 self._buffered += len(t)
@@ -120,7 +121,7 @@ class RecordingFeed:
         """Each part as soon as its samples' temperature readings have come (a reading stamped after its
         last sample), or it has waited LIVE_TEMPERATURE_WAIT_NS of stamps; at once while no reading ever came."""
         while self._buffered:
-            t, accel, gyro, collecting = self._take(min(self._buffered, self.PART_ROWS))
+            t, accel, gyro, collecting = self._take(min(self._buffered, self.part_rows))
             # No reading yet: no temperature topic (or not yet): nothing to wait for.
             waiting = self._latest_reading is not None and self._latest_reading <= t.max() \
                 and int(t.max()) - int(t.min()) < self.LIVE_TEMPERATURE_WAIT_NS
