@@ -75,7 +75,7 @@ class CalibrationSession:
         settings = settings if settings is not None else Settings()
         self.settings = settings
         self.gates = QualityGates.from_settings(settings)
-        self.stream = StreamSide(settings)  # samples in parts -> poses and motions (core/stream/)
+        self._stream = StreamSide(settings)
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
@@ -101,32 +101,37 @@ class CalibrationSession:
         self.settings = settings
 
     # ------------------------------------------------------------------ stream side
+    @property
+    def stream(self) -> StreamSide:
+        """The stream side: samples in parts -> poses and motions (core/stream/), the feeds' one target."""
+        return self._stream
+
     # The stream side's parts, read by the pose side and the node (its counters, the detector's floors,
     # the motions between poses, the screen's clock).
     @property
     def counters(self) -> Counters:
-        return self.stream.counters
+        return self._stream.counters
 
     @property
     def screen(self) -> SampleScreen:
-        return self.stream.screen
+        return self._stream.screen
 
     @property
     def temperature(self) -> TemperatureFilter:
-        return self.stream.temperature
+        return self._stream.temperature
 
     @property
     def detector(self) -> StaticDetector:
-        return self.stream.detector
+        return self._stream.detector
 
     @property
     def motions(self) -> MotionRecorder:
-        return self.stream.motions
+        return self._stream.motions
 
     @property
     def implausible_means(self) -> tuple[np.ndarray, ...]:
         """Means of the latest still intervals dropped as implausible for gravity."""
-        return self.stream.implausible_means
+        return self._stream.implausible_means
 
     @property
     def collecting(self) -> bool:
@@ -167,13 +172,13 @@ class CalibrationSession:
         `has_temperature`: temperature readings will come (samples then wait for the readings of their
         time); `part_rows`: samples per detector call (the poses do not depend on how the reader chunks).
         Fresh session only."""
-        return RecordingFeed(self.stream, has_temperature, part_rows=part_rows)
+        return RecordingFeed(self._stream, has_temperature, part_rows=part_rows)
 
     def live_feed(self) -> RecordingFeed:
         """The node's door: samples and temperature readings in whatever batches the stream gave, each part
         processed as soon as the readings of its time have come (at most LIVE_TEMPERATURE_WAIT_NS late), poses
         taken with `take_poses` as they end, the interval in progress seen with `holding`. Fresh session only."""
-        return RecordingFeed(self.stream, has_temperature=True, live=True)
+        return RecordingFeed(self._stream, has_temperature=True, live=True)
 
     # ------------------------------------------------------------------ pose side
     def add_pose(self, pose: Pose) -> StoreEvent:
