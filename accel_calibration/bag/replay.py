@@ -19,6 +19,7 @@ from ..core.pose import Pose
 from ..core.pose_map import PoseStatus
 from ..core.session import CalibrationSession
 from ..core.settings import Settings
+from ..core.stream.feed import RecordingFeed
 from ..core.stream.temperature_filter import TemperatureFilter
 from .bag_io import BagError, missing_module
 
@@ -50,6 +51,7 @@ class ReplaySettings:
     ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
     prior: Prior | None = None  # recalibrate against it (--prior): the poses fit what they observe
     prior_path: str | None = None  # where it came from, written beside the parameters' sources
+    part_rows: int = RecordingFeed.PART_ROWS  # samples per detector call (the poses do not depend on it)
 
     def reader_options(self) -> dict[str, Any]:
         return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
@@ -185,7 +187,7 @@ def _replay_stream(bag: BagStream, s: ReplaySettings, started: float) -> ReplayR
     """A streamed bag (recording.BagStream) through a fresh session, piece by piece."""
     flight = flight_state_of(bag.path, bag.format, None, s)
     session = CalibrationSession(s.session)
-    feed = session.recording_feed(has_temperature=bag.temperature_stream is not None)
+    feed = session.recording_feed(has_temperature=bag.temperature_stream is not None, part_rows=s.part_rows)
     low = high = None
     readings: list[tuple[np.ndarray, np.ndarray]] = []
     for imu, temperatures in bag.pieces():
@@ -228,7 +230,7 @@ def replay_recording(recording: Recording, settings: ReplaySettings | None = Non
     flight = flight_state_of(recording.path, recording.format, recording.flight_state, s)
     collecting = None if flight is None else flight.collecting(t, s.armed_margin_s)
     poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values,
-                                  collecting=collecting)
+                                  collecting=collecting, part_rows=s.part_rows)
     duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
     start = int(t.min()) if len(t) else None
     result = _verdict(session, poses, recording, len(t), duration, start, s, started,

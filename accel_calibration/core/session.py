@@ -33,13 +33,11 @@ from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
 from .stream.screening import Counters, SampleScreen
+from .stream.stream_side import StreamSide
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
 from .units import MG, units_text
 
-# |mean acceleration| of a still interval, in g, that can be gravity read by a plausible accelerometer in
-# m/s^2 (bias under 2 m/s^2, gain 0.9..1.1 stay well inside); outside it is no pose and teaches no floor.
-PLAUSIBLE_GRAVITY = (0.5, 1.5)
 
 
 @dataclass(frozen=True)
@@ -80,35 +78,15 @@ class CalibrationSession:
         settings = settings if settings is not None else Settings()
         self.settings = settings
         self.gates = QualityGates.from_settings(settings)
-        self.counters = Counters()
-        self.screen = SampleScreen(settings, self.counters)
-        self.temperature = TemperatureFilter(timeout_s=settings.temperature_timeout_s)
-        self.detector = StaticDetector(
-            window_s=settings.static_window_s,
-            min_hold_s=settings.static_min_hold_s,
-            accel_var_threshold=settings.static_accel_var_threshold or None,
-            gyro_var_threshold=settings.static_gyro_var_threshold or None,
-            k_sigma=settings.static_k_sigma,
-            max_floor_rise=settings.static_max_floor_rise,
-            accel_noise_ceiling=settings.static_max_noise_mg * MG,
-            gyro_noise_ceiling=settings.static_max_gyro_noise_mradps * 1e-3,
-            floor_min_magnitude=0.05 * settings.gravity,  # not a dead sensor's zeros (a stream in g is 0.1 g)
-        )
+        self._stream = StreamSide(settings)
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
                                temperature_bin_degc=settings.temperature_bin_degc,
                                merge_tolerance_mps2=settings.merge_tolerance_mg * MG)
         self.last_fit: FitResult | None = None
         # The last cold fit and the poses it fitted (held, not compared by value: a merge makes a new pose).
         self._cold_fit: tuple[tuple[Pose, ...], FitResult] | None = None
-        # The raw gyro between consecutive poses (the gyro fit's motions), fed by the same sample path.
-        self.motions = MotionRecorder(max_motion_s=settings.gyro_max_motion_s,
-                                      trailing_s=2.0 + 4 * settings.static_window_s, capacity=settings.max_poses,
-                                      overlap_s=settings.static_window_s)
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
         self._pause_reasons: frozenset[str] = frozenset()  # why collection is paused (armed, calibration/pause)
-        # Means of the latest still intervals dropped as implausible for gravity (the stream side writes,
-        # /calibrate reads: a tuple replaced whole): a stream in g says so instead of "0 poses".
-        self.implausible_means: tuple[np.ndarray, ...] = ()
         # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
         # rest at the prior; set it with `use_prior`.
         self.prior: Prior | None = None
@@ -130,6 +108,38 @@ class CalibrationSession:
 
     # ------------------------------------------------------------------ stream side
     @property
+    def stream(self) -> StreamSide:
+        """The stream side: samples in parts -> poses and motions (core/stream/), the feeds' one target."""
+        return self._stream
+
+    # The stream side's parts, read by the pose side and the node (its counters, the detector's floors,
+    # the motions between poses, the screen's clock).
+    @property
+    def counters(self) -> Counters:
+        return self._stream.counters
+
+    @property
+    def screen(self) -> SampleScreen:
+        return self._stream.screen
+
+    @property
+    def temperature(self) -> TemperatureFilter:
+        return self._stream.temperature
+
+    @property
+    def detector(self) -> StaticDetector:
+        return self._stream.detector
+
+    @property
+    def motions(self) -> MotionRecorder:
+        return self._stream.motions
+
+    @property
+    def implausible_means(self) -> tuple[np.ndarray, ...]:
+        """Means of the latest still intervals dropped as implausible for gravity."""
+        return self._stream.implausible_means
+
+    @property
     def collecting(self) -> bool:
         """False while collection is paused for any reason (the stream is still screened and corrected)."""
         return not self._pause_reasons
@@ -149,55 +159,32 @@ class CalibrationSession:
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,
                       temperature_degc: np.ndarray | None = None,
-                      collecting: np.ndarray | None = None) -> list[Pose]:
+                      collecting: np.ndarray | None = None,
+                      part_rows: int = RecordingFeed.PART_ROWS) -> list[Pose]:
         """A whole recording in arrival order: its poses (screening, temperature filter and detector rules,
         with array operations). `collecting` (one bool per sample, optional): False where collection was
         paused (armed, flying). Fresh session only. The same as feeding it in parts through
-        `recording_feed` (it is done so, in parts of RecordingFeed.PART_ROWS) or `live_feed`."""
+        `recording_feed` (it is done so, in parts of `part_rows`) or `live_feed`."""
         has_temperature = temperature_stamps_ns is not None and temperature_degc is not None
-        feed = self.recording_feed(has_temperature=has_temperature)
+        feed = self.recording_feed(has_temperature=has_temperature, part_rows=part_rows)
         if has_temperature:
             feed.add_temperatures(temperature_stamps_ns, temperature_degc)  # type: ignore[arg-type]
         feed.add_samples(t_ns, accel_mps2, gyro_radps, collecting)
         return feed.finish()
 
-    def recording_feed(self, has_temperature: bool) -> RecordingFeed:
+    def recording_feed(self, has_temperature: bool, part_rows: int = RecordingFeed.PART_ROWS) -> RecordingFeed:
         """A recording read in pieces (a bag streamed chunk by chunk): add samples and temperature readings
         as they come, then `finish()` for the poses. Memory stays bounded by a part, whatever the length.
         `has_temperature`: temperature readings will come (samples then wait for the readings of their
-        time). Fresh session only."""
-        return RecordingFeed(self, has_temperature)
+        time); `part_rows`: samples per detector call (the poses do not depend on how the reader chunks).
+        Fresh session only."""
+        return RecordingFeed(self._stream, has_temperature, part_rows=part_rows)
 
     def live_feed(self) -> RecordingFeed:
         """The node's door: samples and temperature readings in whatever batches the stream gave, each part
         processed as soon as the readings of its time have come (at most LIVE_TEMPERATURE_WAIT_NS late), poses
         taken with `take_poses` as they end, the interval in progress seen with `holding`. Fresh session only."""
-        return RecordingFeed(self, has_temperature=True, live=True)
-
-    def _rejection(self, pose: Pose | None, time_base: int) -> str | None:
-        """Why a still interval is no pose: 'frozen' (it overlaps a frozen run), 'implausible' (|mean|
-        is no gravity: outside 0.5..1.5 g, e.g. a dead sensor's zeros), 'none'; None when it is one."""
-        if pose is None:
-            return "none"
-        if self.screen.overlaps_frozen(pose.start_ns, pose.end_ns, time_base):
-            return "frozen"
-        gravity = self.settings.gravity
-        low, high = PLAUSIBLE_GRAVITY
-        if not low * gravity <= float(np.linalg.norm(pose.accel_mps2)) <= high * gravity:
-            return "implausible"
-        return None
-
-    def usable_pose(self, pose: Pose | None, time_base: int | None = None) -> Pose | None:
-        """The pose when it is one (no frozen run overlaps it, its mean is gravity), else None, counted."""
-        why = self._rejection(pose, self.screen.time_base if time_base is None else time_base)
-        if why is None:
-            return pose
-        if why == "frozen":
-            self.counters.frozen_poses_dropped += 1
-        elif why == "implausible" and pose is not None:
-            self.counters.implausible_poses += 1
-            self.implausible_means = (*self.implausible_means[-15:], pose.accel_mps2)
-        return None
+        return RecordingFeed(self._stream, has_temperature=True, live=True)
 
     # ------------------------------------------------------------------ pose side
     def add_pose(self, pose: Pose) -> StoreEvent:

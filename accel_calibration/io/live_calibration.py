@@ -54,7 +54,8 @@ class LiveCalibration:
         self.enabled = True  # calibration/enable: off passes raw through
         self.frame_id: str | None = None
         self.still = False  # the detector's state at the last feed
-        self.counts: collections.Counter[str] = collections.Counter()  # what the node set aside, by name
+        # What the node itself set aside, by name (the session's screening keeps its own counters).
+        self.set_aside: collections.Counter[str] = collections.Counter()
         self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
         self._changed_underneath: tuple[Level, str] | None = None  # the status a save refused for it set
         self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
@@ -62,7 +63,7 @@ class LiveCalibration:
         self._calibrate_service = calibrate_service
         self._imu_topic = imu_topic
         self._on_applied = on_applied or (lambda calibration: None)
-        self._live = self.session.live_feed()
+        self._feed = self.session.live_feed()
         # The stream's thread appends, the worker pops: deque's append and popleft are atomic.
         self._samples: collections.deque[tuple[Any, ...]] = collections.deque()
         self._readings: collections.deque[tuple[int, float]] = collections.deque()
@@ -106,7 +107,7 @@ class LiveCalibration:
     def buffer_imu(self, stamp_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> None:
         if len(self._samples) >= MAX_BUFFERED:
             self._samples.popleft()
-            self.counts["samples_dropped_backlog"] += 1
+            self.set_aside["samples_dropped_backlog"] += 1
         if stamp_ns > self._latest_imu_ns:
             self._latest_imu_ns = stamp_ns
         self._samples.append((stamp_ns, ax, ay, az, gx, gy, gz, self.session.collecting))
@@ -115,17 +116,17 @@ class LiveCalibration:
         # A reading stamped far ahead of the IMU stream (another publisher's clock) would take the
         # correction temperature with it, and leave the true readings after it none.
         if self._latest_imu_ns >= 0 and stamp_ns > self._latest_imu_ns + TEMPERATURE_AHEAD_NS:
-            self.counts["temperature_future"] += 1
+            self.set_aside["temperature_future"] += 1
             return
         self._readings.append((stamp_ns, degc))
         clamped = self.in_force.clamped_rebuilds
         if self.in_force.take_temperature(stamp_ns, degc) and self.in_force.clamped_rebuilds > clamped:
-            self.counts["temperature_clamped"] += 1
+            self.set_aside["temperature_clamped"] += 1
 
     def set_frame_id(self, frame_id: str) -> None:
         self.session.frame_id = frame_id  # a calibration is of the frame the samples were in
         if self.frame_id is not None:
-            self.counts["frame_id_changes"] += 1
+            self.set_aside["frame_id_changes"] += 1
             self._log.warning(f"{self._imu_topic} frame_id changed from {self.frame_id!r} to {frame_id!r}",
                               throttle_duration_sec=LOG_THROTTLE_S)
         self.frame_id = frame_id
@@ -135,7 +136,7 @@ class LiveCalibration:
         calibration = self.in_force.calibration
         if calibration is not None and calibration.frame_id and self.frame_id is not None \
                 and calibration.frame_id != self.frame_id:
-            self.counts["frame_id_mismatch"] += 1
+            self.set_aside["frame_id_mismatch"] += 1
             self._log.warning(
                 f"the calibration in force was made for frame {calibration.frame_id!r} but {self._imu_topic} is "
                 f"in {self.frame_id!r}: is this the same sensor?", throttle_duration_sec=LOG_THROTTLE_S)
@@ -177,10 +178,11 @@ class LiveCalibration:
             return False, "no calibration in force: raw acceleration passes through"
         return True, calibration_to_yaml(calibration)
 
-    def counters(self) -> dict[str, int]:
-        """Everything set aside or gone wrong, by name: the session's screening and the node's own."""
+    def all_counts(self) -> dict[str, int]:
+        """Everything set aside or gone wrong, by name: the session's screening counters and what the node
+        set aside itself."""
         counts = self.session.counters.as_dict()
-        counts.update(self.counts)
+        counts.update(self.set_aside)
         return counts
 
     def diagnostic_values(self) -> dict[str, str]:
@@ -231,16 +233,16 @@ class LiveCalibration:
         readings = [self._readings.popleft() for _ in range(len(self._readings))]
         rows = [self._samples.popleft() for _ in range(len(self._samples))]
         if readings:
-            self._live.add_temperatures(np.fromiter((r[0] for r in readings), np.int64, len(readings)),
+            self._feed.add_temperatures(np.fromiter((r[0] for r in readings), np.int64, len(readings)),
                                         np.fromiter((r[1] for r in readings), float, len(readings)))
         if rows:
             values = np.array([r[1:7] for r in rows], dtype=float)
-            self._live.add_samples(np.fromiter((r[0] for r in rows), np.int64, len(rows)), values[:, :3],
+            self._feed.add_samples(np.fromiter((r[0] for r in rows), np.int64, len(rows)), values[:, :3],
                                    values[:, 3:], np.fromiter((r[7] for r in rows), bool, len(rows)))
         else:  # the stream is idle: no later reading will come for what waits on one
-            self._live.drain()
+            self._feed.drain()
         self.still = self.session.detector.holding_still
-        poses = self._live.take_poses()
+        poses = self._feed.take_poses()
         if poses:
             self._absorb(poses)
         return poses
@@ -303,9 +305,9 @@ class LiveCalibration:
     def calibrate(self) -> tuple[bool, str]:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
         self.feed()
-        self._live.drain()
-        last = self._live.take_poses()
-        _, verdict = self.session.verdict_for(last, self._live.holding())
+        self._feed.drain()
+        last = self._feed.take_poses()
+        _, verdict = self.session.verdict_for(last, self._feed.holding())
         self.watch.add(last)
         self.refresh_progress()
         if not verdict.success or verdict.result is None or verdict.calibration is None:

@@ -185,7 +185,7 @@ class CalibrationNode(Node):
     # ------------------------------------------------------------------ diagnostics
     def counters(self) -> dict[str, int]:
         """Everything set aside or gone wrong, by name: the session's screening, the node's, the callbacks'."""
-        return {**self._live.counters(), "callback_errors": sum(self._boundary.errors.values())}
+        return {**self._live.all_counts(), "callback_errors": sum(self._boundary.errors.values())}
 
     def _look_for_namesakes(self) -> None:
         """At NAMESAKE_CHECKS_S after start: another node of this fully qualified name is a WARN (once)."""

@@ -14,8 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from accel_calibration.bag import recording as recording_module
 from accel_calibration.bag.recording import BagStream, Recording, open_recording
-from accel_calibration.bag.replay import replay_bag, replay_recording
-from accel_calibration.core.stream.feed import RecordingFeed
+from accel_calibration.bag.replay import ReplaySettings, replay_bag, replay_recording
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -57,10 +56,10 @@ def same_replay(streamed, whole):
 @pytest.mark.parametrize("group, part", [(1 << 16, 1 << 17), (257, 1000), (4000, 333)])
 def test_a_streamed_bag_replays_as_read_whole(bags, kind, group, part, monkeypatch):
     monkeypatch.setattr(recording_module, "STREAM_GROUP_MESSAGES", group)
-    monkeypatch.setattr(RecordingFeed, "PART_ROWS", part)
-    streamed = replay_bag(bags[kind])
+    in_parts = ReplaySettings(part_rows=part)
+    streamed = replay_bag(bags[kind], in_parts)
     assert isinstance(streamed.source.recording, BagStream)  # it was streamed, not read whole
-    whole = replay_recording(open_recording(bags[kind]))
+    whole = replay_recording(open_recording(bags[kind]), in_parts)
     assert isinstance(whole.source.recording, Recording)
     same_replay(streamed, whole)
     assert len(streamed.poses) >= 12 and streamed.calibration is not None, streamed.problem

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.detector_batch import DetectorConfig
 from accel_calibration.core.stream.noise_floor import FloorConfig, VarianceFloor
 
 from helpers.detector_streams import assert_same_poses, stream_with_breaks, streams
@@ -26,12 +27,12 @@ def in_parts(detector: StaticDetector, cuts, t_ns, accel, gyro=None, temperature
     for k, (first, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
         part = slice(first, stop)
         final = k == len(bounds) - 2
-        got = detector.process(t_ns[part], accel[part], None if gyro is None else gyro[part],
-                               None if temperature_degc is None else temperature_degc[part],
-                               None if breaks is None else breaks[part], flush=flush, final=final)
-        poses += got
-        # pose_segments counts from the segment in force when the part began
-        segments += [offset + s for s in detector.pose_segments]
+        got = detector.find(t_ns[part], accel[part], None if gyro is None else gyro[part],
+                            None if temperature_degc is None else temperature_degc[part],
+                            None if breaks is None else breaks[part], flush=flush, final=final)
+        poses += [found.pose for found in got]
+        # a found pose's segment counts from the segment in force when the part began
+        segments += [offset + found.segment for found in got]
         if breaks is not None:
             offset += int(np.count_nonzero(breaks[part][(1 if first == 0 else 0):]))
     return poses, segments
@@ -54,7 +55,8 @@ def cut_points(data, n):
 def test_parts_give_the_poses_of_one_call(name, stream, options, data):
     n = len(stream["t_ns"])
     cuts = cut_points(data, n)
-    whole_detector, parts_detector = StaticDetector(**options), StaticDetector(**options)
+    config = DetectorConfig(**options)
+    whole_detector, parts_detector = StaticDetector(config), StaticDetector(config)
     whole = whole_detector.process(**stream)
     parts, _ = in_parts(parts_detector, cuts, **stream)
     assert len(whole) >= 2
@@ -75,10 +77,11 @@ def test_parts_with_restarts_and_discards(data):
         cuts = sorted(set(cuts) | {int(i) for i in np.flatnonzero(breaks) if i > 0})
     flush = data.draw(st.booleans())
     whole_detector, parts_detector = StaticDetector(), StaticDetector()
-    whole = whole_detector.process(t, s.accel_raw, s.gyro_raw, breaks=breaks, flush=flush)
+    whole_found = whole_detector.find(t, s.accel_raw, s.gyro_raw, breaks=breaks, flush=flush)
+    whole = [found.pose for found in whole_found]
     parts, segments = in_parts(parts_detector, cuts, t, s.accel_raw, s.gyro_raw, breaks=breaks, flush=flush)
     assert_same_poses(parts, whole)
-    assert segments == whole_detector.pose_segments
+    assert segments == [found.segment for found in whole_found]
     assert parts_detector.rejected_samples == whole_detector.rejected_samples
 
 

@@ -23,9 +23,9 @@ def pose_keys(poses):
     return [(p.start_ns, p.end_ns, p.samples, *p.accel_mps2.tolist(), p.temperature_degc) for p in poses]
 
 
-def fed_in_pieces(session, t, accel, gyro, readings, cuts, collecting=None):
+def fed_in_pieces(session, t, accel, gyro, readings, cuts, collecting=None, part_rows=RecordingFeed.PART_ROWS):
     """As a reader streaming the storage: pieces of samples, each preceded by the readings received by then."""
-    feed = session.recording_feed(has_temperature=readings is not None)
+    feed = session.recording_feed(has_temperature=readings is not None, part_rows=part_rows)
     bounds = [0, *cuts, len(t)]
     k = 0
     for first, stop in zip(bounds[:-1], bounds[1:]):
@@ -42,8 +42,8 @@ def fed_in_pieces(session, t, accel, gyro, readings, cuts, collecting=None):
 
 @FAST
 @given(data=st.data())
-def test_pieces_give_the_whole_recordings_poses_bit_for_bit(data, monkeypatch):
-    monkeypatch.setattr(RecordingFeed, "PART_ROWS", data.draw(st.sampled_from([300, 1000, 4096])))
+def test_pieces_give_the_whole_recordings_poses_bit_for_bit(data):
+    part_rows = data.draw(st.sampled_from([300, 1000, 4096]))
     faults = data.draw(st.booleans())
     _, samples = stream(seed=data.draw(st.integers(0, 50)), poses=8, temperature_degc=lambda t: 20.0 + 0.2 * t)
     t, accel, gyro = hostile(samples) if faults else (samples.t_ns, samples.accel_raw, samples.gyro_raw)
@@ -56,20 +56,20 @@ def test_pieces_give_the_whole_recordings_poses_bit_for_bit(data, monkeypatch):
     cuts = sorted(set(data.draw(st.lists(st.integers(1, len(t) - 1), max_size=12))))
 
     whole_session, pieces_session = CalibrationSession(), CalibrationSession()
-    whole = whole_session.add_recording(t, accel, gyro, *(readings or (None, None)), collecting=collecting)
-    pieces = fed_in_pieces(pieces_session, t, accel, gyro, readings, cuts, collecting)
+    whole = whole_session.add_recording(t, accel, gyro, *(readings or (None, None)), collecting=collecting,
+                                        part_rows=part_rows)
+    pieces = fed_in_pieces(pieces_session, t, accel, gyro, readings, cuts, collecting, part_rows)
     assert pose_keys(pieces) == pose_keys(whole)
     assert pieces_session.counters == whole_session.counters
     assert len(whole) >= 3  # something to compare
 
 
-def test_a_late_temperature_stream_holds_samples_back_only_so_long(monkeypatch):
+def test_a_late_temperature_stream_holds_samples_back_only_so_long():
     """Readings that never come (a temperature topic that died): samples wait at most MAX_LAG_PARTS parts,
     so memory stays bounded, and the poses are still found (without temperature)."""
-    monkeypatch.setattr(RecordingFeed, "PART_ROWS", 500)
     _, samples = stream(poses=8)
     session = CalibrationSession()
-    feed = session.recording_feed(has_temperature=True)
+    feed = session.recording_feed(has_temperature=True, part_rows=500)
     most = 0
     for first in range(0, len(samples.t_ns), 250):
         part = slice(first, first + 250)
@@ -81,7 +81,7 @@ def test_a_late_temperature_stream_holds_samples_back_only_so_long(monkeypatch):
 
 
 @pytest.mark.parametrize("where", ["pause ends at a part's end", "pause starts a part", "clock jumps at a part's end"])
-def test_a_pause_or_a_clock_jump_at_a_part_boundary(where, monkeypatch):
+def test_a_pause_or_a_clock_jump_at_a_part_boundary(where):
     """The break between two parts (a pause that ended with a part, a stamp jump among its last samples
     screened out) still drops or ends the interval then open, as in one call and live."""
     _, samples = stream(poses=8)
@@ -100,11 +100,9 @@ def test_a_pause_or_a_clock_jump_at_a_part_boundary(where, monkeypatch):
     live = CalibrationSession()
     live_poses = per_message(live, t, accel, gyro, collecting=collecting, store=False)
     whole = CalibrationSession()
-    monkeypatch.setattr(RecordingFeed, "PART_ROWS", 10**9)
-    one_call = whole.add_recording(t, accel, gyro, collecting=collecting)
-    monkeypatch.setattr(RecordingFeed, "PART_ROWS", part)
+    one_call = whole.add_recording(t, accel, gyro, collecting=collecting, part_rows=10**9)
     parts = CalibrationSession()
-    in_parts = parts.add_recording(t, accel, gyro, collecting=collecting)
+    in_parts = parts.add_recording(t, accel, gyro, collecting=collecting, part_rows=part)
     keys = [(p.start_ns, p.end_ns, p.samples) for p in live_poses]
     assert [(p.start_ns, p.end_ns, p.samples) for p in one_call] == keys
     assert [(p.start_ns, p.end_ns, p.samples) for p in in_parts] == keys

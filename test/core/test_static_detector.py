@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from accel_calibration import MG, CalibrationError, fit
 from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.detector_batch import DetectorConfig
 
 from helpers.detector_streams import assert_same_poses, synthetic_stream
 
@@ -133,7 +134,7 @@ def test_gap_longer_than_a_window_ends_the_interval():
     rng = np.random.default_rng(5)
     t = np.concatenate([np.arange(0, 3e9, 1e7), np.arange(8e9, 11e9, 1e7)]).astype(np.int64)
     accel = np.tile([0.0, 0.0, G], (len(t), 1)) + rng.normal(0, 0.02, (len(t), 3))
-    poses = StaticDetector(warmup_s=0.5).process(t, accel)
+    poses = StaticDetector(DetectorConfig(warmup_s=0.5)).process(t, accel)
     assert all(p.end_ns < 3e9 or p.start_ns >= 8e9 for p in poses)
 
 
@@ -150,7 +151,7 @@ def test_gap_longer_than_a_window_ends_the_interval():
 )
 def test_bad_settings_name_the_argument(kwargs, name):
     with pytest.raises(CalibrationError, match=name):
-        StaticDetector(**kwargs)
+        StaticDetector(DetectorConfig(**kwargs))
 
 
 def test_a_stream_that_starts_moving_gives_no_pose_from_the_warmup():

@@ -30,6 +30,7 @@ from hypothesis import strategies as st
 
 from accel_calibration import CalibrationError
 from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.detector_batch import DetectorConfig
 from accel_calibration.core.stream.noise_floor import FloorConfig, VarianceFloor
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -95,7 +96,8 @@ def assert_same_poses(a_list, b_list, atol=1e-9):
 
 def assert_parts_equal_whole(t, accel, gyro, temps, **settings):
     """Whole, and in parts cut at thirds and either side of every hostile row: the same poses and counts."""
-    whole_detector, parts_detector = StaticDetector(**settings), StaticDetector(**settings)
+    config = DetectorConfig(**settings)
+    whole_detector, parts_detector = StaticDetector(config), StaticDetector(config)
     whole = whole_detector.process(t, accel, gyro, temps)
     odd = np.flatnonzero((np.abs(accel) > 100).any(axis=1) | (np.abs(gyro) > 100).any(axis=1))
     cuts = [len(t) // 3, 2 * len(t) // 3, *odd.tolist(), *(odd + 1).tolist()]
@@ -161,9 +163,10 @@ def test_user_limits_reject_what_the_sensor_cannot_read(sensor, value, limits):
     i = middle_of_second_dwell(t)
     accel_h, gyro_h = accel.copy(), gyro.copy()
     (gyro_h if sensor == "gyro" else accel_h)[i] = value
-    detector = StaticDetector(**limits)
+    detector = StaticDetector(DetectorConfig(**limits))
     poses = streamed(detector, t, accel_h, gyro_h, temps)
-    clean = streamed(StaticDetector(**limits), *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
+    clean = streamed(StaticDetector(DetectorConfig(**limits)),
+                     *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
     assert_same_poses(poses, clean)
     assert detector.rejected_out_of_range == 1
     assert_parts_equal_whole(t, accel_h, gyro_h, temps, **limits)
@@ -207,7 +210,8 @@ def test_a_rejected_sample_that_leaves_the_window_short_loses_no_other_sample():
     accel_h[i, 0] = 1e300
     settings_ = dict(window_s=0.05, min_hold_s=0.5)
     poses = assert_parts_equal_whole(t, accel_h, gyro, temps, **settings_)
-    clean = streamed(StaticDetector(**settings_), *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
+    clean = streamed(StaticDetector(DetectorConfig(**settings_)),
+                     *(np.delete(x, i, axis=0) for x in (t, accel, gyro, temps)))
     assert_same_poses(poses, clean)
     second = poses[1]
     assert second.start_ns < t[i] < second.end_ns
@@ -252,7 +256,7 @@ def test_variance_floor_ignores_non_finite_and_survives_extremes():
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), "big", True])
 def test_bad_limits_name_the_argument(name, bad):
     with pytest.raises(CalibrationError, match=name):
-        StaticDetector(**{name: bad})
+        StaticDetector(DetectorConfig(**{name: bad}))
 
 
 # ------------------------------------------------------------------ property
@@ -297,11 +301,11 @@ def hostile_streams(draw):
 @given(data=hostile_streams(), cuts=st.lists(st.integers(1, 299), max_size=6))
 def test_arbitrary_finite_floats_never_break_the_detector(data, cuts):
     t, accel, gyro, temps, settings_, noisy = data
-    detector = StaticDetector(**settings_)
+    detector = StaticDetector(DetectorConfig(**settings_))
     poses = streamed(detector, t, accel, gyro, temps, cuts)
     for pose in poses:
         assert_finite(pose)
-    whole_detector = StaticDetector(**settings_)
+    whole_detector = StaticDetector(DetectorConfig(**settings_))
     whole = whole_detector.process(t, accel, gyro, temps)
     for pose in whole:
         assert_finite(pose)

@@ -20,6 +20,7 @@ from accel_calibration.core.pose_store import AGREEMENT_CHI2, PoseStore, means_a
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.stream.detector import StaticDetector
+from accel_calibration.core.stream.detector_batch import DetectorConfig
 from accel_calibration.core.stream.screening import Counters
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
@@ -241,7 +242,7 @@ def test_the_learned_floor_stays_within_its_bound_of_the_quietest_floor(rise):
     """15 min of vibration after 30 s at rest: the thresholds never exceed k_sigma * rise^2 * the quietest
     floor (nor the ceilings), so no window of it is still; without the bound (rise 1000) it is learned."""
     t, accel, gyro = still_then_shaking()
-    detector = StaticDetector(max_floor_rise=rise, accel_noise_ceiling=15 * MG, gyro_noise_ceiling=0.05)
+    detector = StaticDetector(DetectorConfig(max_floor_rise=rise, accel_noise_ceiling=15 * MG, gyro_noise_ceiling=0.05))
     first_shake = int(30 * 50)
     poses = []
     for first in range(0, len(t), 500):  # the node's worker: parts of the stream, each checked after
@@ -255,7 +256,7 @@ def test_the_learned_floor_stays_within_its_bound_of_the_quietest_floor(rise):
             assert accel_limit <= 3 * (15 * MG) ** 2 * (1 + 1e-12)
             assert not detector.holding_still
     assert all(p.end_ns < t[first_shake] for p in poses)
-    unbounded = StaticDetector(max_floor_rise=1000.0).process(t, accel, gyro)
+    unbounded = StaticDetector(DetectorConfig(max_floor_rise=1000.0)).process(t, accel, gyro)
     assert any(p.start_ns > t[first_shake] for p in unbounded)  # the failure the bound prevents
 
 
@@ -283,12 +284,12 @@ def test_no_pose_spans_a_restart_or_a_discard(data):
     own clock, and is the mean of exactly its rows there; at most two poses per break are lost."""
     s, t, breaks = stream_with_breaks(data)
     detector = StaticDetector()
-    poses = detector.process(t, s.accel_raw, s.gyro_raw, breaks=breaks)
+    found = detector.find(t, s.accel_raw, s.gyro_raw, breaks=breaks)
     breaks[0] = 0  # a break before the first sample changes nothing
     firsts = np.concatenate([[0], np.flatnonzero(breaks)])
     stops = np.concatenate([firsts[1:], [len(t)]])
-    assert len(detector.pose_segments) == len(poses) >= 6 - 2 * len(firsts[1:])
-    for pose, segment in zip(poses, detector.pose_segments):
+    assert len(found) >= 6 - 2 * len(firsts[1:])
+    for pose, segment in ((each.pose, each.segment) for each in found):
         rows = np.arange(firsts[segment], stops[segment])
         inside = rows[(t[rows] >= pose.start_ns) & (t[rows] <= pose.end_ns)]
         assert len(inside) == pose.samples and t[inside[0]] == pose.start_ns and t[inside[-1]] == pose.end_ns

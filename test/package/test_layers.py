@@ -142,3 +142,11 @@ def test_msg_tools_import_nothing_of_the_package():
             names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0
                      else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
             assert not any(n.split(".")[0] == "accel_calibration" for n in names), f"{path.name}: {names}"
+
+
+def test_no_circle_even_through_annotations():
+    """The stream side (core/stream/) never names the session, not even in an annotation: the feed takes
+    the stream side, the session composes it."""
+    graph = {name: imports_of(name, annotations=True) for name in MODULES}
+    assert not import_cycles(graph), "import circles through annotations: " + "; ".join(
+        " <-> ".join(sorted(m.removeprefix("accel_calibration.") for m in cycle)) for cycle in import_cycles(graph))

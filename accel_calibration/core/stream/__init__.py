@@ -1,4 +1,6 @@
 """The stream side: samples in arrays (a recording in parts, the node's buffer) -> screening
 (screening.py), temperature filter (temperature_filter.py), detector (detector.py: the clocks;
 detector_batch.py: the rules, over a frozen config and a state it owns; noise_floor.py) -> still
-intervals as Poses, fed by RecordingFeed (feed.py) through the session's public API."""
+intervals as Poses, and the raw gyro between them (motion_recorder.py). `StreamSide` (stream_side.py)
+holds these parts and judges which interval is a pose; `RecordingFeed` (feed.py) drives it. Nothing
+here imports the session that composes it."""

@@ -22,8 +22,7 @@ Here: the clocks (a re-synchronised or paused stream, as `breaks`) and what the 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -39,16 +38,24 @@ DISCARD = 2
 _INT64_MAX = 2**63 - 1
 
 
-class StaticDetector:
-    """Still intervals of a stream, as Poses. Keyword settings: those of `DetectorConfig` (checked there,
-    a bad one raises CalibrationError naming it)."""
+@dataclass(frozen=True)
+class FoundPose:
+    """A pose and the segment (between breaks) it was measured in, numbered from the segment in force when
+    the process call began (0): the clock its stamps are on."""
 
-    def __init__(self, **settings: Any) -> None:
-        self.config = DetectorConfig(**settings)
+    pose: Pose
+    segment: int
+
+
+class StaticDetector:
+    """Still intervals of a stream, as Poses, by the rules of a `DetectorConfig` (the defaults when None;
+    a bad setting raises CalibrationError naming it where the config is built)."""
+
+    def __init__(self, config: DetectorConfig | None = None) -> None:
+        self.config = config if config is not None else DetectorConfig()
         self.state = DetectorState.fresh(self.config)
         self.rejected_samples = 0  # every sample skipped: NaN/inf, stamp not increasing, out of range
         self.rejected_out_of_range = 0  # of those, the finite ones beyond accel_limit/gyro_limit/the guard
-        self.pose_segments: list[int] = []  # after process(): the segment (between breaks) of each pose
         # Between process() calls on parts of one recording: the clocks' layout (the current segment's
         # offset, the latest virtual stamp).
         self._layout: tuple[int, int] | None = None
@@ -138,6 +145,12 @@ class StaticDetector:
     def process(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
                 temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
                 flush: bool = True, final: bool = True) -> list[Pose]:
+        """The poses of `find` alone (for a caller that needs no segments)."""
+        return [found.pose for found in self.find(t_ns, accel, gyro, temperature_degc, breaks, flush, final)]
+
+    def find(self, t_ns: ArrayLike, accel: ArrayLike, gyro: ArrayLike | None = None,
+             temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
+             flush: bool = True, final: bool = True) -> list[FoundPose]:
         """The poses of a recording (or of its next part), with array operations. Needs a fresh detector,
         or one whose last process() call had `final` False.
 
@@ -148,7 +161,7 @@ class StaticDetector:
         `flush` False: the interval still open at the end is dropped (collection paused there).
         `final` False: a part of a recording, more follows in the next call (same gyro and temperature
         presence); the interval open at its end stays open. A long recording goes through in parts of
-        bounded memory with the poses of one call. `pose_segments` then numbers the segments from the one
+        bounded memory with the poses of one call. Each pose comes with its segment, numbered from the one
         in force when the call began (0)."""
         continuing = self.continuing
         if not continuing and self.state.full_time_ns:
@@ -163,7 +176,7 @@ class StaticDetector:
         if self._layout is None and (marks is None or not np.any(marks)):
             poses, rejected, out_of_range = detect_batch(self.config, self.state, t, accel, gyro, temperature_degc,
                                                          flush=flush, final=final)
-            self.pose_segments = [0] * len(poses)
+            found = [FoundPose(pose, 0) for pose in poses]
         else:
             if marks is None:
                 marks = np.zeros(len(t), dtype=np.int64)
@@ -177,18 +190,17 @@ class StaticDetector:
             drop = marks == DISCARD
             poses, rejected, out_of_range = detect_batch(self.config, self.state, virtual, accel, gyro,
                                                          temperature_degc, drop, flush, final)
-            shifted, segments = [], []
+            found = []
             for pose in poses:
                 segment = int(np.searchsorted(segment_starts, pose.start_ns, side="right")) - 1
                 offset = int(offsets[segment])
-                shifted.append(replace(pose, start_ns=pose.start_ns - offset, end_ns=pose.end_ns - offset))
-                segments.append(segment)
-            poses, self.pose_segments = shifted, segments
+                found.append(FoundPose(replace(pose, start_ns=pose.start_ns - offset, end_ns=pose.end_ns - offset),
+                                       segment))
         if final:
             self._layout = None
         self.rejected_samples += rejected
         self.rejected_out_of_range += out_of_range
-        return poses
+        return found
 
     def _end_to_end(self, t: np.ndarray, marks: np.ndarray, previous: tuple[int, int] | None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]] | None:
@@ -226,7 +238,8 @@ class StaticDetector:
         return virtual, np.array(starts, dtype=np.int64), np.array(offsets, dtype=np.int64), (offsets[-1], top)
 
     def _by_segment(self, t: np.ndarray, accel: ArrayLike, gyro: ArrayLike | None,
-                    temperature_degc: ArrayLike | None, marks: np.ndarray, flush: bool, final: bool) -> list[Pose]:
+                    temperature_degc: ArrayLike | None, marks: np.ndarray, flush: bool, final: bool
+                    ) -> list[FoundPose]:
         """process() one segment (between breaks) at a time, each on its own clock: for stamps whose
         segments laid end to end would not fit in int64 ns (slower with many breaks, the same rules). The
         first segment continues what is carried only when its layout is not shifted (else it is lost)."""
@@ -238,24 +251,20 @@ class StaticDetector:
         self._layout = None
         cuts = [int(c) for c in np.flatnonzero(marks) if c > 0 or self.state.carry is not None]
         bounds = [0, *cuts, len(t)]
-        poses: list[Pose] = []
-        segments: list[int] = []
+        found: list[FoundPose] = []
         for index, (first, stop) in enumerate(zip(bounds[:-1], bounds[1:])):
             if first in cuts:  # the break before this segment
                 ended = end_carry(self.config, self.state) if marks[first] == RESTART else None
                 self.state.carry = None
                 if ended is not None:
-                    poses.append(ended)
-                    segments.append(index - 1)
+                    found.append(FoundPose(ended, index - 1))
             last = stop == len(t)
             rows = slice(first, stop)
-            found, rejected, out_of_range = detect_batch(
+            poses, rejected, out_of_range = detect_batch(
                 self.config, self.state, t[rows], a[rows], None if g is None else g[rows],
                 None if temps is None else temps[rows], flush=flush or not last, final=final and last)
             self.rejected_samples += rejected
             self.rejected_out_of_range += out_of_range
-            poses += found
-            segments += [index] * len(found)
-        self.pose_segments = segments
-        return poses
+            found += [FoundPose(pose, index) for pose in poses]
+        return found
 

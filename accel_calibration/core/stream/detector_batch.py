@@ -291,10 +291,9 @@ def _window_variance(channels: list[np.ndarray], start: np.ndarray, firsts: np.n
     window i; and the squared norm of the first channel's window mean (both 0 elsewhere: never used).
 
     Blocks are as long as the shortest full window, so every full window holds a block boundary; it
-    is summed from pieces that lie inside it: the end of the block holding its first sample, whole
-    blocks between (only for a window longer than the shortest), the start of the block holding its
-    last sample. Column by column (x, y, z, |x|^2 of a channel), laid out block row by block. A few
-    buffers serve every column: touching fresh memory costs as much as the sums.
+    is summed from pieces that lie inside it (`_WindowBlocks`). Column by column (x, y, z, |x|^2 of a
+    channel), laid out block row by block. A few buffers serve every column: touching fresh memory costs
+    as much as the sums.
     """
     n_rows = len(channels[0])
     variances = [np.zeros(n_rows) for _ in channels]
@@ -306,32 +305,51 @@ def _window_variance(channels: list[np.ndarray], start: np.ndarray, firsts: np.n
     count = windows.astype(float)  # samples in the window (exact)
     count -= first
     count += 1.0
-    block = int(count.min())
+    blocks = _WindowBlocks(n_rows, windows, first, int(count.min()))
     bounds = list(zip(firsts.tolist(), [*firsts[1:].tolist(), n_rows]))
-    blocks, tail = -(-n_rows // block), n_rows % block
-    whole = n_rows // block  # blocks without padding
-    last_block, last_at = np.divmod(windows, block)
-    last_at *= blocks  # the last row's place in a column laid out (block row, block)
-    last_at += last_block
-    first_block, first_at = np.divmod(first, block)
-    first_at *= blocks
-    first_at += first_block
-    spans = last_block - first_block
-    one_block = np.flatnonzero(spans == 0)  # it starts at the boundary: no piece before it
-    between = np.flatnonzero(spans > 1)  # whole blocks in between
-    pairs = np.column_stack([first_block[between] + 1, last_block[between]]).reshape(-1)
-    del spans, last_block, first_block
     contiguous = windows[-1] - windows[0] + 1 == len(windows)  # the usual case: full from some row on
     at = slice(int(windows[0]), int(windows[-1]) + 1) if contiguous else windows
     segment = 0 if len(bounds) == 1 else np.searchsorted(firsts, windows, side="right") - 1
     lengths = np.diff([*firsts.tolist(), n_rows])
+    for c, values in enumerate(channels):
+        norm = variances[c][at] if contiguous else np.empty(len(windows))  # |window sum|^2, then the variance
+        mean = mean_square[at] if contiguous else np.empty(len(windows))
+        _channel_variance(blocks, values, bounds, lengths, segment, count, norm, mean if c == 0 else None)
+        if not contiguous:
+            variances[c][windows] = norm
+            if c == 0:
+                mean_square[windows] = mean
+    return variances, mean_square
 
-    column_rows, squares, backwards = np.empty((3, block, blocks))
-    total, piece = np.empty((2, len(windows)))
 
-    def window_sums(rows: np.ndarray) -> None:
+class _WindowBlocks:
+    """The rows laid out in blocks of `block` (a column as block rows x blocks) and where each full window's
+    pieces lie: the end of the block holding its first sample, whole blocks between (only for a window
+    longer than the shortest), the start of the block holding its last sample; with the buffers the sums
+    reuse."""
+
+    def __init__(self, n_rows: int, windows: np.ndarray, first: np.ndarray, block: int) -> None:
+        self.block = block
+        self.blocks, self.tail = -(-n_rows // block), n_rows % block
+        self.whole = n_rows // block  # blocks without padding
+        last_block, last_at = np.divmod(windows, block)
+        last_at *= self.blocks  # the last row's place in a column laid out (block row, block)
+        last_at += last_block
+        first_block, first_at = np.divmod(first, block)
+        first_at *= self.blocks
+        first_at += first_block
+        self.last_at, self.first_at = last_at, first_at
+        spans = last_block - first_block
+        self.one_block = np.flatnonzero(spans == 0)  # it starts at the boundary: no piece before it
+        self.between = np.flatnonzero(spans > 1)  # whole blocks in between
+        self.pairs = np.column_stack([first_block[self.between] + 1, last_block[self.between]]).reshape(-1)
+        self.column_rows, self.squares, self.backwards = np.empty((3, block, self.blocks))
+        self.total, self.piece = np.empty((2, len(windows)))
+
+    def window_sums(self, rows: np.ndarray) -> None:
         """`total` := each window's sum of the column laid out in `rows` (turned into its running sums)."""
-        if blocks >= 128:  # enough blocks that one add per block row beats cumsum's per-element loop
+        block, backwards, total, piece = self.block, self.backwards, self.total, self.piece
+        if self.blocks >= 128:  # enough blocks that one add per block row beats cumsum's per-element loop
             backwards[block - 1] = rows[block - 1]  # row r: from row r to the block's last, from the last
             for r in range(block - 2, -1, -1):
                 np.add(backwards[r + 1], rows[r], out=backwards[r])
@@ -340,57 +358,64 @@ def _window_variance(channels: list[np.ndarray], start: np.ndarray, firsts: np.n
         else:
             backwards[::-1] = np.cumsum(rows[::-1], axis=0)
             np.cumsum(rows, axis=0, out=rows)
-        np.take(rows.reshape(-1), last_at, out=total)
-        np.take(backwards.reshape(-1), first_at, out=piece)
-        piece[one_block] = 0.0
+        np.take(rows.reshape(-1), self.last_at, out=total)
+        np.take(backwards.reshape(-1), self.first_at, out=piece)
+        piece[self.one_block] = 0.0
         np.add(total, piece, out=total)
-        if len(between):
-            total[between] += np.add.reduceat(np.append(rows[block - 1], 0.0), pairs)[::2]
+        if len(self.between):
+            total[self.between] += np.add.reduceat(np.append(rows[block - 1], 0.0), self.pairs)[::2]
 
-    for c, values in enumerate(channels):
-        norm = variances[c][at] if contiguous else np.empty(len(windows))  # |window sum|^2, then the variance
-        mean = mean_square[at] if contiguous else np.empty(len(windows))
-        for axis in range(3):
-            column = values[:, axis]
-            medians = np.array([_median(column[begin:end]) for begin, end in bounds])
-            # Median, not the first sample: a glitch there would leave every window far from its reference.
-            # Per row of the column: its segment's median (one number for the usual single segment).
-            per_row = np.repeat(medians, lengths) if len(bounds) > 1 else None
+    def lay_out(self, column: np.ndarray, reference: float | np.ndarray) -> None:
+        """`column_rows` := the column minus `reference` (a number, or one per row), laid out, zero-padded."""
+        whole, block, tail = self.whole, self.block, self.tail
+        if isinstance(reference, np.ndarray):
             np.subtract(column[:whole * block].reshape(whole, block).T,
-                        medians[0] if per_row is None else per_row[:whole * block].reshape(whole, block).T,
-                        out=column_rows[:, :whole])
-            if tail:
-                np.subtract(column[whole * block:], medians[0] if per_row is None else per_row[whole * block:],
-                            out=column_rows[:tail, whole])
-                column_rows[tail:, whole] = 0.0  # the padding of the last block
+                        reference[:whole * block].reshape(whole, block).T, out=self.column_rows[:, :whole])
+        else:
+            np.subtract(column[:whole * block].reshape(whole, block).T, reference, out=self.column_rows[:, :whole])
+        if tail:
+            np.subtract(column[whole * block:],
+                        reference[whole * block:] if isinstance(reference, np.ndarray) else reference,
+                        out=self.column_rows[:tail, whole])
+            self.column_rows[tail:, whole] = 0.0  # the padding of the last block
+
+
+def _channel_variance(blocks: _WindowBlocks, values: np.ndarray, bounds: list[tuple[int, int]],
+                      lengths: np.ndarray, segment: int | np.ndarray, count: np.ndarray, norm: np.ndarray,
+                      mean: np.ndarray | None) -> None:
+    """`norm` := each full window's total variance of one channel (n x 3); `mean` (when given) := the
+    squared norm of its window mean."""
+    column_rows, squares, backwards = blocks.column_rows, blocks.squares, blocks.backwards
+    total, piece = blocks.total, blocks.piece
+    for axis in range(3):
+        column = values[:, axis]
+        medians = np.array([_median(column[begin:end]) for begin, end in bounds])
+        # Median, not the first sample: a glitch there would leave every window far from its reference.
+        # Per row of the column: its segment's median (one number for the usual single segment).
+        blocks.lay_out(column, np.repeat(medians, lengths) if len(bounds) > 1 else medians[0])
+        if axis == 0:
+            np.multiply(column_rows, column_rows, out=squares)
+        else:
+            np.multiply(column_rows, column_rows, out=backwards)
+            squares += backwards
+        blocks.window_sums(column_rows)
+        if mean is not None:  # the window mean: its median plus the mean about it
+            np.divide(total, count, out=piece)
+            piece += medians[segment]
+            piece *= piece
             if axis == 0:
-                np.multiply(column_rows, column_rows, out=squares)
+                mean[...] = piece
             else:
-                np.multiply(column_rows, column_rows, out=backwards)
-                squares += backwards
-            window_sums(column_rows)
-            if c == 0:  # the window mean: its median plus the mean about it
-                np.divide(total, count, out=piece)
-                piece += medians[segment]
-                piece *= piece
-                if axis == 0:
-                    mean[...] = piece
-                else:
-                    mean += piece
-            np.multiply(total, total, out=piece)
-            if axis == 0:
-                norm[...] = piece
-            else:
-                norm += piece
-        window_sums(squares)
-        norm /= count
-        np.subtract(total, norm, out=norm)
-        norm /= count
-        if not contiguous:
-            variances[c][windows] = norm
-            if c == 0:
-                mean_square[windows] = mean
-    return variances, mean_square
+                mean += piece
+        np.multiply(total, total, out=piece)
+        if axis == 0:
+            norm[...] = piece
+        else:
+            norm += piece
+    blocks.window_sums(squares)
+    norm /= count
+    np.subtract(total, norm, out=norm)
+    norm /= count
 
 
 def _median(values: np.ndarray) -> float:
@@ -456,6 +481,73 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     sums are taken over other blocks)."""
     carry: BatchCarry | None = state.carry
     state.carry = None
+    t, a, g, temps, dropped, rejected, out_of_range = _accepted(config, carry, t_ns, accel, gyro, temperature_degc,
+                                                                drop)
+    # The rows kept from the part before come first; the interval rules run over the new rows only.
+    context = 0
+    store: CarryStore | None = None
+    if carry is not None:
+        context = len(carry.t)
+        if len(t) == 0:
+            store = carry.store
+            g = None if g is None or carry.gyro is None else carry.gyro
+            temps = None if temps is None or carry.temperature is None else carry.temperature
+            t, a = carry.t, carry.accel
+        else:
+            t, a, g, temps, store = _carried_and_new(carry, t, a, g, temps)
+        if dropped is not None:
+            dropped = np.concatenate([np.zeros(context, bool), dropped])
+    if len(t) == context:  # nothing new
+        if carry is not None:
+            state.carry = carry
+            if final:
+                return _finish(config, state, [], carry, t, a, g, temps, flush), rejected, out_of_range
+        return [], rejected, out_of_range
+    # The window rules run over the rows from `held` on (the rows before it are an open interval's only);
+    # indices below are of those rows, `held` + index in the whole.
+    held = 0 if carry is None else carry.window_from
+    intervals = _Intervals(config, carry, held, t, a, g, temps)
+    if held:
+        t, a = t[held:], a[held:]
+        g = None if g is None else g[held:]
+        dropped = None if dropped is None else dropped[held:]
+        context -= held
+    windows = _window_states(config, state, t, a, g, context)
+    intervals.start = windows.start
+    opened, last = intervals.run(state, windows, t, context, dropped)
+    poses = intervals.poses
+    full_t, full_a, full_g, full_temps = intervals.t, intervals.a, intervals.g, intervals.temps
+    # What the next part needs: the window of the last row (the next rows' windows start no earlier), and
+    # the open interval from its window's first row (emit trims from there).
+    windows_from = intervals.window_of(held + len(t) - 1)
+    keep_from = windows_from if opened is None else min(windows_from, intervals.window_of(opened))
+    if carry is None or store is None:  # the first part: the caller's arrays, never kept
+        rows = len(full_t) - keep_from
+        store = CarryStore.holding(2 * rows + 1024, full_t[keep_from:], full_a[keep_from:],
+                                   None if full_g is None else full_g[keep_from:],
+                                   None if full_temps is None else full_temps[keep_from:])
+    else:
+        store.start += keep_from
+    kept_t, kept_a, kept_g, kept_temps = store.rows()
+    left = BatchCarry(kept_t, kept_a, kept_g, kept_temps,
+                      None if opened is None else opened - keep_from,
+                      0 if opened is None else intervals.window_of(opened) - keep_from,
+                      max(last - keep_from, 0), windows_from - keep_from, store)
+    if not final:
+        state.carry = left
+        return poses, rejected, out_of_range
+    return _finish(config, state, poses, left, full_t, full_a, full_g, full_temps, flush, opened, last,
+                   None if opened is None else intervals.window_of(opened), config.trim_ns), rejected, out_of_range
+
+
+def _accepted(config: DetectorConfig, carry: BatchCarry | None, t_ns: ArrayLike, accel: ArrayLike,
+              gyro: ArrayLike | None, temperature_degc: ArrayLike | None, drop: ArrayLike | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None, int, int]:
+    """The rows accepted (stamps, accel, gyro, temperature: the arrays as given when all are), per row
+    whether the interval open before it is dropped (None without `drop`), and how many rows were rejected,
+    of which finite but out of range. A row is rejected for a NaN/inf or a value beyond the limits on any
+    axis, or a stamp not after the last accepted one (the carry's included); a temperature beyond
+    HARD_LIMIT is NaN (no temperature), the row kept."""
     t_all = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     # Contiguous rows (a column slice of a loaded table is not): every pass below runs faster on them.
     a_all = np.ascontiguousarray(np.asarray(accel, dtype=float).reshape(-1, 3))
@@ -501,40 +593,31 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     a = a_all if keep is None else a_all[keep]
     g = None if g_all is None else g_all if keep is None else g_all[keep]
     temps = None if temp_all is None else temp_all if keep is None else temp_all[keep]
-    # The rows kept from the part before come first; the interval rules run over the new rows only.
-    context = 0
-    store: CarryStore | None = None
-    if carry is not None:
-        context = len(carry.t)
-        if len(t) == 0:
-            store = carry.store
-            g = None if g is None or carry.gyro is None else carry.gyro
-            temps = None if temps is None or carry.temperature is None else carry.temperature
-            t, a = carry.t, carry.accel
-        else:
-            t, a, g, temps, store = _carried_and_new(carry, t, a, g, temps)
-        if dropped is not None:
-            dropped = np.concatenate([np.zeros(context, bool), dropped])
-    n = len(t)
-    if n == context:  # nothing new
-        if carry is not None:
-            state.carry = carry
-            if final:
-                return _finish(config, state, [], carry, t, a, g, temps, flush), rejected, out_of_range
-        return [], rejected, out_of_range
-    trim_ns = config.trim_ns
-    # The window rules run over the rows from `held` on (the rows before it are an open interval's only);
-    # indices below are of those rows, `held` + index in the whole.
-    held = 0 if carry is None else carry.window_from
-    full_t, full_a, full_g, full_temps = t, a, g, temps
-    if held:
-        t, a = t[held:], a[held:]
-        g = None if g is None else g[held:]
-        temps = None if temps is None else temps[held:]
-        dropped = None if dropped is None else dropped[held:]
-        context -= held
-        n -= held
+    return t, a, g, temps, dropped, rejected, out_of_range
 
+
+@dataclass
+class _Windows:
+    """Per row of a part (from `held` on): its window's first row, whether a gap longer than a window came
+    before it, whether its window is full, the window variances (total over the axes), the thresholds
+    in force (NaN: none yet), whether it is learning the floor (full, no threshold yet) or still."""
+
+    start: np.ndarray
+    gaps: np.ndarray
+    full: np.ndarray
+    accel_var: np.ndarray
+    gyro_var: np.ndarray | None
+    accel_limit: np.ndarray
+    gyro_limit: np.ndarray
+    learning: np.ndarray
+    still: np.ndarray
+
+
+def _window_states(config: DetectorConfig, state: DetectorState, t: np.ndarray, a: np.ndarray,
+                   g: np.ndarray | None, context: int) -> _Windows:
+    """Each row's window and its state, the floors, quietest floors and full-window time in `state`
+    advanced past them; the first `context` rows were decided in the part before (never full here)."""
+    n = len(t)
     window_ns = config.window_ns
     dt = np.zeros(n, dtype=np.int64)
     np.subtract(t[1:], t[:-1], out=dt[1:])
@@ -588,98 +671,104 @@ def detect_batch(config: DetectorConfig, state: DetectorState, t_ns: ArrayLike, 
     with np.errstate(invalid="ignore"):
         quiet_gyro = np.ones(n, bool) if g is None else (np.isnan(gyro_limit) | (gyro_var <= gyro_limit))
         still = full & ~learning & (accel_var <= accel_limit) & quiet_gyro
+    return _Windows(start, gaps, full, accel_var, gyro_var, accel_limit, gyro_limit, learning, still)
 
-    poses: list[Pose] = []
 
-    def window_of(row: int) -> int:
+class _Intervals:
+    """The interval rules over a part's rows (the carried ones first: `t`, `a`, `g`, `temps` are the whole),
+    the poses they end in `poses`."""
+
+    def __init__(self, config: DetectorConfig, carry: BatchCarry | None, held: int, t: np.ndarray, a: np.ndarray,
+                 g: np.ndarray | None, temps: np.ndarray | None) -> None:
+        self.config, self.carry, self.held = config, carry, held
+        self.t, self.a, self.g, self.temps = t, a, g, temps
+        self.start = np.zeros(0, dtype=np.int64)  # each row's window's first row, from `held` on
+        self.poses: list[Pose] = []
+        self.max_pose_ns = int(config.max_pose_s * 1e9) if math.isfinite(config.max_pose_s) else None
+
+    def window_of(self, row: int) -> int:
         """The first row of a row's window, both in the whole. The carried open interval's row keeps the
         window it had (its window may begin before the rows passed through the window sums here)."""
+        carry = self.carry
         if carry is not None and row == carry.opened:
             return carry.opened_window
-        return int(start[row - held]) + held
+        return int(self.start[row - self.held]) + self.held
 
-    def emit(opened: int, last: int, trim_end: bool) -> None:
-        _emit(poses, config, full_t, full_a, full_g, full_temps, window_of(opened), opened, last, trim_end, trim_ns)
+    def emit(self, opened: int, last: int, trim_end: bool) -> None:
+        _emit(self.poses, self.config, self.t, self.a, self.g, self.temps, self.window_of(opened), opened, last,
+              trim_end, self.config.trim_ns)
 
-    # The interval rules, applied per run of samples in the same state (runs break at gaps and at
-    # state changes): 0 window not full, 1 learning the floor, 2 still, 3 moving.
-    row_kind = full.view(np.int8) * np.int8(3)  # learning and still are parts of full, apart
-    row_kind -= learning.view(np.int8) * np.int8(2)
-    row_kind -= still.view(np.int8)
-    changes = (row_kind[context + 1:] != row_kind[context:-1]) | gaps[context + 1:]
-    boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
-    ends = np.concatenate([boundary[1:], [n]]) - 1
-    # In the whole's rows (held + index): the row that opened the current interval, the last one added to it
-    # (read only while one is open).
-    opened: int | None = None if carry is None else carry.opened
-    last = 0 if carry is None else carry.last
-    warmup = state.warmup_max  # the loudest windows of the warm-up, until the threshold is known
-    loudest_accel, loudest_gyro = (0.0, 0.0) if warmup is None else warmup
-    warmup_open = warmup is not None
-    max_pose_ns = int(config.max_pose_s * 1e9) if math.isfinite(config.max_pose_s) else None
-    for first, final_row in zip(boundary.tolist(), ends.tolist()):
-        if gaps[first] and opened is not None:
-            if dropped is None or not dropped[first]:
-                emit(opened, last, True)
-            opened = None
-        kind = row_kind[first]
-        if kind == 0:
-            continue
-        if kind == 1:
-            loudest_accel = max(loudest_accel, float(accel_var[first:final_row + 1].max()))
-            if gyro_var is not None:
-                loudest_gyro = max(loudest_gyro, float(gyro_var[first:final_row + 1].max()))
-            if opened is None:
-                opened = first + held
-            last = final_row + held
-            continue
-        if warmup_open:
-            warmup_open = False
-            limit_g = gyro_limit[first]
-            if opened is not None and not (loudest_accel <= accel_limit[first]
-                                           and (math.isnan(limit_g) or loudest_gyro <= limit_g)):
-                opened = None  # it moved during warm-up: no pose from it
-        if kind == 3:
-            if opened is not None:
-                emit(opened, last, True)
+    def run(self, state: DetectorState, windows: _Windows, t: np.ndarray, context: int,
+            dropped: np.ndarray | None) -> tuple[int | None, int]:
+        """The rules applied per run of samples in the same state (runs break at gaps and at state changes):
+        0 window not full, 1 learning the floor, 2 still, 3 moving. `t`: the stamps from `held` on. Returns
+        the row that opened the interval open at the end (None: none) and the last row added to it, in the
+        whole's rows; the warm-up's loudest windows in `state` advanced."""
+        held, carry, gaps = self.held, self.carry, windows.gaps
+        accel_var, gyro_var = windows.accel_var, windows.gyro_var
+        row_kind = windows.full.view(np.int8) * np.int8(3)  # learning and still are parts of full, apart
+        row_kind -= windows.learning.view(np.int8) * np.int8(2)
+        row_kind -= windows.still.view(np.int8)
+        changes = (row_kind[context + 1:] != row_kind[context:-1]) | gaps[context + 1:]
+        boundary = context + np.flatnonzero(np.concatenate([[True], changes]))
+        ends = np.concatenate([boundary[1:], [len(t)]]) - 1
+        # In the whole's rows (held + index): the row that opened the current interval, the last one added
+        # to it (read only while one is open).
+        opened: int | None = None if carry is None else carry.opened
+        last = 0 if carry is None else carry.last
+        warmup = state.warmup_max  # the loudest windows of the warm-up, until the threshold is known
+        loudest_accel, loudest_gyro = (0.0, 0.0) if warmup is None else warmup
+        warmup_open = warmup is not None
+        for first, final_row in zip(boundary.tolist(), ends.tolist()):
+            if gaps[first] and opened is not None:
+                if dropped is None or not dropped[first]:
+                    self.emit(opened, last, True)
                 opened = None
-            continue
-        # A run of still samples: open at its first sample if nothing is open, cut at max_pose_s.
+            kind = row_kind[first]
+            if kind == 0:
+                continue
+            if kind == 1:
+                loudest_accel = max(loudest_accel, float(accel_var[first:final_row + 1].max()))
+                if gyro_var is not None:
+                    loudest_gyro = max(loudest_gyro, float(gyro_var[first:final_row + 1].max()))
+                if opened is None:
+                    opened = first + held
+                last = final_row + held
+                continue
+            if warmup_open:
+                warmup_open = False
+                limit_g = windows.gyro_limit[first]
+                if opened is not None and not (loudest_accel <= windows.accel_limit[first]
+                                               and (math.isnan(limit_g) or loudest_gyro <= limit_g)):
+                    opened = None  # it moved during warm-up: no pose from it
+            if kind == 3:
+                if opened is not None:
+                    self.emit(opened, last, True)
+                    opened = None
+                continue
+            opened, last = self._still_run(t, first, final_row, opened, last)
+        state.warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
+        return opened, last
+
+    def _still_run(self, t: np.ndarray, first: int, final_row: int, opened: int | None,
+                   last: int) -> tuple[int, int]:
+        """A run of still samples: open at its first sample if nothing is open, cut at max_pose_s. Returns
+        the interval open after it and its last row (the whole's rows)."""
+        held, max_pose_ns = self.held, self.max_pose_ns
         i = first
         if opened is None:
             opened = last = first + held
             i = first + 1
         while i <= final_row:
-            limit = None if max_pose_ns is None else full_t[window_of(opened)] + max_pose_ns
+            limit = None if max_pose_ns is None else self.t[self.window_of(opened)] + max_pose_ns
             split = final_row + 1 if limit is None else max(i, int(np.searchsorted(t, limit, side="left")))
             if split > final_row:
                 last = final_row + held
                 break
-            emit(opened, split + held, True)
+            self.emit(opened, split + held, True)
             opened = last = split + held
             i = split + 1
-    state.warmup_max = (loudest_accel, loudest_gyro) if warmup_open else None
-    # What the next part needs: the window of the last row (the next rows' windows start no earlier), and
-    # the open interval from its window's first row (emit trims from there).
-    windows_from = window_of(held + n - 1)
-    keep_from = windows_from if opened is None else min(windows_from, window_of(opened))
-    if carry is None or store is None:  # the first part: the caller's arrays, never kept
-        rows = len(full_t) - keep_from
-        store = CarryStore.holding(2 * rows + 1024, full_t[keep_from:], full_a[keep_from:],
-                                   None if full_g is None else full_g[keep_from:],
-                                   None if full_temps is None else full_temps[keep_from:])
-    else:
-        store.start += keep_from
-    kept_t, kept_a, kept_g, kept_temps = store.rows()
-    left = BatchCarry(kept_t, kept_a, kept_g, kept_temps,
-                      None if opened is None else opened - keep_from,
-                      0 if opened is None else window_of(opened) - keep_from,
-                      max(last - keep_from, 0), windows_from - keep_from, store)
-    if not final:
-        state.carry = left
-        return poses, rejected, out_of_range
-    return _finish(config, state, poses, left, full_t, full_a, full_g, full_temps, flush, opened, last,
-                   None if opened is None else window_of(opened), trim_ns), rejected, out_of_range
+        return opened, last
 
 
 def _finish(config: DetectorConfig, state: DetectorState, poses: list[Pose], carry: BatchCarry, t: np.ndarray,

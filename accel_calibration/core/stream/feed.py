@@ -1,21 +1,17 @@
-"""A recording into a session in parts (replay's reader, or the node's buffer every few tens of
-milliseconds): screening, temperature filter and detector over arrays, the poses judged by the session.
-One sample path for node and replay: live equals replay by construction."""
+"""A recording into the session's stream side in parts (replay's reader, or the node's buffer every few
+tens of milliseconds): screening, temperature filter and detector over arrays, the poses judged by the
+stream side's rule. One sample path for node and replay: live equals replay by construction."""
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..pose import Pose
 from .detector import DISCARD, RESTART
-
-if TYPE_CHECKING:
-    from ..session import CalibrationSession
+from .stream_side import StreamSide
 
 
 class RecordingFeed:
-    """One recording into a session in parts of PART_ROWS samples: the cut points depend only on the
+    """One recording into a stream side in parts of `part_rows` samples: the cut points depend only on the
     sample count, so any reader's chunking gives the same, deterministic poses (and a recording shorter
     than a part is one detector call). A part is processed once the temperature readings of its time have
     come (readings after its last stamp), or when the temperature stream lags by MAX_LAG_PARTS parts.
@@ -30,10 +26,11 @@ class RecordingFeed:
     # without a temperature topic then finds its poses this much later.
     LIVE_TEMPERATURE_WAIT_NS = 1_000_000_000
 
-    def __init__(self, session: CalibrationSession, has_temperature: bool, live: bool = False):
-        self.session = session
+    def __init__(self, stream: StreamSide, has_temperature: bool, live: bool = False, part_rows: int = PART_ROWS):
+        self.stream = stream
         self.has_temperature = has_temperature
         self.live = live
+        self.part_rows = part_rows
         self._samples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._buffered = 0
         self._readings: list[tuple[np.ndarray, np.ndarray]] = []  # as they came
@@ -41,7 +38,7 @@ class RecordingFeed:
         self._latest_reading: int | None = None
         self._paused_since = False  # a paused sample since the detector's last one
         self._restart_since = False  # a clock re-synchronisation since the detector's last one
-        self._segment_base = session.screen.time_base  # the clock of the detector's current segment
+        self._segment_base = stream.screen.time_base  # the clock of the detector's current segment
         self._found: list[tuple[Pose, int]] = []  # poses with the clock they were measured on
         self.samples = 0
 
@@ -79,8 +76,8 @@ class RecordingFeed:
         """The poses found that are poses; the others leave the motion recorder's sequence too."""
         usable = []
         for pose, base in found:
-            if self.session.usable_pose(pose, base) is None:
-                self.session.motions.drop(pose)
+            if self.stream.usable_pose(pose, base) is None:
+                self.stream.motions.drop(pose)
             else:
                 usable.append(pose)
         return usable
@@ -89,26 +86,26 @@ class RecordingFeed:
         """Live: everything buffered goes through now, without waiting for later temperature readings
         (/calibrate counts what was held up to the moment it was called)."""
         while self._buffered:
-            self._part(*self._take(min(self._buffered, self.PART_ROWS)), final=False)
+            self._part(*self._take(min(self._buffered, self.part_rows)), final=False)
 
     def holding(self) -> Pose | None:
         """Live: the still interval in progress as the pose it would end as now (what a person holding a
         pose expects /calibrate to count), None when there is none or it is no pose."""
         if self._paused_since:
             return None
-        pose = self.session.detector.peek_open()
+        pose = self.stream.detector.peek_open()
         if pose is None:
             return None
-        return self.session.usable_pose(pose, self._segment_base)
+        return self.stream.usable_pose(pose, self._segment_base)
 
     def _run(self, final: bool) -> None:
         if self.live and not final:
             self._run_live()
             return
-        while self._buffered >= self.PART_ROWS:
-            t, accel, gyro, collecting = self._take(self.PART_ROWS)
+        while self._buffered >= self.part_rows:
+            t, accel, gyro, collecting = self._take(self.part_rows)
             waiting = (self.has_temperature and (self._latest_reading is None or self._latest_reading <= t.max())
-                       and self._buffered + len(t) < self.MAX_LAG_PARTS * self.PART_ROWS)
+                       and self._buffered + len(t) < self.MAX_LAG_PARTS * self.part_rows)
             if waiting and not final:  # the readings of this part's time have not all come yet
                 self._samples.insert(0, (t, accel, gyro, collecting))
                 self._buffered += len(t)
@@ -117,14 +114,14 @@ class RecordingFeed:
         if final:
             if self._buffered:
                 self._part(*self._take(self._buffered), final=True)
-            elif self.session.detector.continuing:
+            elif self.stream.detector.continuing:
                 self._part(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), None, final=True)
 
     def _run_live(self) -> None:
         """Each part as soon as its samples' temperature readings have come (a reading stamped after its
         last sample), or it has waited LIVE_TEMPERATURE_WAIT_NS of stamps; at once while no reading ever came."""
         while self._buffered:
-            t, accel, gyro, collecting = self._take(min(self._buffered, self.PART_ROWS))
+            t, accel, gyro, collecting = self._take(min(self._buffered, self.part_rows))
             # No reading yet: no temperature topic (or not yet): nothing to wait for.
             waiting = self._latest_reading is not None and self._latest_reading <= t.max() \
                 and int(t.max()) - int(t.min()) < self.LIVE_TEMPERATURE_WAIT_NS
@@ -174,14 +171,14 @@ class RecordingFeed:
 
     def _part(self, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray, collecting: np.ndarray | None,
               final: bool) -> None:
-        session = self.session
-        detector = session.detector
+        stream = self.stream
+        detector = stream.detector
         fresh = not detector.continuing
-        time_base = session.screen.time_base
-        keep, restart = session.screen.screen_arrays(t, accel, gyro)
+        time_base = stream.screen.time_base
+        keep, restart = stream.screen.screen_arrays(t, accel, gyro)
         paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
-        session.counters.samples_paused += int(np.count_nonzero(keep & paused))
-        session.motions.add(t, gyro, keep, paused, restart)
+        stream.counters.samples_paused += int(np.count_nonzero(keep & paused))
+        stream.motions.add(t, gyro, keep, paused, restart)
         rows = np.flatnonzero(keep & ~paused)  # what the detector sees
         # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
         # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
@@ -206,13 +203,13 @@ class RecordingFeed:
             # Always an array (NaN: no temperature yet): the detector's parts keep one presence.
             readings = self._readings_upto(None if final or not len(t) else int(t.max()))
             stamps, values = readings if readings is not None else (np.zeros(0, np.int64), np.zeros(0))
-            rejected = session.temperature.rejected
-            temps, stale = session.temperature.series(stamps, values, t[rows])
-            session.counters.temperature_stale += stale
-            session.counters.temperature_bad += session.temperature.rejected - rejected
+            rejected = stream.temperature.rejected
+            temps, stale = stream.temperature.series(stamps, values, t[rows])
+            stream.counters.temperature_stale += stale
+            stream.counters.temperature_bad += stream.temperature.rejected - rejected
         # Paused at the end: the interval then open was dropped when the pause began.
-        poses = detector.process(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
-                                 final=final)
+        found = detector.find(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
+                              final=final)
         # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it): the
         # segment in force when the part began, then one per break (the first part: from its first row).
         bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1]
@@ -223,6 +220,6 @@ class RecordingFeed:
             segment_bases = np.concatenate([[self._segment_base], bases[np.flatnonzero(breaks)]])
         if len(rows):
             self._segment_base = int(bases[-1])
-        for pose in poses:
-            session.motions.pose_found(pose)
-        self._found += [(p, int(segment_bases[segment])) for p, segment in zip(poses, detector.pose_segments)]
+        for each in found:
+            stream.motions.pose_found(each.pose)
+        self._found += [(each.pose, int(segment_bases[each.segment])) for each in found]

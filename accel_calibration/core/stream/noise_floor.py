@@ -65,14 +65,7 @@ class VarianceFloor:
         if count == 0:
             return np.zeros(0)
         quantile, half_life = self.config.quantile, self.config.half_life_values
-        with np.errstate(divide="ignore", invalid="ignore"):
-            position = np.log10(variances)
-        position -= LOG_MIN
-        position *= BINS_PER_DECADE
-        np.floor(position, out=position)
-        np.fmax(position, 0.0, out=position)  # a variance <= 0 gives -inf or NaN (fmax takes 0 over NaN): bin 0
-        np.minimum(position, NBINS - 1, out=position)
-        index = position.astype(np.int64)
+        index = _bin_of(variances)
         # A query after the first add ever, then every QUERY_EVERY adds; a halving every half_life adds
         # (before the query of the same add). Numbered 1.. within these adds.
         first_query = 1 if self.value is None else QUERY_EVERY - self.since_query
@@ -95,39 +88,14 @@ class VarianceFloor:
             end = int(epoch_starts[epoch + 1]) if epoch + 1 < len(epoch_starts) else count
             chosen = np.flatnonzero(epoch_of_query == epoch)
             if len(chosen):
-                upto = query_adds[chosen]
-                # Adds begin+1 .. the epoch's last query (later ones never reach one), each keyed by (its
-                # first query at or after it, its bin): those up to the first query, then QUERY_EVERY per query.
-                head, reached = int(upto[0]) - begin, int(upto[-1]) - begin
-                keys = index[begin:begin + reached].copy()
-                keys[head:].reshape(len(chosen) - 1, QUERY_EVERY)[...] += width * np.arange(1, len(chosen))[:, None]
-                # Per query, this epoch's adds per bin so far (integers: a fast cumsum), plus the carried
-                # counts: the histogram it sees; then its running count over the bins.
-                adds = np.bincount(keys, minlength=len(chosen) * width).reshape(-1, width)
-                np.cumsum(adds, axis=0, out=adds)
-                running = adds + base
-                np.cumsum(running, axis=1, out=running)
-                total = base_total + (upto - begin).astype(float)
-                # The first bin reaching quantile x total that holds counts: the first bin reaching a target
-                # above 0 does (the running count rose there); a target of 0, the first bin holding any.
-                target = np.maximum(quantile * total, 5e-324)
-                first_hit = np.count_nonzero(running < target[:, None], axis=1)
-                values[chosen] = np.where(first_hit < width, centres[np.minimum(first_hit, width - 1)],
-                                          10.0**LOG_MAX)
+                values[chosen] = _epoch_query_values(index, begin, query_adds[chosen], base, base_total, quantile,
+                                                     centres)
             base = base + np.bincount(index[begin:end], minlength=width)
             base_total += end - begin
             if epoch + 1 < len(epoch_starts):  # the halving after this epoch's last add
                 base *= 0.5
                 base_total *= 0.5
-        previous = np.nan if self.value is None else self.value
-        # After each add: the value of the latest query at or before it (every QUERY_EVERY adds from first_query).
-        before_first = min(first_query - 1, count)
-        per_add = np.empty(count)
-        per_add[:before_first] = previous
-        after = per_add[before_first:]
-        runs = len(after) // QUERY_EVERY
-        after[:runs * QUERY_EVERY].reshape(runs, QUERY_EVERY)[:] = values[:runs, None]
-        after[runs * QUERY_EVERY:] = values[runs] if len(after) > runs * QUERY_EVERY else 0.0
+        per_add = _value_after_each_add(values, first_query, count, np.nan if self.value is None else self.value)
         counts = carried.copy()
         counts[low:high] = base
         self.counts = counts
@@ -136,4 +104,55 @@ class VarianceFloor:
         self.since_query = self.since_query + count if not len(query_adds) else count - int(query_adds[-1])
         if len(values):
             self.value = float(values[-1])
-        return np.asarray(per_add)
+        return per_add
+
+
+def _bin_of(variances: np.ndarray) -> np.ndarray:
+    """The histogram bin of each variance (a variance <= 0 or below the range: bin 0; above: the last)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        position = np.log10(variances)
+    position -= LOG_MIN
+    position *= BINS_PER_DECADE
+    np.floor(position, out=position)
+    np.fmax(position, 0.0, out=position)  # a variance <= 0 gives -inf or NaN (fmax takes 0 over NaN): bin 0
+    np.minimum(position, NBINS - 1, out=position)
+    index: np.ndarray = position.astype(np.int64)
+    return index
+
+
+def _epoch_query_values(index: np.ndarray, begin: int, upto: np.ndarray, base: np.ndarray, base_total: float,
+                        quantile: float, centres: np.ndarray) -> np.ndarray:
+    """The floor value at each query of one epoch (its adds begin+1 .., the queries after adds `upto`),
+    each seeing the histogram carried in (`base`, `base_total`) plus the epoch's adds up to it."""
+    width = len(base)
+    # Adds begin+1 .. the epoch's last query (later ones never reach one), each keyed by (its
+    # first query at or after it, its bin): those up to the first query, then QUERY_EVERY per query.
+    head, reached = int(upto[0]) - begin, int(upto[-1]) - begin
+    keys = index[begin:begin + reached].copy()
+    keys[head:].reshape(len(upto) - 1, QUERY_EVERY)[...] += width * np.arange(1, len(upto))[:, None]
+    # Per query, this epoch's adds per bin so far (integers: a fast cumsum), plus the carried
+    # counts: the histogram it sees; then its running count over the bins.
+    adds = np.bincount(keys, minlength=len(upto) * width).reshape(-1, width)
+    np.cumsum(adds, axis=0, out=adds)
+    running = adds + base
+    np.cumsum(running, axis=1, out=running)
+    total = base_total + (upto - begin).astype(float)
+    # The first bin reaching quantile x total that holds counts: the first bin reaching a target
+    # above 0 does (the running count rose there); a target of 0, the first bin holding any.
+    target = np.maximum(quantile * total, 5e-324)
+    first_hit = np.count_nonzero(running < target[:, None], axis=1)
+    values: np.ndarray = np.where(first_hit < width, centres[np.minimum(first_hit, width - 1)], 10.0**LOG_MAX)
+    return values
+
+
+def _value_after_each_add(values: np.ndarray, first_query: int, count: int, previous: float) -> np.ndarray:
+    """After each of `count` adds: the value of the latest query at or before it (the queries every
+    QUERY_EVERY adds from `first_query`, giving `values`), `previous` before the first."""
+    before_first = min(first_query - 1, count)
+    per_add = np.empty(count)
+    per_add[:before_first] = previous
+    after = per_add[before_first:]
+    runs = len(after) // QUERY_EVERY
+    after[:runs * QUERY_EVERY].reshape(runs, QUERY_EVERY)[:] = values[:runs, None]
+    after[runs * QUERY_EVERY:] = values[runs] if len(after) > runs * QUERY_EVERY else 0.0
+    return per_add
