@@ -162,6 +162,21 @@ def conjugate(q: np.ndarray) -> np.ndarray:
     return result
 
 
+def _frames_times_jacobians(frames: np.ndarray, jacobians: np.ndarray) -> np.ndarray:
+    """(frames @ jacobians) of (N, 3, 3) stacks as a (9, N) array, row a * 3 + c: each entry's three products
+    summed in the order matmul sums them, on contiguous rows (a stacked 3 x 3 matmul costs ~170 ns a matrix)."""
+    f = np.ascontiguousarray(frames.reshape(-1, 9).T)  # f[a * 3 + b]
+    j = np.ascontiguousarray(jacobians.reshape(-1, 9).T)  # j[b * 3 + c]
+    out = np.empty_like(f)
+    for a in range(3):
+        for c in range(3):
+            row = out[a * 3 + c]
+            np.multiply(f[a * 3], j[c], out=row)
+            row += f[a * 3 + 1] * j[3 + c]
+            row += f[a * 3 + 2] * j[6 + c]
+    return out
+
+
 class IntervalSet:
     """The sample intervals of several motions, flattened: interval j joins sample j and j + 1 of its
     motion. Holds what does not depend on the gyro matrix: the bias-free raw rates' mean, cross product
@@ -231,10 +246,10 @@ class IntervalSet:
         # with what d theta_j is linear in: dt mean_j (by M), the coning cross product (by cof(M)),
         # the rates' difference and dt (by the bias change).
         frames = quaternion_to_matrix(running)
-        weights = (frames @ right_jacobian(theta)).reshape(-1, 9)  # row a*3+b
+        weights = _frames_times_jacobians(frames, right_jacobian(theta))  # (9, N): row a*3+b
         factors = np.concatenate([dt[:, None] * mean, coning_weight[:, None] * cross, self._fixed_factors],
                                  axis=1)  # (N, 12)
-        sums = np.stack([weights[s:e + 1].T @ factors[s:e + 1] for s, e in zip(self.first, self.last)])
+        sums = np.stack([weights[:, s:e + 1] @ factors[s:e + 1] for s, e in zip(self.first, self.last)])
         sums = sums.reshape(self.motions, 3, 3, 12)  # [k, a, b, column]
         d_matrix = sums[..., 0:3] + np.einsum("kabc,bcpq->kapq", sums[..., 3:6], cofactor_derivative(matrix))
         columns = [d_matrix.reshape(self.motions, 3, 9)]
