@@ -32,8 +32,15 @@ def _reference(intervals: ri.IntervalSet, matrix: np.ndarray, bias: np.ndarray) 
 def test_frames_times_jacobians_is_the_stacked_matmul():
     rng = np.random.default_rng(3)
     frames, jacobians = rng.standard_normal((1000, 3, 3)), rng.standard_normal((1000, 3, 3))
-    np.testing.assert_allclose(ri._frames_times_jacobians(frames, jacobians),
-                               (frames @ jacobians).reshape(-1, 9).T, rtol=0, atol=1e-14)
+    rows = ri._frames_times_jacobians(frames.reshape(-1, 9).T.copy(), jacobians.reshape(-1, 9).T.copy())
+    np.testing.assert_allclose(rows, (frames @ jacobians).reshape(-1, 9).T, rtol=0, atol=1e-14)
+
+
+def test_matrix_and_jacobian_rows_are_the_stacked_forms():
+    rng = np.random.default_rng(5)
+    q, theta = rng.standard_normal((500, 4)), 0.05 * rng.standard_normal((500, 3))
+    assert np.array_equal(ri._matrix_rows(q).T.reshape(-1, 3, 3), ri.quaternion_to_matrix(q))
+    assert np.array_equal(ri._jacobian_rows(theta).T.reshape(-1, 3, 3), ri.right_jacobian(theta))
 
 
 def test_rotations_and_derivatives_keep_their_values(monkeypatch):
