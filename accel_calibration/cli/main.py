@@ -12,7 +12,6 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from ..bag.bag_io import missing_module
 from ..core.errors import AccelCalibrationError, CalibrationError
 
 # One module per command (add_parser, run). The fit, settings, YAML files, tables and Dask are imported
@@ -65,6 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1
     except ModuleNotFoundError as error:  # an install without a third-party module: say what to install
+        from ..bag.bag_io import missing_module  # only here: bag_io is not needed to start
+
         if (missing := missing_module(error)) is None:
             raise
         print(f"{PROG}: error: {missing}", file=sys.stderr)
