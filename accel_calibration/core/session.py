@@ -39,7 +39,6 @@ from .temperature_models import segment_status, temperature_span_problem
 from .units import MG, units_text
 
 
-
 @dataclass(frozen=True)
 class Progress:
     poses: int
