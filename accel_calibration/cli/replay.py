@@ -14,11 +14,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..bag.recording import FORMATS
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.units import MG
 from .dask_cluster import map_on_local_cluster
-from .options import PROG, add_settings_options, replay_settings
+from .options import PROG, add_reader_options, add_settings_options, reader_fields, replay_settings
 from .report import render_report
 
 if TYPE_CHECKING:
@@ -56,21 +55,10 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("bags", nargs="+", metavar="RECORDING",
                         help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, or a CSV of raw samples "
                              "(header: t or t_ns, ax,ay,az [,gx,gy,gz] [,temperature])")
-    parser.add_argument("--format", choices=FORMATS,
-                        default=None,
-                        help="the recordings' format (default: found from the path and content)")
-    parser.add_argument("--instance", type=int, default=None, metavar="N",
-                        help="ULog: read sensor_accel/sensor_gyro instance N and its temperature "
-                             "(default: sensor_combined); DataFlash: IMU instance N (default 0)")
+    add_reader_options(parser)
     parser.add_argument("--all-imus", action="store_true",
                         help="ULog, DataFlash: calibrate every IMU of the log, one file each in --output DIR "
                              "(imu<N>_dev<ID>.yaml), and give the rotation between them")
-    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
-                        help="CSV: unit of the time column (default: s for t, ns for t_ns)")
-    parser.add_argument("--units", choices=("mps2", "g", "counts"), default=None,
-                        help="CSV: units of ax,ay,az (default mps2; gx,gy,gz are rad/s)")
-    parser.add_argument("--counts-per-g", type=float, default=None, metavar="COUNTS",
-                        help="CSV with --units counts: the sensor's counts per g (e.g. 16384: MPU-6050 at +-2 g)")
     parser.add_argument("--poses-out", default=None, metavar="POSES.csv",
                         help="write the still intervals found as a CSV pose table (also when the fit is refused; "
                              "readable by 'fit' and 'report --poses'; several recordings: a directory)")
@@ -223,8 +211,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.jobs < 1:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
-    settings = dataclasses.replace(replay_settings(args), format=args.format, instance=args.instance,
-                                   time_unit=args.time_unit, units=args.units, counts_per_g=args.counts_per_g)
+    settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
     if args.prior is not None:
         settings = dataclasses.replace(settings, prior=replay_prior(args.prior, settings.session),
                                        prior_path=args.prior)
