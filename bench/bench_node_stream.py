@@ -1,9 +1,12 @@
-"""calibration_node against a bare rclpy relay, same machine, same run: delivery, p99 added latency,
-CPU per message. Separate publisher, relay/node and subscriber processes, as in the field.
+"""calibration_node against a bare rclpy relay, same machine, same run: delivery, p99 latency, CPU per
+message. Separate publisher, relay/node and subscriber processes, as in the field. The publisher turns a
+sensor between still poses (1.5 s still, 0.5 s turning), so the node's work finds a pose and refits every
+2 s while the stream is measured. The node's CPU is its whole process tree (the worker process included).
 
-Targets, at 1, 2 and 4 kHz, each against the relay measured in the same run: the node
-delivers >= 99.5 %, uses at most 1.1x the relay's CPU per message, and its p99 latency is within
-max(2x the relay's, the relay's + 1 ms). BENCH_RATES="1000,2000" to choose the rates.
+Targets, at 1, 2 and 4 kHz, in every run, each against the relay measured just before it: the node's p99
+latency within the relay's p99 + 0.5 ms; delivered >= 99.9 % at 1 and 2 kHz; CPU per message <= 1.3x the
+relay's. BENCH_RUNS (10) runs per rate, BENCH_RATES="1000,2000" to choose the rates, BENCH_SECONDS (10)
+of stream per run.
 """
 import json
 import os
@@ -21,9 +24,32 @@ PY = sys.executable
 SECONDS = float(os.environ.get("BENCH_SECONDS", "10"))
 
 
+def _stat(pid: int) -> list[str]:
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+
+
 def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """CPU time of `pid` and every process below it (utime + stime)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parents[int(entry.name)] = int(_stat(int(entry.name))[1])
+            except (OSError, IndexError):
+                pass
+    tree, grew = {pid}, True
+    while grew:
+        below = {child for child, parent in parents.items() if parent in tree} - tree
+        tree |= below
+        grew = bool(below)
+    total = 0
+    for member in tree:
+        try:
+            fields = _stat(member)
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
@@ -41,7 +67,7 @@ def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
              "--log-level", "warn"], env=env)
     out = workdir / f"{kind}_{rate}.json"
     subscriber = subprocess.Popen([PY, HERE / "stream_peers.py", "subscribe", str(SECONDS + 25), out], env=env)
-    time.sleep(2.0)  # processes import rclpy; the publisher then waits for its match itself
+    time.sleep(3.0)  # processes import rclpy (the node its worker too); the publisher then waits for its match
     cpu0 = cpu_seconds(target.pid)
     publisher = subprocess.run([PY, HERE / "stream_peers.py", "publish", str(rate), str(SECONDS)], env=env,
                                capture_output=True, text=True, check=True)
@@ -63,25 +89,26 @@ def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
 def main() -> int:
     domain = 40 + os.getpid() % 50
     rates = [float(r) for r in os.environ.get("BENCH_RATES", "1000,2000,4000").split(",")]
-    results = {}
+    runs = int(os.environ.get("BENCH_RUNS", "10"))
+    met = {rate: 0 for rate in rates}
     with tempfile.TemporaryDirectory() as tmp:
-        for rate in rates:
-            for kind in ("relay", "node"):
-                results[kind, rate] = r = run(kind, rate, Path(tmp), domain)
-                print(f"{kind:5s} {rate:6.0f} Hz: delivered {100 * r['delivered']:6.2f} %  p99 {r['p99_ms']:6.2f} ms  "
-                      f"CPU {r['cpu_us_per_msg']:6.1f} us/msg ({100 * r['cpu_share']:.0f} % of a core)", flush=True)
-    failed = 0
+        for run_index in range(runs):
+            for rate in rates:
+                relay = run("relay", rate, Path(tmp), domain)
+                node = run("node", rate, Path(tmp), domain)
+                budget = relay["p99_ms"] + 0.5
+                cpu_ratio = node["cpu_us_per_msg"] / relay["cpu_us_per_msg"]
+                verdicts = [node["delivered"] >= 0.999 or rate > 2000, cpu_ratio <= 1.3, node["p99_ms"] <= budget]
+                met[rate] += all(verdicts)
+                missed = [name for name, ok in zip(("delivered", "cpu", "p99"), verdicts) if not ok]
+                print(f"run {run_index + 1:2d} {rate / 1000:g} kHz | relay: delivered {100 * relay['delivered']:6.2f} %"
+                      f" p99 {relay['p99_ms']:5.2f} ms CPU {relay['cpu_us_per_msg']:5.1f} us/msg | node: delivered "
+                      f"{100 * node['delivered']:6.2f} % p99 {node['p99_ms']:5.2f} ms (budget {budget:5.2f}) CPU "
+                      f"{node['cpu_us_per_msg']:5.1f} us/msg ({cpu_ratio:.2f}x) | "
+                      f"{'MISSED ' + ','.join(missed) if missed else 'ok'}"
+                      f" | load {os.getloadavg()[0]:.1f}", flush=True)
     for rate in rates:
-        relay, node = results["relay", rate], results["node", rate]
-        budget = max(2 * relay["p99_ms"], relay["p99_ms"] + 1.0)
-        cpu_ratio = node["cpu_us_per_msg"] / relay["cpu_us_per_msg"]
-        verdicts = [node["delivered"] >= 0.995, cpu_ratio <= 1.1, node["p99_ms"] <= budget]
-        failed += not all(verdicts)
-        print(f"{rate / 1000:g} kHz: delivered {100 * node['delivered']:.2f} % (>= 99.5 %: "
-              f"{'ok' if verdicts[0] else 'MISSED'}), CPU per message node / relay {cpu_ratio:.2f} (<= 1.1: "
-              f"{'ok' if verdicts[1] else 'MISSED'}), p99 {node['p99_ms']:.2f} ms vs budget {budget:.2f} ms "
-              f"= max(2x, +1 ms) of the relay's {relay['p99_ms']:.2f} ms ({'ok' if verdicts[2] else 'MISSED'})")
-    print(f"{len(rates) - failed} of {len(rates)} rates meet every target")
+        print(f"{rate / 1000:g} kHz: {met[rate]} of {runs} runs meet every target")
     return 0
 
 

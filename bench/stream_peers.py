@@ -1,6 +1,8 @@
 """Processes for bench_node_stream.py: a paced Imu publisher, a bare relay, and a counting subscriber.
 
-publish RATE SECONDS        stamps each Imu with the wall clock at publish (latency = receive - stamp)
+publish RATE SECONDS        a sensor turned between still poses (1.5 s still, 0.5 s turning: the node finds a
+                            pose and refits every 2 s), each Imu stamped with the wall clock at publish
+                            (latency = receive - stamp)
 relay                       imu/data_raw -> imu/data_calibrated unchanged (SingleThreadedExecutor)
 subscribe SECONDS OUT.json  counts imu/data_calibrated, writes delivered count and latencies
 """
@@ -24,6 +26,18 @@ def wait_for_subscribers(node, publisher, count=1, timeout=30.0):
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
+def turned_sensor(rate_hz: float) -> tuple[list, list]:
+    """A sensor with MPU-6050-like errors held still in 12 orientations in turn, as plain floats."""
+    import numpy as np
+
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+    errors = SensorErrors.mpu6050_like(np.random.default_rng(7), noise_mps2=0.02)
+    samples = SyntheticImu(errors, spread_orientations(12, np.random.default_rng(8)), dwell_s=1.5, move_s=0.5,
+                           rate_hz=rate_hz, seed=7).samples()
+    return samples.accel_raw.tolist(), samples.gyro_raw.tolist()
+
+
 def publish(rate_hz: float, seconds: float) -> None:
     rclpy.init()
     node = rclpy.create_node("bench_publisher")
@@ -33,7 +47,7 @@ def publish(rate_hz: float, seconds: float) -> None:
     msg = Imu()
     msg.header.frame_id = "imu_link"
     msg.orientation_covariance[0] = -1.0
-    msg.linear_acceleration.z = 9.81
+    accel, gyro = turned_sensor(rate_hz)
     period = 1.0 / rate_hz
     total = int(rate_hz * seconds)
     start = time.perf_counter()
@@ -47,7 +61,9 @@ def publish(rate_hz: float, seconds: float) -> None:
                 time.sleep(target - now - 0.0003)
         t = time.time_ns()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t, 1_000_000_000)
-        msg.linear_acceleration.x = 0.001 * (i % 7)
+        a, w, k = msg.linear_acceleration, msg.angular_velocity, i % len(accel)
+        a.x, a.y, a.z = accel[k]
+        w.x, w.y, w.z = gyro[k]
         pub.publish(msg)
     print(json.dumps({"published": total}))
     time.sleep(0.5)

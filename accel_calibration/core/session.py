@@ -1,12 +1,9 @@
 """The calibration session: one pure object owns the chain screening -> detector -> pose store ->
 fit -> gates -> calibration, and keeps the counters. There is one sample path: arrays in parts through a
 RecordingFeed. Replay hands it a recording (`add_recording`, or `recording_feed` for a streamed one); the
-node's worker hands it what its Imu callback buffered, every few tens of milliseconds (`live_feed`), the
-armed/pause state as a per-sample collecting mask. So live equals replay by construction. No ROS here.
-
-Threads (the node): the worker alone feeds, fits and judges; the stream's thread only reads
-`collecting` (set by `set_collecting` from the armed input and calibration/pause: a frozenset replaced
-whole) to mark each buffered sample.
+node's worker process hands it what the Imu callback put in the sample ring, every fifth of a second
+(`live_feed`), the armed/pause state as a per-sample collecting mask (core/stream/collection_pause.py). So
+live equals replay by construction. No ROS here, and one thread: the worker's.
 """
 from __future__ import annotations
 
@@ -85,7 +82,6 @@ class CalibrationSession:
         # The last cold fit and the poses it fitted (held, not compared by value: a merge makes a new pose).
         self._cold_fit: tuple[tuple[Pose, ...], FitResult] | None = None
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
-        self._pause_reasons: frozenset[str] = frozenset()  # why collection is paused (armed, calibration/pause)
         # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
         # rest at the prior; set it with `use_prior`.
         self.prior: Prior | None = None
@@ -137,23 +133,6 @@ class CalibrationSession:
     def implausible_means(self) -> tuple[np.ndarray, ...]:
         """Means of the latest still intervals dropped as implausible for gravity."""
         return self._stream.implausible_means
-
-    @property
-    def collecting(self) -> bool:
-        """False while collection is paused for any reason (the stream is still screened and corrected)."""
-        return not self._pause_reasons
-
-    @property
-    def pause_reasons(self) -> tuple[str, ...]:
-        return tuple(sorted(self._pause_reasons))
-
-    def set_collecting(self, collecting: bool, reason: str) -> None:
-        """Pause (False) or resume (True) collection for `reason` ("armed", "calibration/pause", ...);
-        collection resumes when no reason is left. The node marks each sample with `collecting` as it comes:
-        a paused sample drops the still interval in progress (it may hold the take-off), so nothing of a
-        flight is ever a pose, and the noise floor never sees it."""
-        reasons = self._pause_reasons - {reason} if collecting else self._pause_reasons | {reason}
-        self._pause_reasons = frozenset(reasons)
 
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,

@@ -1,18 +1,20 @@
-"""The live calibration: everything the node does, without ROS.
+"""The live calibration's work: everything the node does besides correcting and publishing, without ROS.
 
-The stream side (any thread, per message): `buffer_imu` appends the raw sample, marked collecting or
-not, to a bounded buffer; `take_temperature` moves the correction's temperature and buffers the reading.
-The worker side (one thread): `feed` hands the buffers to the session's live feed (the batch pipeline
-replay uses: live equals replay by construction), takes the poses, refits, judges and applies;
-`calibrate`, `reset` and `save` are the services' jobs, each answering (success, one line). The node
-wires these to topics, services and timers; tests drive them in-process with any logger.
+`feed` takes what the stream side (io/live_stream.py) put in the sample rings and hands it to the
+session's live feed (the batch pipeline replay uses: live equals replay by construction), takes the poses,
+refits, judges and applies; `calibrate`, `reset` and `save` are the services' jobs, each answering
+(success, one line). A calibration put in force, and the noise measured, go to the stream side through its
+`link` (a LiveStream, or the node's pipe to it from the worker process, io/worker_process.py).
+
+In one process (tests, tools): `LiveCalibration(settings, path, log)` makes its own rings and LiveStream
+(`.stream`), wired directly. The node runs this in a worker process over shared rings instead.
 """
 from __future__ import annotations
 
 import collections
-from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -21,74 +23,101 @@ from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
 from ..core.fit_outliers import nearest_face
 from ..core.pose import Pose
-from ..core.pose_map import pose_map
+from ..core.pose_map import PoseMap, pose_map
 from ..core.session import CalibrationSession, Progress
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
-from .calibration_file import calibration_to_yaml
 from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
+from .live_stream import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
+from .sample_ring import SampleRing
 
-__all__ = ["LOG_THROTTLE_S", "MAX_BUFFERED", "TEMPERATURE_AHEAD_NS", "LiveCalibration", "Log"]
-
-LOG_THROTTLE_S = 5.0  # a warning a stream can repeat at 1 kHz is logged at most this often
-MAX_BUFFERED = 1 << 18  # raw samples waiting for the worker (~65 s at 4 kHz); beyond, the oldest are dropped
-# A temperature reading stamped further than this ahead of the latest IMU stamp is another clock's: dropped
-# and counted (temperature_future). Generous: an IMU stream that pauses for a while keeps its readings.
-TEMPERATURE_AHEAD_NS = 60_000_000_000
+__all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "announce_load",
+           "diagnostic_values", "starting_snapshot"]
 
 
-class Log(Protocol):
-    """rclpy's logger, as used here (a throttled line takes `throttle_duration_sec`)."""
+class StreamLink(Protocol):
+    """What the work tells the stream side: the calibration put in force, the noise measured."""
 
-    def debug(self, message: str, **kwargs: Any) -> Any: ...
-    def info(self, message: str, **kwargs: Any) -> Any: ...
-    def warning(self, message: str, **kwargs: Any) -> Any: ...
-    def error(self, message: str, **kwargs: Any) -> Any: ...
+    def install(self, calibration: Calibration | None) -> None: ...
+    def set_noise(self, accel_var: float | None, gyro_var: float | None) -> None: ...
+
+
+@dataclass(frozen=True)
+class WorkSnapshot:
+    """The work's state as the diagnostics show it, sent whole to the node after each feed or job."""
+
+    status: tuple[Level, str]
+    progress: Progress
+    pose_map: PoseMap
+    values: dict[str, str]
+    counts: dict[str, int]
+
+
+def announce_load(log: Log, level: Level, text: str, calibrate_service: str) -> None:
+    """One line on what the calibration file held at start."""
+    if level == WARN:
+        log.info(f"{text} (call {calibrate_service} once poses are held)")
+    elif level == OK:
+        log.info(text)
+    else:
+        log.error(text)
+
+
+def diagnostic_values(stream: dict[str, str], work: dict[str, str]) -> dict[str, str]:
+    """The stream side's values and the work's, in the diagnostics' order."""
+    merged = {**stream, **work}
+    order = ("detector_state", "collecting", "correction", "calibration_file", "frame_id", "temperature_degc",
+             "calibration_watch")
+    return {**{key: merged[key] for key in order if key in merged}, **merged}
 
 
 class LiveCalibration:
     def __init__(self, settings: Settings, calibration_path: Path, log: Log, *, calibrate_service: str = "/calibrate",
-                 imu_topic: str = "imu/data_raw", on_applied: Callable[[Calibration], None] | None = None):
+                 imu_topic: str = "imu/data_raw", rings: tuple[SampleRing, SampleRing] | None = None,
+                 link: StreamLink | None = None):
         self.session = CalibrationSession(settings)
-        self.in_force = CalibrationInForce(calibration_path, self.session.settings)
-        self.enabled = True  # calibration/enable: off passes raw through
-        self.frame_id: str | None = None
+        self.in_force = CalibrationInForce(calibration_path, self.session.settings)  # the file, and what it holds
+        # In one process: rings and a stream side of its own; in the worker process: the node's shared rings.
+        self.stream: LiveStream | None = None
+        if rings is None:
+            rings = imu_ring(), temperature_ring()
+            self.stream = LiveStream(settings, calibration_path, log, *rings, imu_topic=imu_topic,
+                                     on_frame_id=self.set_frame_id)
+        self._samples, self._readings = rings
+        self._link: StreamLink | None = link or self.stream
         self.still = False  # the detector's state at the last feed
-        # What the node itself set aside, by name (the session's screening keeps its own counters).
+        # What the work itself set aside, by name (the session's screening keeps its own counters).
         self.set_aside: collections.Counter[str] = collections.Counter()
         self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
         self._changed_underneath: tuple[Level, str] | None = None  # the status a save refused for it set
-        self.noise: MeasuredNoise | None = None  # measured at this session's poses (the worker's latest)
+        self.noise: MeasuredNoise | None = None  # measured at this session's poses
         self._log = log
         self._calibrate_service = calibrate_service
-        self._imu_topic = imu_topic
-        self._on_applied = on_applied or (lambda calibration: None)
         self._feed = self.session.live_feed()
-        # The stream's thread appends, the worker pops: deque's append and popleft are atomic.
-        self._samples: collections.deque[tuple[Any, ...]] = collections.deque()
-        self._readings: collections.deque[tuple[int, float]] = collections.deque()
-        self._latest_imu_ns = -1  # the latest IMU header stamp: temperature stamps are judged against it
         self.progress = self.session.progress(None, calibrate_service)
-        self.pose_map = pose_map(self.session, None, self.progress)  # the worker's latest, replaced whole
+        self.pose_map = pose_map(self.session, None, self.progress)  # the latest, replaced whole
         self.watch = CalibrationWatch()  # the calibration in force against the poses found since
 
-    def start(self) -> None:
-        """Clear what an interrupted save left, and put the file's calibration in force."""
+    def start(self, announce: bool = True) -> None:
+        """Clear what an interrupted save left, and put the file's calibration in force. `announce`: log what
+        the file held (the node's process has said it already, from its own load at start)."""
         removed = self.in_force.remove_stale_temp_files()
         if removed:
             self._log.info(f"removed {removed} stale temporary file(s) beside {self.in_force.path}")
         level, text = self.in_force.load()
-        if level == WARN:
-            self._log.info(f"{text} (call {self._calibrate_service} once poses are held)")
-        else:
-            (self._log.info if level == OK else self._log.error)(text)
+        if announce:
+            announce_load(self._log, level, text, self._calibrate_service)
         self.status = (level, "calibrated from file" if level == OK else
                        "uncalibrated: raw passes through" if level == WARN else f"calibration file unusable: {text}")
-        if self.in_force.calibration is not None:
-            self._on_applied(self.in_force.calibration)
+        self._put_in_force(self.in_force.calibration)
         self.watch.restart(self.in_force.calibration)
         self._take_prior()
         self.refresh_progress()
+
+    def _put_in_force(self, calibration: Calibration | None) -> None:
+        """The stream side corrects with what this side holds in force."""
+        if self._link is not None:
+            self._link.install(calibration)
 
     def _take_prior(self) -> None:
         """With use_calibration_in_force_as_prior: /calibrate fits against the calibration in force now (at
@@ -103,66 +132,10 @@ class LiveCalibration:
             self._log.warning(f"use_calibration_in_force_as_prior: the calibration in force cannot serve as the "
                               f"prior ({refusal}); /calibrate fits without one")
 
-    # ------------------------------------------------------------------ stream side (per message)
-    def buffer_imu(self, stamp_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> None:
-        if len(self._samples) >= MAX_BUFFERED:
-            self._samples.popleft()
-            self.set_aside["samples_dropped_backlog"] += 1
-        if stamp_ns > self._latest_imu_ns:
-            self._latest_imu_ns = stamp_ns
-        self._samples.append((stamp_ns, ax, ay, az, gx, gy, gz, self.session.collecting))
-
-    def take_temperature(self, stamp_ns: int, degc: float) -> None:
-        # A reading stamped far ahead of the IMU stream (another publisher's clock) would take the
-        # correction temperature with it, and leave the true readings after it none.
-        if self._latest_imu_ns >= 0 and stamp_ns > self._latest_imu_ns + TEMPERATURE_AHEAD_NS:
-            self.set_aside["temperature_future"] += 1
-            return
-        self._readings.append((stamp_ns, degc))
-        clamped = self.in_force.clamped_rebuilds
-        if self.in_force.take_temperature(stamp_ns, degc) and self.in_force.clamped_rebuilds > clamped:
-            self.set_aside["temperature_clamped"] += 1
-
     def set_frame_id(self, frame_id: str) -> None:
         self.session.frame_id = frame_id  # a calibration is of the frame the samples were in
-        if self.frame_id is not None:
-            self.set_aside["frame_id_changes"] += 1
-            self._log.warning(f"{self._imu_topic} frame_id changed from {self.frame_id!r} to {frame_id!r}",
-                              throttle_duration_sec=LOG_THROTTLE_S)
-        self.frame_id = frame_id
-        self.check_frame()
 
-    def check_frame(self) -> None:
-        calibration = self.in_force.calibration
-        if calibration is not None and calibration.frame_id and self.frame_id is not None \
-                and calibration.frame_id != self.frame_id:
-            self.set_aside["frame_id_mismatch"] += 1
-            self._log.warning(
-                f"the calibration in force was made for frame {calibration.frame_id!r} but {self._imu_topic} is "
-                f"in {self.frame_id!r}: is this the same sensor?", throttle_duration_sec=LOG_THROTTLE_S)
-
-    def set_armed(self, armed: bool) -> None:
-        if armed == ("armed" in self.session.pause_reasons):
-            return
-        self.session.set_collecting(not armed, "armed")  # marks the samples from the next one on
-        # Throttled: an armed input flapping at 1 kHz must not flood the log.
-        self._log.info("armed: collection paused (nothing of a flight becomes a pose)" if armed
-                       else "disarmed: collection resumed" + self._still_paused(), throttle_duration_sec=LOG_THROTTLE_S)
-
-    # ------------------------------------------------------------------ immediate answers
-    def pause(self, pause: bool) -> str:
-        self.session.set_collecting(not pause, "calibration/pause")
-        return ("collection paused: the corrected stream goes on, no poses are collected" if pause
-                else "collection resumed" + self._still_paused())
-
-    def _still_paused(self) -> str:
-        reasons = self.session.pause_reasons
-        return f" (still paused: {', '.join(reasons)})" if reasons else ""
-
-    def enable(self, on: bool) -> str:
-        self.enabled = on
-        return "correction on" if on else "correction off: raw passes through"
-
+    # ------------------------------------------------------------------ what the diagnostics show
     def reported_status(self) -> tuple[Level, str]:
         """The diagnostics' level and first words: the node's status, warned when the watch says the
         calibration in force moved (nothing is applied for it)."""
@@ -172,33 +145,30 @@ class LiveCalibration:
             return WARN, f"{message}; calibration moved: {watch.text}"
         return level, message
 
-    def calibration_text(self) -> tuple[bool, str]:
-        calibration = self.in_force.calibration
-        if calibration is None:
-            return False, "no calibration in force: raw acceleration passes through"
-        return True, calibration_to_yaml(calibration)
-
     def all_counts(self) -> dict[str, int]:
-        """Everything set aside or gone wrong, by name: the session's screening counters and what the node
-        set aside itself."""
+        """Everything set aside or gone wrong, by name: the session's screening counters, what the work set
+        aside itself and, in one process, what the stream side set aside."""
         counts = self.session.counters.as_dict()
-        counts.update(self.set_aside)
+        for set_aside in (self.set_aside, {} if self.stream is None else self.stream.set_aside):
+            for name, count in set_aside.items():
+                counts[name] = counts.get(name, 0) + count
         return counts
 
-    def diagnostic_values(self) -> dict[str, str]:
-        temperature = self.in_force.temperature_degc
+    def values(self) -> dict[str, str]:
+        """The work's diagnostic values (the stream side has its own: diagnostic_values merges them)."""
         return {
             "detector_state": "still" if self.still else "moving",
-            # "yes", or why not: "paused (armed)", "paused (calibration/pause)" -- the stream is corrected still
-            "collecting": ("yes" if self.session.collecting
-                           else "paused (" + ", ".join(self.session.pause_reasons) + ")"),
-            "correction": "on" if self.enabled and self.in_force.calibration is not None else "off",
             "calibration_file": str(self.in_force.path),
-            "frame_id": self.frame_id or "",
-            "temperature_degc": "" if temperature is None else f"{temperature:.2f}",
             "calibration_watch": self.watch.state.text,
             **self._noise_values(),
         }
+
+    def diagnostic_values(self) -> dict[str, str]:
+        """In one process: both sides' values."""
+        return diagnostic_values({} if self.stream is None else self.stream.values(), self.values())
+
+    def snapshot(self) -> WorkSnapshot:
+        return WorkSnapshot(self.reported_status(), self.progress, self.pose_map, self.values(), self.all_counts())
 
     def _noise_values(self) -> dict[str, str]:
         """The white noise measured at this session's poses, else the one the calibration in force was
@@ -213,12 +183,6 @@ class LiveCalibration:
                 "gyro_noise_density": "" if gyro is None else f"{gyro:.3e} rad/s/sqrt(Hz)",
                 "noise_source": f"{source} at {noise.rate_hz:g} Hz"}
 
-    def hardware_id(self) -> str:
-        calibration = self.in_force.calibration
-        if calibration is not None and calibration.sensor_id:
-            return calibration.sensor_id
-        return self.session.settings.sensor_id or self.frame_id or ""
-
     # ------------------------------------------------------------------ worker side
     def update_settings(self, settings: Settings) -> None:
         self.session.update_settings(settings)
@@ -229,16 +193,15 @@ class LiveCalibration:
         return self.progress
 
     def feed(self) -> list[Pose]:
-        """What the stream buffered into the live feed; new poses into the store, a refit."""
-        readings = [self._readings.popleft() for _ in range(len(self._readings))]
-        rows = [self._samples.popleft() for _ in range(len(self._samples))]
-        if readings:
-            self._feed.add_temperatures(np.fromiter((r[0] for r in readings), np.int64, len(readings)),
-                                        np.fromiter((r[1] for r in readings), float, len(readings)))
-        if rows:
-            values = np.array([r[1:7] for r in rows], dtype=float)
-            self._feed.add_samples(np.fromiter((r[0] for r in rows), np.int64, len(rows)), values[:, :3],
-                                   values[:, 3:], np.fromiter((r[7] for r in rows), bool, len(rows)))
+        """What the stream put in the rings into the live feed; new poses into the store, a refit."""
+        readings, samples = self._readings.take(), self._samples.take()
+        for name, lost in (("temperature_dropped_backlog", readings.lost), ("samples_dropped_backlog", samples.lost)):
+            if lost:
+                self.set_aside[name] += lost
+        if len(readings.stamps_ns):
+            self._feed.add_temperatures(readings.stamps_ns, readings.values[:, 0])
+        if len(samples.stamps_ns):
+            self._feed.add_samples(samples.stamps_ns, samples.values[:, :3], samples.values[:, 3:], samples.flags)
         else:  # the stream is idle: no later reading will come for what waits on one
             self._feed.drain()
         self.still = self.session.detector.holding_still
@@ -257,7 +220,8 @@ class LiveCalibration:
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
         # The covariances follow the noise measured at the still poses.
-        self.in_force.set_noise(self.session.accel_noise_var(), self.session.gyro_noise_var())
+        if self._link is not None:
+            self._link.set_noise(self.session.accel_noise_var(), self.session.gyro_noise_var())
         self.noise = self.session.measured_noise()  # read by the diagnostics' thread: set whole
         self.watch.add(poses)
         result = self.session.refit()
@@ -285,9 +249,8 @@ class LiveCalibration:
         prior = f"the calibration in force before ({self.in_force.path})" if sources else None
         applied, message = self.in_force.save_then_apply(calibration, asked, sources, prior)
         if applied:
-            self._on_applied(calibration)
+            self._put_in_force(calibration)
             self.watch.restart(calibration)
-            self.check_frame()
             self.status = (OK, "calibrated")
         else:
             self._say_unsaved(message)
@@ -337,3 +300,12 @@ class LiveCalibration:
         elif not saved and self.in_force.changed_underneath is not None:
             self._say_unsaved(message)
         return saved, message
+
+
+def starting_snapshot(settings: Settings, calibration_path: Path, calibrate_service: str) -> WorkSnapshot:
+    """What the diagnostics show until the work has sent its own (the worker process is starting)."""
+    session = CalibrationSession(settings)
+    progress = session.progress(None, calibrate_service)
+    values = {"detector_state": "moving", "calibration_file": str(calibration_path), "calibration_watch": "",
+              "accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
+    return WorkSnapshot((OK, "starting"), progress, pose_map(session, None, progress), values, {})

@@ -77,9 +77,9 @@ def fed_live(tmp_path, bag, parameters, period_ns):
             poses += live.feed()
             next_feed = log_ns + period_ns
         if is_imu:
-            live.buffer_imu(int(bag.imu_stamps_ns[row]), *bag.imu[row].tolist())
+            live.stream.buffer_imu(int(bag.imu_stamps_ns[row]), *bag.imu[row].tolist())
         else:
-            live.take_temperature(int(bag.temperature_stamps_ns[row]), float(bag.temperature[row]))
+            live.stream.take_temperature(int(bag.temperature_stamps_ns[row]), float(bag.temperature[row]))
     poses += live.feed()
     success, message = live.calibrate()
     return poses, success, message, live.session.detector.peek_open()

@@ -19,6 +19,7 @@ from accel_calibration import MG, Pose
 from accel_calibration.core.pose_store import AGREEMENT_CHI2, PoseStore, means_agree
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
+from accel_calibration.core.stream.collection_pause import CollectionPause
 from accel_calibration.core.stream.detector import StaticDetector
 from accel_calibration.core.stream.detector_batch import DetectorConfig
 from accel_calibration.core.stream.screening import Counters
@@ -217,12 +218,16 @@ def test_while_paused_nothing_is_collected_and_the_interval_in_progress_is_dropp
     lo, hi = t[middle_of_fourth_dwell - 25], t[middle_of_fourth_dwell + 2000]  # the trim before the pause
     assert all(p.end_ns < lo or p.start_ns > hi for p in poses)
     assert session.counters.samples_paused == 2000 and session.counters.problems() == 0
-    session.set_collecting(False, "armed")
-    session.set_collecting(False, "calibration/pause")
-    session.set_collecting(True, "armed")
-    assert not session.collecting and session.pause_reasons == ("calibration/pause",)
-    session.set_collecting(True, "calibration/pause")
-    assert session.collecting
+
+
+def test_collection_resumes_when_no_reason_to_pause_is_left():
+    pause = CollectionPause()
+    pause.set_collecting(False, "armed")
+    pause.set_collecting(False, "calibration/pause")
+    pause.set_collecting(True, "armed")
+    assert not pause.collecting and pause.reasons == ("calibration/pause",)
+    pause.set_collecting(True, "calibration/pause")
+    assert pause.collecting
 
 
 # ---------------------------------------------------------------- the detector itself

@@ -62,4 +62,4 @@ class LogLines:
 def buffer_messages(live, samples, start: int = 0, stop: int | None = None) -> None:
     """What the node's Imu callback hands LiveCalibration, one message at a time: samples[start:stop]."""
     for i in range(start, len(samples.t_ns) if stop is None else stop):
-        live.buffer_imu(int(samples.t_ns[i]), *samples.accel_raw[i].tolist(), *samples.gyro_raw[i].tolist())
+        live.stream.buffer_imu(int(samples.t_ns[i]), *samples.accel_raw[i].tolist(), *samples.gyro_raw[i].tolist())

@@ -18,6 +18,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import load_calibration
 from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.io.live_stream import imu_ring, temperature_ring
 
 from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream
@@ -51,17 +52,31 @@ def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
     assert any("calibrated" in text for level, text in log.lines if level == "info")
 
 
-def test_a_restart_puts_the_saved_calibration_in_force_and_mirrors_it(tmp_path):
+class StreamSideSeen:
+    """The stream side as the work in another process sees it: what it is told, kept."""
+
+    def __init__(self):
+        self.installed, self.noise = [], []
+
+    def install(self, calibration):
+        self.installed.append(calibration)
+
+    def set_noise(self, accel_var, gyro_var):
+        self.noise.append((accel_var, gyro_var))
+
+
+def test_a_restart_puts_the_saved_calibration_in_force_and_tells_the_stream_side(tmp_path):
     path = tmp_path / "cal.yaml"
     first = LiveCalibration(Settings(), path, LogLines())
     first.start()
     buffer(first, 0, len(SAMPLES.t_ns))
     assert first.calibrate()[0]
-    mirrored = []
-    again = LiveCalibration(Settings(), path, LogLines(), on_applied=mirrored.append)
+    np.testing.assert_array_equal(first.stream.in_force.calibration.bias, first.in_force.calibration.bias)
+    seen = StreamSideSeen()
+    again = LiveCalibration(Settings(), path, LogLines(), rings=(imu_ring(), temperature_ring()), link=seen)
     again.start()
-    assert again.status == ("ok", "calibrated from file")
-    assert len(mirrored) == 1 and np.array_equal(mirrored[0].bias, first.in_force.calibration.bias)
+    assert again.status == ("ok", "calibrated from file") and again.stream is None
+    assert len(seen.installed) == 1 and np.array_equal(seen.installed[0].bias, first.in_force.calibration.bias)
 
 
 @settings(max_examples=60, stateful_step_count=40, deadline=None,
@@ -118,16 +133,16 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
     @rule(on=st.booleans())
     def pause(self, on):
         self.paused = on
-        self.live.pause(on)
+        self.live.stream.set_paused(on)
 
     @rule(on=st.booleans())
     def armed(self, on):
         self.armed = on
-        self.live.set_armed(on)
+        self.live.stream.set_armed(on)
 
     @rule(on=st.booleans())
     def enable(self, on):
-        self.live.enable(on)
+        self.live.stream.enable(on)
         assert self.live.diagnostic_values()["correction"] == ("on" if on and self.live.in_force.calibration
                                                                else "off")
 
@@ -147,7 +162,7 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
 
     @invariant()
     def collecting_follows_pause_and_armed(self):
-        assert self.live.session.collecting == (not self.paused and not self.armed)
+        assert self.live.stream.pause.collecting == (not self.paused and not self.armed)
 
 
 test_services_in_any_order = ServicesInAnyOrder.TestCase
@@ -158,5 +173,5 @@ def test_a_temperature_from_another_clock_is_set_aside(tmp_path, ahead_s, kept):
     live = LiveCalibration(Settings(), tmp_path / "cal.yaml", LogLines())
     live.start()
     buffer(live, 0, 10)
-    live.take_temperature(int(SAMPLES.t_ns[9]) + ahead_s * 10**9, 45.0)
+    live.stream.take_temperature(int(SAMPLES.t_ns[9]) + ahead_s * 10**9, 45.0)
     assert (live.all_counts().get("temperature_future", 0) == 0) == kept

@@ -63,7 +63,7 @@ def test_a_restart_starts_from_the_noise_the_file_keeps(tmp_path, session):
 
     again = LiveCalibration(Settings(), path, LogLines())
     again.start()
-    calibration, correction = again.in_force.calibration, again.in_force.correction
+    calibration, correction = again.in_force.calibration, again.stream.in_force.correction
     assert calibration.noise == noise
     # From the first message, before any pose: the whole covariance (the noise through M plus the
     # calibration's own part), whatever the driver said, unknown (zeros) included.
@@ -76,7 +76,7 @@ def test_a_restart_starts_from_the_noise_the_file_keeps(tmp_path, session):
     values = again.diagnostic_values()
     assert values["noise_source"] == f"calibration file at {RATE_HZ:g} Hz"
     assert values["accel_noise_density"] == f"{noise.accel_density:.3e} m/s^2/sqrt(Hz)"
-    success, text = again.calibration_text()
+    success, text = again.stream.calibration_text()
     block = yaml.safe_load(text)["accel_calibration"]["noise"]
     assert success and block == {"rate_hz": RATE_HZ, "accel_density_mps2_per_sqrt_hz": noise.accel_density,
                                  "gyro_density_radps_per_sqrt_hz": noise.gyro_density}

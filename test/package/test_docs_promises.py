@@ -477,9 +477,8 @@ def test_the_node_docs_interface_table_is_the_readmes():
 
 # The constants the docs quote: (doc, module, name, value, the doc's words).
 DOC_CONSTANTS = [
-    ("architecture.md", "accel_calibration.ros.node", "FEED_PERIOD_S", 0.2, "every `FEED_PERIOD_S` (0.2 s)"),
-    ("architecture.md", "accel_calibration.io.live_calibration", "MAX_BUFFERED", 2**18,
-     "(`MAX_BUFFERED`, 2^18 samples;"),
+    ("architecture.md", "accel_calibration.io.worker_protocol", "FEED_PERIOD_S", 0.2, "every `FEED_PERIOD_S` (0.2 s)"),
+    ("architecture.md", "accel_calibration.io.sample_ring", "RING_RECORDS", 2**18, "(`RING_RECORDS`, 2^18 samples,"),
     ("architecture.md", "accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384,
      "parts of PART_ROWS = 16,384"),
     ("architecture.md", "accel_calibration.core.session", "RecordingFeed.LIVE_TEMPERATURE_WAIT_NS", 10**9,

@@ -96,7 +96,7 @@ def test_min_poses_set_at_run_time_shows_at_once(make_node):
     node = make_node()
     assert diagnostics_of(node)["poses_needed"] == "12"
     assert node.set_parameters([Parameter("min_poses", value=16)])[0].successful
-    node._worker.submit(lambda: None).result(timeout=10)  # the worker has taken it
+    node._worker.submit("ping").result(timeout=30)  # the worker process has taken it
     assert diagnostics_of(node)["poses_needed"] == "16"
 
 
@@ -128,7 +128,7 @@ def test_armed_flapping_at_1_khz_does_not_flood_the_log(make_node, log_lines):
         node._on_armed(Bool(data=k % 2 == 0))
     armed_lines = [text for _, text in log_lines[before:] if "armed" in text]
     assert 1 <= len(armed_lines) <= 2
-    assert node._session.collecting  # ended disarmed
+    assert node._stream.pause.collecting  # ended disarmed
 
 
 @pytest.mark.parametrize("kind", ["fifo", "deep", "binary", "huge"])
@@ -177,6 +177,6 @@ def test_a_temperature_stamped_an_hour_ahead_is_screened_and_counted(make_node, 
             node._on_temperature(make_temperature(t, 25.0))
         if k == 100:
             node._on_temperature(make_temperature(t + 3600 * 10**9, 60.0))  # the other publisher's clock
-    assert abs(node._in_force.temperature_degc - 25.0) < 0.1
+    assert abs(node._stream.in_force.temperature_degc - 25.0) < 0.1
     assert node.counters()["temperature_future"] == 1
     assert diagnostics_of(node)["temperature_future"] == "1"

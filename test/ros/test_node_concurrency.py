@@ -1,11 +1,14 @@
 """/calibrate must not stop the corrected stream, and the correction
-terms are written from two threads (temperature on the executor, a new calibration on the worker).
+terms are written from two threads (temperature on the executor, a new calibration from the worker
+process's pipe).
 
-The node runs in this process (its real spin loop, real rclpy/DDS to a client node), so a save can
-be held open on an event: the stream is shown to flow *while* the fit and file write are in
-progress, with no timing luck involved."""
+The node runs in this process (its real spin loop, real rclpy/DDS to a client node), so its worker
+process can be frozen outright: the stream is shown to flow *while* the work is stopped in a calibrate,
+with no timing luck involved."""
 from __future__ import annotations
 
+import os
+import signal
 import sys
 import threading
 
@@ -16,9 +19,9 @@ from std_srvs.srv import Trigger
 
 from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.correction import Correction
-from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.ros.node import CalibrationNode, spin_until
+from msg_tools.conversions import make_imu
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 pytestmark = pytest.mark.ros
@@ -38,6 +41,7 @@ def running_node(ros, tmp_path):
         thread = threading.Thread(target=spin_until, args=(node, stop), daemon=True)
         thread.start()
         holder.update(node=node, stop=stop, thread=thread)
+        assert node._worker.submit("ping").result(timeout=60) == (True, "")  # the work has started
         return node
 
     yield start
@@ -55,47 +59,42 @@ def _session_samples(seed=5, poses=16):
     return errors, imu.samples()
 
 
-def test_corrected_stream_flows_while_calibrate_fits_and_saves(running_node, tester, tmp_path):
+def test_corrected_stream_flows_while_the_work_is_frozen_in_a_calibrate(running_node, tester, tmp_path):
+    """The work (fit, save) runs in the worker process: frozen outright (SIGSTOP) with /calibrate
+    pending, the stream still carries every message, raw until the work saves and puts the calibration
+    in force, corrected by it after."""
     node = running_node()
     errors, samples = _session_samples()
-    # The poses go in directly (what playback would give, without its minutes of DDS traffic).
-    for pose in CalibrationSession().add_recording(samples.t_ns + START_NS, samples.accel_raw, samples.gyro_raw):
-        node._session.add_pose(pose)
+    # The session goes in through the Imu callback (what playback would give, without its DDS traffic).
+    for i in range(len(samples.t_ns)):
+        node._on_imu(make_imu(START_NS + int(samples.t_ns[i]), samples.accel_raw[i], samples.gyro_raw[i]))
+    assert node._worker.submit("ping").result(timeout=60) == (True, "")  # it has every sample
     tester.wait_ready()
 
-    save_started, release_save = threading.Event(), threading.Event()
-    real_save = node._in_force._save
-
-    def slow_save(calibration, *provenance):
-        save_started.set()
-        assert release_save.wait(30), "test never released the save"
-        real_save(calibration, *provenance)
-
-    node._in_force._save = slow_save
-    future = tester.clients["calibrate"].call_async(Trigger.Request())
-    assert tester.spin_until(save_started.is_set, 30), "/calibrate never reached the save"
-
-    # The worker is inside the save; the executor must still carry every message through.
-    before = len(tester.corrected)
-    sent = tester.play(samples, start_ns=START_NS + 10**12, indices=range(0, 400))
-    assert len(tester.corrected) - before >= sent == 400
-    assert not future.done(), "/calibrate answered before its save finished"
-    assert node._in_force.calibration is None, "applied before it was saved"
-    # Raw passes through untouched while nothing is in force.
-    np.testing.assert_allclose([m.linear_acceleration.z for m in tester.corrected[before:before + 5]],
-                               samples.accel_raw[:5, 2])
-
-    release_save.set()
-    assert tester.spin_until(future.done, 30)
+    worker = node._worker._process.pid
+    os.kill(worker, signal.SIGSTOP)
+    try:
+        future = tester.clients["calibrate"].call_async(Trigger.Request())
+        before = len(tester.corrected)
+        sent = tester.play(samples, start_ns=START_NS + 10**12, indices=range(0, 400))
+        assert len(tester.corrected) - before >= sent == 400
+        assert not future.done(), "/calibrate answered while the work was frozen"
+        assert node._stream.in_force.calibration is None and not (tmp_path / "cal.yaml").exists()
+        # Raw passes through untouched while nothing is in force.
+        np.testing.assert_allclose([m.linear_acceleration.z for m in tester.corrected[before:before + 5]],
+                                   samples.accel_raw[:5, 2])
+    finally:
+        os.kill(worker, signal.SIGCONT)
+    assert tester.spin_until(future.done, 60)
     assert future.result().success, future.result().message
     assert (tmp_path / "cal.yaml").exists()
-    np.testing.assert_allclose(node._in_force.calibration.bias, errors.bias_mps2, atol=0.005)
+    np.testing.assert_allclose(node._stream.in_force.calibration.bias, errors.bias_mps2, atol=0.005)
 
     # And after it: the stream is corrected by what was saved.
     before = len(tester.corrected)
     tester.play(samples, start_ns=START_NS + 2 * 10**12, indices=range(0, 50), temperature=False)
     first = tester.corrected[before].linear_acceleration
-    expected = node._in_force.calibration.apply(samples.accel_raw[0])
+    expected = node._stream.in_force.calibration.apply(samples.accel_raw[0])
     np.testing.assert_allclose([first.x, first.y, first.z], expected, atol=1e-9)
 
 
@@ -121,7 +120,7 @@ def test_correction_is_never_torn_between_temperature_and_a_new_calibration(runn
         k = 0
         for round_ in range(150):
             batch = calibrations[round_ % 7: round_ % 7 + 4]
-            installer = threading.Thread(target=lambda batch=batch: [node._in_force.install(c) for c in batch])
+            installer = threading.Thread(target=lambda batch=batch: [node._stream.in_force.install(c) for c in batch])
             installer.start()
             for _ in range(30):  # the executor side meanwhile: temperature readings
                 k += 1
@@ -129,7 +128,7 @@ def test_correction_is_never_torn_between_temperature_and_a_new_calibration(runn
             installer.join()
             # At rest, the correction in force is the calibration in force at the temperature it
             # says it was evaluated at: never an older calibration written back by the other thread.
-            calibration, correction = node._in_force.calibration, node._in_force.correction
+            calibration, correction = node._stream.in_force.calibration, node._stream.in_force.correction
             expected = Correction.build(calibration, correction.temperature_degc)
             if not np.allclose(correction.apply(1.0, 2.0, 9.0), expected.apply(1.0, 2.0, 9.0), atol=1e-12):
                 torn += 1
@@ -138,7 +137,7 @@ def test_correction_is_never_torn_between_temperature_and_a_new_calibration(runn
     assert torn == 0, f"{torn} of 150 rounds left a correction built from another calibration"
     # And it follows the temperature: once the readings stop, the terms are those of the last one.
     node._on_temperature(_temperature(START_NS + 2001 * 10**8, 45.0))
-    in_force = node._in_force
+    in_force = node._stream.in_force
     assert in_force.correction.temperature_degc == in_force.temperature_degc
     final = Correction.build(in_force.calibration, in_force.temperature_degc)
     assert in_force.correction.apply(1.0, 2.0, 9.0) == final.apply(1.0, 2.0, 9.0)
@@ -155,25 +154,25 @@ def _temperature(stamp_ns, degc):
 
 def test_a_message_in_another_frame_than_the_calibration_is_warned_and_counted(running_node):
     node = running_node()
-    node._in_force.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="imu_link"))
-    node._live.set_frame_id("imu_link")
+    node._stream.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="imu_link"))
+    node._stream.set_frame_id("imu_link")
     assert node.counters().get("frame_id_mismatch", 0) == 0
-    node._live.set_frame_id("camera_imu_optical_frame")
+    node._stream.set_frame_id("camera_imu_optical_frame")
     counts = node.counters()
     assert counts["frame_id_mismatch"] == 1 and counts["frame_id_changes"] == 1
     # A calibration made in the new frame stops the warnings.
-    node._in_force.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="camera_imu_optical_frame"))
-    node._live.check_frame()
+    node._stream.in_force.install(Calibration(bias=np.zeros(3), matrix=np.eye(3), frame_id="camera_imu_optical_frame"))
+    node._stream.check_frame()
     assert node.counters()["frame_id_mismatch"] == 1
 
 
 def test_a_service_callback_that_raises_answers_failure_and_the_node_carries_on(running_node, tester):
     node = running_node()
     tester.wait_ready()
-    node._in_force.calibration = object()  # calibration/get cannot serialise this: its callback raises
+    node._stream.in_force.calibration = object()  # calibration/get cannot serialise this: its callback raises
     answer = tester.call("calibration/get")
     assert not answer.success and answer.message.startswith("internal error (AttributeError")
     assert node.counters()["callback_errors"] == 1
-    node._in_force.calibration = None
+    node._stream.in_force.calibration = None
     assert not tester.call("calibration/get").success  # still answering, now the ordinary refusal
     assert tester.call("calibration/enable", data=True).success
