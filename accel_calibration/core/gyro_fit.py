@@ -516,7 +516,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
     later = [k + 1 for k in used]
     problem = _Problem(intervals, directions[used], directions[later], _tangent_basis(directions[later]), used,
                        options.fit_bias)
-    turned_deg = np.degrees(np.sum(np.abs(intervals.mean_rate) * intervals.dt_s[:, None], axis=0))
+    turned_deg = np.degrees(intervals.turned_rad())
     x0 = np.concatenate([initial.ravel(), np.zeros(3 if options.fit_bias else 0)])
     evaluations: dict[bytes, _Evaluation] = {}
 
