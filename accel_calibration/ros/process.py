@@ -59,8 +59,9 @@ def run_node(program: str, make_node: Callable[[], Node], args: list[str] | None
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    # The worker's numpy batches hold the GIL up to the switch interval (5 ms by default) while a message
-    # waits for its callback: 0.5 ms keeps the added p99 latency near the bare relay's.
+    # The work runs in its own process; here only the pipe's thread (the work's snapshots, ~5 a second)
+    # competes with the executor for the GIL, for at most the switch interval (5 ms by default) while a
+    # message waits for its callback: 0.5 ms keeps that wait below the stream's own jitter.
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     node: Any = None
     try:

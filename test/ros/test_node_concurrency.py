@@ -176,3 +176,18 @@ def test_a_service_callback_that_raises_answers_failure_and_the_node_carries_on(
     node._stream.in_force.calibration = None
     assert not tester.call("calibration/get").success  # still answering, now the ordinary refusal
     assert tester.call("calibration/enable", data=True).success
+
+
+def test_a_worker_process_that_dies_is_started_again_and_the_stream_never_stops(running_node, tester):
+    node = running_node()
+    _, samples = _session_samples(poses=4)
+    tester.wait_ready()
+    os.kill(node._worker._process.pid, signal.SIGKILL)
+    before = len(tester.corrected)
+    sent = tester.play(samples, start_ns=START_NS, indices=range(0, 300))
+    assert len(tester.corrected) - before >= sent == 300
+    assert tester.spin_until(lambda: node._worker.restarts == 1 and node._worker.alive, 60)
+    assert node._worker.submit("ping").result(timeout=60) == (True, "")
+    assert node.counters()["worker_restarts"] == 1
+    answer = tester.call("calibrate")  # the new work answers (too few poses yet), the node carries on
+    assert not answer.success and answer.message.startswith("not calibrated")
