@@ -66,14 +66,14 @@ def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
             [PY, "-m", "accel_calibration.ros.node", "--ros-args", "-p", f"calibration_file:={cal}",
              "--log-level", "warn"], env=env)
     out = workdir / f"{kind}_{rate}.json"
-    subscriber = subprocess.Popen([PY, HERE / "stream_peers.py", "subscribe", str(SECONDS + 25), out], env=env)
+    subscriber = subprocess.Popen([PY, HERE / "stream_peers.py", "subscribe", str(SECONDS + 90), out], env=env)
     time.sleep(3.0)  # processes import rclpy (the node its worker too); the publisher then waits for its match
     cpu0 = cpu_seconds(target.pid)
     publisher = subprocess.run([PY, HERE / "stream_peers.py", "publish", str(rate), str(SECONDS)], env=env,
                                capture_output=True, text=True, check=True)
     cpu1 = cpu_seconds(target.pid)
     published = json.loads(publisher.stdout.strip().splitlines()[-1])["published"]
-    subscriber.wait(timeout=60)
+    subscriber.wait(timeout=120)
     target.send_signal(signal.SIGINT)
     target.wait(timeout=20)
     data = json.loads(out.read_text())
