@@ -35,7 +35,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.calibration import Calibration
 from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import announce_load, diagnostic_values, starting_snapshot
+from ..io.live_calibration import WorkSnapshot, announce_load, diagnostic_values, starting_snapshot
 from ..io.live_stream import LiveStream, imu_ring, temperature_ring
 from ..io.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
@@ -194,8 +194,8 @@ class CalibrationNode(Node):
         counts["worker_restarts"] = self._worker.restarts
         return {**counts, "callback_errors": sum(self._boundary.errors.values())}
 
-    def _work(self) -> Any:
-        """The work's latest snapshot (io.live_calibration.WorkSnapshot)."""
+    def _work(self) -> WorkSnapshot:
+        """The work's latest snapshot."""
         return self._worker.snapshot or self._starting
 
     def _look_for_namesakes(self) -> None:
