@@ -31,8 +31,8 @@ from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
 from .live_stream import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
 
-__all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "announce_load",
-           "diagnostic_values", "starting_snapshot"]
+__all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "diagnostic_values",
+           "file_status", "open_calibration_file", "starting_snapshot"]
 
 
 class StreamLink(Protocol):
@@ -53,14 +53,26 @@ class WorkSnapshot:
     counts: dict[str, int]
 
 
-def announce_load(log: Log, level: Level, text: str, calibrate_service: str) -> None:
-    """One line on what the calibration file held at start."""
+def open_calibration_file(in_force: CalibrationInForce, log: Log, calibrate_service: str) -> tuple[Level, str]:
+    """At start: clear what an interrupted save left beside the file, load it, and say in one line what it
+    held: (level, that line)."""
+    removed = in_force.remove_stale_temp_files()
+    if removed:
+        log.info(f"removed {removed} stale temporary file(s) beside {in_force.path}")
+    level, text = in_force.load()
     if level == WARN:
         log.info(f"{text} (call {calibrate_service} once poses are held)")
     elif level == OK:
         log.info(text)
     else:
         log.error(text)
+    return level, text
+
+
+def file_status(level: Level, text: str) -> tuple[Level, str]:
+    """The diagnostics' level and first words after the file was opened."""
+    return (level, "calibrated from file" if level == OK else
+            "uncalibrated: raw passes through" if level == WARN else f"calibration file unusable: {text}")
 
 
 def diagnostic_values(stream: dict[str, str], work: dict[str, str]) -> dict[str, str]:
@@ -98,17 +110,14 @@ class LiveCalibration:
         self.pose_map = pose_map(self.session, None, self.progress)  # the latest, replaced whole
         self.watch = CalibrationWatch()  # the calibration in force against the poses found since
 
-    def start(self, announce: bool = True) -> None:
-        """Clear what an interrupted save left, and put the file's calibration in force. `announce`: log what
-        the file held (the node's process has said it already, from its own load at start)."""
-        removed = self.in_force.remove_stale_temp_files()
-        if removed:
-            self._log.info(f"removed {removed} stale temporary file(s) beside {self.in_force.path}")
-        level, text = self.in_force.load()
-        if announce:
-            announce_load(self._log, level, text, self._calibrate_service)
-        self.status = (level, "calibrated from file" if level == OK else
-                       "uncalibrated: raw passes through" if level == WARN else f"calibration file unusable: {text}")
+    def start(self, open_file: bool = True) -> None:
+        """Put the file's calibration in force. `open_file`: first clear what an interrupted save left and
+        log what the file holds (open_calibration_file); the node's process has done both already, at once."""
+        if open_file:
+            level, text = open_calibration_file(self.in_force, self._log, self._calibrate_service)
+        else:
+            level, text = self.in_force.load()
+        self.status = file_status(level, text)
         self._put_in_force(self.in_force.calibration)
         self.watch.restart(self.in_force.calibration)
         self._take_prior()
@@ -302,10 +311,12 @@ class LiveCalibration:
         return saved, message
 
 
-def starting_snapshot(settings: Settings, calibration_path: Path, calibrate_service: str) -> WorkSnapshot:
-    """What the diagnostics show until the work has sent its own (the worker process is starting)."""
+def starting_snapshot(settings: Settings, calibration_path: Path, calibrate_service: str,
+                      status: tuple[Level, str]) -> WorkSnapshot:
+    """What the diagnostics show until the work has sent its own (the worker process is starting): `status`
+    from the node's own opening of the file."""
     session = CalibrationSession(settings)
     progress = session.progress(None, calibrate_service)
     values = {"detector_state": "moving", "calibration_file": str(calibration_path), "calibration_watch": "",
               "accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
-    return WorkSnapshot((OK, "starting"), progress, pose_map(session, None, progress), values, {})
+    return WorkSnapshot(status, progress, pose_map(session, None, progress), values, {})

@@ -17,7 +17,7 @@ from ..core.calibration import Calibration
 from ..core.settings import Settings
 from ..core.stream.collection_pause import CollectionPause
 from .calibration_file import calibration_to_yaml
-from .in_force import CalibrationInForce, Level
+from .in_force import CalibrationInForce
 from .sample_ring import SampleRing
 
 __all__ = ["LOG_THROTTLE_S", "TEMPERATURE_AHEAD_NS", "LiveStream", "Log"]
@@ -62,11 +62,6 @@ class LiveStream:
         self._imu_topic = imu_topic
         self.on_frame_id = on_frame_id  # tells the work the frame (its calibration is of that frame)
         self._latest_imu_ns = -1  # the latest IMU header stamp: temperature stamps are judged against it
-
-    def preload(self) -> tuple[Level, str]:
-        """The file's calibration in force from the first message on, before the calibration work has
-        loaded it (it then installs what it holds): (level, what the file held, one line)."""
-        return self.in_force.load()
 
     # ------------------------------------------------------------------ per message
     def buffer_imu(self, stamp_ns: int, ax: float, ay: float, az: float, gx: float, gy: float, gz: float) -> None:

@@ -93,7 +93,7 @@ class _WorkerLoop:
             "refresh_progress": lambda: (True, live.refresh_progress().advice), "ping": lambda: (True, "")}
 
     def run(self) -> None:
-        self._guarded(lambda: self._live.start(announce=False))  # the node said what the file held
+        self._guarded(lambda: self._live.start(open_file=False))  # the node's process has opened it
         self._send_snapshot()
         next_feed = time.monotonic() + FEED_PERIOD_S
         while True:

@@ -35,7 +35,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.calibration import Calibration
 from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import WorkSnapshot, announce_load, diagnostic_values, starting_snapshot
+from ..io.live_calibration import WorkSnapshot, diagnostic_values, file_status, open_calibration_file, starting_snapshot
 from ..io.live_stream import LiveStream, imu_ring, temperature_ring
 from ..io.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
@@ -73,14 +73,15 @@ class CalibrationNode(Node):
         context = multiprocessing.get_context("spawn")  # not fork: this process runs DDS threads
         self._stream = LiveStream(self._params.settings, path, self.get_logger(), imu_ring(context),
                                   temperature_ring(context), imu_topic=self._imu_topic)
-        announce_load(self.get_logger(), *self._stream.preload(), calibrate_service)
+        # The file's calibration in force from the first message on; the work loads it again for itself.
+        opened = file_status(*open_calibration_file(self._stream.in_force, self.get_logger(), calibrate_service))
         if self._stream.in_force.calibration is not None:
             self._params.mirror(self._stream.in_force.calibration)
         self._worker = WorkerProcess(WorkerStart(self._params.settings, path, calibrate_service, self._imu_topic),
                                      (self._stream.samples, self._stream.readings), self.get_logger(),
                                      self._install, self._stream.set_noise, context)
         self._stream.on_frame_id = self._worker.set_frame_id
-        self._starting = starting_snapshot(self._params.settings, path, calibrate_service)
+        self._starting = starting_snapshot(self._params.settings, path, calibrate_service, opened)
         self._started = time.monotonic()
         self._last_imu: float | None = None
         self._last_temperature: float | None = None

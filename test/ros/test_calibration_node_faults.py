@@ -243,7 +243,8 @@ def test_auto_calibrate_applies_and_saves_by_itself(tmp_path, tester):
         cal = load_calibration(cal_file)
         np.testing.assert_allclose(cal.bias, errors.bias_mps2, atol=0.005)
         assert cal.quality.poses >= 12
-        assert "auto-calibrated" in node.log()
+        # Logged by the worker process after its save, through the node: it follows the file by a moment.
+        assert tester.spin_until(lambda: "auto-calibrated" in node.log(), 10), node.log()
         # calibration/save rewrites the calibration in force whole.
         cal_file.unlink()
         saved = tester.call("calibration/save")
