@@ -21,12 +21,16 @@ $(STAMP): requirements.txt requirements-ros.txt setup.py setup.cfg package.xml
 EQUALITY_TESTS := test/bag/test_replay_stream.py test/ros/test_one_correction.py test/core/test_session.py \
 	test/core/test_recording_feed.py test/core/test_detector_parts.py
 
+# The suite runs in TEST_WORKERS pytest-xdist workers (default: one per CPU, at most 4), each with a DDS
+# domain of its own (test/helpers/ros_domain.py); TEST_WORKERS=0 runs it in one process.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$n)
+
 test: $(STAMP) lint
-	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q test
+	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q -n $(TEST_WORKERS) test
 	for kernel in Haswell Sandybridge; do \
 	  echo "OPENBLAS_CORETYPE=$$kernel: the equality tests"; \
 	  OPENBLAS_CORETYPE=$$kernel ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST $(PY) -m pytest -q -p no:cacheprovider \
-	    $(EQUALITY_TESTS) || exit 1; \
+	    -n $(TEST_WORKERS) $(EQUALITY_TESTS) || exit 1; \
 	done
 
 # ruff over all Python; mypy over the whole package and msg_tools (not test, bench), strict per pyproject.toml.

@@ -11,10 +11,9 @@ import pytest
 from hypothesis import settings as hypothesis_settings
 
 from helpers.ci import under_ci
+from helpers.ros_domain import claim_ros_domain
 
-# Each test session gets its own DDS domain and stays on this machine, so parallel sessions and
-# other ROS graphs never see each other. Set before anything initialises rclpy.
-os.environ.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))
+# DDS traffic stays on this machine; the domain is claimed per test process in pytest_configure.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -24,6 +23,26 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 hypothesis_settings.register_profile("ci", derandomize=True, print_blob=True)
 if under_ci():
     hypothesis_settings.load_profile("ci")
+
+
+def pytest_configure(config):
+    """Each process that runs tests (the one pytest process, or each pytest-xdist worker: `make test` runs
+    `pytest -n 2`) holds a DDS domain of its own for its lifetime, so parallel workers, parallel sessions
+    and other ROS graphs never see each other (helpers/ros_domain.py). Set before any test module is
+    imported, so before anything initialises rclpy; the node processes a test starts inherit it. An xdist
+    controller runs no test and claims none."""
+    controller = not hasattr(config, "workerinput") and config.getoption("dist", default="no") != "no"
+    if not controller:
+        claim_ros_domain()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, the tests over DDS (marked `ros`: 5-30 s each, the longest of the suite) are
+    handed out first and the many short ones last, so the workers finish together instead of one waiting
+    on the other's last long test. Each worker collects the same order; a plain run keeps the files' order."""
+    if hasattr(config, "workerinput"):
+        items.sort(key=lambda item: item.get_closest_marker("ros") is None)
+
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"

@@ -111,9 +111,10 @@ def test_bad_startup_parameters_are_one_line_and_exit_2(tmp_path, args, says):
     assert process.returncode == 2 and says in output and len(output.splitlines()) == 1, output
 
 
-def test_params_file_applies_under_a_namespace_with_a_per_node_file(tmp_path, node_process):
+def test_params_file_applies_under_a_namespace_with_a_per_node_file(tmp_path, ros, node_process):
     """`/**:` keys apply whatever the namespace; the default calibration file is per node; the advice
-    names the service as resolved; mirrors are read-only and never taken from a params file."""
+    names the service as resolved; mirrors are read-only and never taken from a params file. (`ros`: its
+    own client needs rclpy, never borrowed from the test before it, which under pytest -n may be elsewhere.)"""
     import rclpy
     from rcl_interfaces.srv import GetParameters, SetParameters
     from rclpy.parameter import Parameter
