@@ -6,7 +6,11 @@ sensor between still poses (1.5 s still, 0.5 s turning), so the node's work find
 Targets, at 1, 2 and 4 kHz, in every run, each against the relay measured just before it: the node's p99
 latency within the relay's p99 + 0.5 ms; delivered >= 99.9 % at 1 and 2 kHz; CPU per message <= 1.3x the
 relay's. BENCH_RUNS (10) runs per rate, BENCH_RATES="1000,2000" to choose the rates, BENCH_SECONDS (10)
-of stream per run.
+of stream per run. BENCH_RELAY: `events` (default: the relay on rclpy's EventsExecutor, the cheapest bare relay
+rclpy offers and so the strictest peer) or `single` (`rclpy.spin`, the SingleThreadedExecutor).
+
+The measuring processes take their share of the 2 cores too, so the subscriber spins an EventsExecutor, and the
+stream starts only once the measured process tree is idle (its imports, and the node's worker's, done).
 """
 import json
 import os
@@ -52,10 +56,24 @@ def cpu_seconds(pid: int) -> float:
     return total / os.sysconf("SC_CLK_TCK")
 
 
+def wait_idle(pid: int, timeout: float = 60.0) -> None:
+    """Until `pid`'s tree has spent < 20 ms of CPU in 0.5 s: started, imports done, waiting for messages."""
+    deadline = time.monotonic() + timeout
+    before = cpu_seconds(pid)
+    while time.monotonic() < deadline:
+        time.sleep(0.5)
+        now = cpu_seconds(pid)
+        if now - before < 0.02:
+            return
+        before = now
+    raise RuntimeError(f"process {pid} still busy after {timeout:.0f} s")
+
+
 def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     if kind == "relay":
-        target = subprocess.Popen([PY, HERE / "stream_peers.py", "relay"], env=env)
+        peer = "relay-events" if os.environ.get("BENCH_RELAY", "events") == "events" else "relay"
+        target = subprocess.Popen([PY, HERE / "stream_peers.py", peer], env=env)
     else:
         cal = workdir / "cal.yaml"
         cal.write_text(
@@ -67,7 +85,8 @@ def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
              "--log-level", "warn"], env=env)
     out = workdir / f"{kind}_{rate}.json"
     subscriber = subprocess.Popen([PY, HERE / "stream_peers.py", "subscribe", str(SECONDS + 90), out], env=env)
-    time.sleep(3.0)  # processes import rclpy (the node its worker too); the publisher then waits for its match
+    wait_idle(target.pid)
+    wait_idle(subscriber.pid)
     cpu0 = cpu_seconds(target.pid)
     publisher = subprocess.run([PY, HERE / "stream_peers.py", "publish", str(rate), str(SECONDS)], env=env,
                                capture_output=True, text=True, check=True)

@@ -69,6 +69,11 @@ class LiveStream:
             self._latest_imu_ns = stamp_ns
         self.samples.push(stamp_ns, ax, ay, az, gx, gy, gz, self.pause.collecting)
 
+    def flush(self) -> None:
+        """Show the work the last records, if the stream stopped just when the work was reading the rings."""
+        self.samples.flush()
+        self.readings.flush()
+
     def take_temperature(self, stamp_ns: int, degc: float) -> None:
         # A reading stamped far ahead of the IMU stream (another publisher's clock) would take the
         # correction temperature with it, and leave the true readings after it none.

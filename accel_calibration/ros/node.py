@@ -22,7 +22,6 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -155,11 +154,8 @@ class CalibrationNode(Node):
                 and math.isfinite(az):
             a.x, a.y, a.z = correction.apply(ax, ay, az)
             w.x, w.y, w.z = correction.apply_gyro(gx, gy, gz)
-            if correction.covariance is not None or correction.calibration_covariance is not None:
-                msg.linear_acceleration_covariance = correction.covariance_for(msg.linear_acceleration_covariance)
-            if correction.gyro_covariance is not None or correction.gyro_calibration_covariance is not None:
-                msg.angular_velocity_covariance = correction.angular_covariance_for(
-                    msg.angular_velocity_covariance, np.array((gx, gy, gz)))
+            correction.covariance_into(msg.linear_acceleration_covariance)
+            correction.angular_covariance_into(msg.angular_velocity_covariance, gx, gy, gz)
         self._publisher.publish(msg)  # non-finite samples pass on untouched: the stack sees what the driver sent
 
     def _on_temperature(self, msg: Temperature) -> None:
@@ -213,6 +209,7 @@ class CalibrationNode(Node):
         self._namesake = problem or self._namesake
 
     def _publish_diagnostics(self) -> None:
+        self._stream.flush()
         now = time.monotonic()
         health = StreamHealth(self._imu_topic, self._temperature_topic,
                               None if self._last_imu is None else now - self._last_imu,

@@ -167,3 +167,26 @@ def test_a_rate_alone_and_in_any_group_gets_the_same_bits_and_covariance(rows, s
             expected = expected + GYRO_COVARIANCE.reshape(3, 3)
             # Calibration's covariance holds M_g's sigma on the diagonal only, as Correction does.
         np.testing.assert_allclose(cov.reshape(3, 3), expected, rtol=1e-12, atol=1e-20)
+
+
+driver_rows = st.sampled_from([COVARIANCE, GYRO_COVARIANCE, np.zeros(9), np.r_[-1.0, np.zeros(8)],
+                               np.r_[0.0, 2e-5, np.zeros(7)]])
+
+
+@settings(max_examples=150, deadline=None)
+@given(driver=driver_rows, rates=st.tuples(finite, finite, finite), accel_noise=st.sampled_from([None, 4e-4]),
+       gyro_noise=st.sampled_from([None, 2e-6]), gyro_quality=st.booleans())
+def test_the_streams_in_place_covariances_are_the_groups_bit_for_bit(driver, rates, accel_noise, gyro_noise,
+                                                                     gyro_quality):
+    """The node writes the covariances over the message's own arrays (~1 us); a corrected copy makes them
+    for a group (covariance_for): the same values, for every kind of driver report and noise state."""
+    calibration = calibration_with_drift()
+    if not gyro_quality:
+        calibration = Calibration(bias=calibration.bias, matrix=calibration.matrix, bias_sigma=calibration.bias_sigma,
+                                  matrix_sigma=calibration.matrix_sigma, gyro_bias_radps=calibration.gyro_bias_radps)
+    correction = Correction.build(calibration, 22.0, accel_noise, gyro_noise)
+    linear, angular = driver.copy(), driver.copy()
+    correction.covariance_into(linear)
+    correction.angular_covariance_into(angular, *rates)
+    np.testing.assert_array_equal(linear, correction.covariance_for(driver))
+    np.testing.assert_array_equal(angular, correction.angular_covariance_for(driver, np.array(rates)))
