@@ -23,10 +23,12 @@ __all__ = ["run_worker"]
 
 
 class _PipeLog:
-    """The work's log lines go to the node's logger; a throttled line is throttled here, per call site."""
+    """The work's log lines go to the node's logger; a throttled line is throttled here, per call site, and
+    debug lines only when the node shows them."""
 
-    def __init__(self, conn: Any):
+    def __init__(self, conn: Any, debug_logged: bool = False):
         self._conn = conn
+        self._debug_logged = debug_logged
         self._last: dict[tuple[str, int], float] = {}
 
     def _line(self, level: str, message: str, throttle_duration_sec: float | None = None, **kwargs: Any) -> None:
@@ -39,7 +41,8 @@ class _PipeLog:
         self._conn.send(("log", level, message))
 
     def debug(self, message: str, **kwargs: Any) -> None:
-        self._line("debug", message, **kwargs)
+        if self._debug_logged:
+            self._line("debug", message, **kwargs)
 
     def info(self, message: str, **kwargs: Any) -> None:
         self._line("info", message, **kwargs)
@@ -73,7 +76,7 @@ def run_worker(conn: Any, rings: tuple[Any, Any], start: WorkerStart) -> None:
         os.nice(WORKER_NICENESS)
     except OSError:
         pass
-    log = _PipeLog(conn)
+    log = _PipeLog(conn, start.debug_logged)
     live = LiveCalibration(start.settings, start.calibration_path, log, calibrate_service=start.calibrate_service,
                            imu_topic=start.imu_topic,
                            rings=(SampleRing.attach(rings[0]), SampleRing.attach(rings[1])),

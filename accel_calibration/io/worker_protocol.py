@@ -28,3 +28,5 @@ class WorkerStart:
     calibration_path: Path
     calibrate_service: str
     imu_topic: str
+    # The node's logger shows debug lines (its level when the worker started): else the work's are not sent.
+    debug_logged: bool = False

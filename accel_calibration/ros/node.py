@@ -24,6 +24,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -76,7 +77,9 @@ class CalibrationNode(Node):
         opened = file_status(*open_calibration_file(self._stream.in_force, self.get_logger(), calibrate_service))
         if self._stream.in_force.calibration is not None:
             self._params.mirror(self._stream.in_force.calibration)
-        self._worker = WorkerProcess(WorkerStart(self._params.settings, path, calibrate_service, self._imu_topic),
+        debug_logged = self.get_logger().get_effective_level() <= LoggingSeverity.DEBUG
+        self._worker = WorkerProcess(WorkerStart(self._params.settings, path, calibrate_service, self._imu_topic,
+                                                 debug_logged),
                                      (self._stream.samples, self._stream.readings), self.get_logger(),
                                      self._install, self._stream.set_noise, context)
         self._stream.on_frame_id = self._worker.set_frame_id
