@@ -1,7 +1,7 @@
 """The node's worker pass: what the live feed costs per 0.2 s pass, against the same samples read as a
-recording (`recording_feed`, parts of PART_ROWS) in the same run. The pass's fixed part (the detector's window
-sums are taken again over the rows carried from the pass before, about a window of them) is what makes the
-worker's CPU bursts: 4-5 ms every 0.2 s at 2 kHz on the 2-core machine.
+recording (`recording_feed`, parts of PART_ROWS) in the same run. A pass is mostly a fixed cost (some 150 numpy
+calls and the Python around them, whatever its rows), and it makes the worker's CPU bursts: 4-5 ms every 0.2 s
+at 2 kHz on the 2-core machine.
 
 No target: this prints where the worker's time goes, per pass and per sample, at 1, 2 and 4 kHz, BENCH_RUNS (5)
 runs, the two in turn. Both must find the same poses.
