@@ -98,6 +98,7 @@ class LiveCalibration:
         self._samples, self._readings = rings
         self._link: StreamLink | None = link or self.stream
         self.still = False  # the detector's state at the last feed
+        self.stream_flowing = False  # the last feed took samples
         # What the work itself set aside, by name (the session's screening keeps its own counters).
         self.set_aside: collections.Counter[str] = collections.Counter()
         self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
@@ -204,6 +205,7 @@ class LiveCalibration:
     def feed(self) -> list[Pose]:
         """What the stream put in the rings into the live feed; new poses into the store, a refit."""
         readings, samples = self._readings.take(), self._samples.take()
+        self.stream_flowing = len(samples.stamps_ns) > 0
         for name, lost in (("temperature_dropped_backlog", readings.lost), ("samples_dropped_backlog", samples.lost)):
             if lost:
                 self.set_aside[name] += lost

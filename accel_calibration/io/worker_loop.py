@@ -17,6 +17,7 @@ from ..core.calibration import Calibration
 from .live_calibration import LiveCalibration
 from .live_stream import LOG_THROTTLE_S
 from .sample_ring import SampleRing
+from .worker_pace import Pacer
 from .worker_protocol import FEED_PERIOD_S, WORKER_NICENESS, WorkerGone, WorkerStart
 
 __all__ = ["run_worker"]
@@ -82,15 +83,19 @@ def run_worker(conn: Any, rings: tuple[Any, Any], start: WorkerStart) -> None:
                            rings=(SampleRing.attach(rings[0]), SampleRing.attach(rings[1])),
                            link=_PipeLink(conn))
     gc.freeze()  # the imports' objects: a full collection scans only the work's own (ms, not ~20 ms)
+    pacer = Pacer()
     try:
-        _WorkerLoop(conn, live, log).run()
+        _WorkerLoop(conn, live, log, pacer).run()
     except (EOFError, BrokenPipeError, OSError):
         pass  # the node is gone
+    finally:
+        pacer.close()
 
 
 class _WorkerLoop:
-    def __init__(self, conn: Any, live: LiveCalibration, log: _PipeLog):
+    def __init__(self, conn: Any, live: LiveCalibration, log: _PipeLog, pacer: Pacer):
         self._conn, self._live, self._log = conn, live, log
+        self._pacer = pacer  # while a stream flows, the work goes in slices (io/worker_pace.py)
         self._inbox: deque[tuple[Any, ...]] = deque()
         self._sent = b""  # the snapshot last sent, pickled (its arrays do not compare with ==)
         self._jobs: dict[str, Callable[[], tuple[bool, str]]] = {
@@ -109,9 +114,11 @@ class _WorkerLoop:
                 self._refuse_queued()
                 return
             if self._inbox:
-                self._handle(self._inbox.popleft())
+                with self._pacer.paced(self._live.stream_flowing):
+                    self._handle(self._inbox.popleft())
             if time.monotonic() >= next_feed:
-                self._guarded(self._live.feed)
+                with self._pacer.paced(self._live.stream_flowing):
+                    self._guarded(self._live.feed)
                 next_feed = max(next_feed + FEED_PERIOD_S, time.monotonic())
             self._send_snapshot()
 

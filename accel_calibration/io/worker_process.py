@@ -10,7 +10,8 @@ feeds every FEED_PERIOD_S, and runs the services' jobs in order. The two talk ov
 - to the node: ("done", id, (success, message) or an error), ("install", Calibration | None),
   ("noise", accel_var, gyro_var), ("snapshot", WorkSnapshot), ("log", level, text).
 
-The work runs at a lower priority (os.nice): on a busy flight computer the stream comes first. It ignores
+The work runs at a lower priority (os.nice) and, while a stream flows, in slices with pauses between
+(io/worker_pace.py): on a busy flight computer the stream comes first. It ignores
 SIGINT/SIGTERM (a terminal's Ctrl-C reaches the whole process group): the node stops it, letting a save in
 flight finish, and it ends by itself when the node's end of the pipe closes. A work that dies is started
 again (its poses are lost; the file is whole: saves are atomic).
