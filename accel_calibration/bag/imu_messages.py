@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from msg_tools.imu_cdr import imu_layout
+
 from .bag_io import (
     IMU,
     TEMPERATURE,
@@ -161,16 +163,6 @@ def decode_temperatures(raws: Sequence[bytes], path: str | os.PathLike[str], des
 
 
 
-def _layout(frame_id_length: int) -> dict[str, int]:
-    """Byte offsets in a little-endian CDR Imu whose frame_id has this many bytes (with its NUL)."""
-    end_of_string = 4 + 8 + 4 + frame_id_length  # encapsulation, stamp, length, chars
-    body = end_of_string - 4
-    orientation = 4 + ((body + 7) // 8) * 8  # doubles align to 8 from the start of the body
-    gyro = orientation + 32 + 72
-    accel = gyro + 24 + 72
-    return {"gyro": gyro, "accel": accel, "size": accel + 24 + 72}
-
-
 def _imu_by_name(raw: bytes, index: int, path: str | os.PathLike[str], deserialize: Deserialize
                  ) -> tuple[int, tuple[float, float, float], tuple[float, float, float], str]:
     """(stamp ns, accel, gyro, frame_id) of one message through `deserialize` (the recording's own
@@ -223,7 +215,7 @@ def decode_imus(raws: Sequence[bytes], path: str | os.PathLike[str], deserialize
             little = block[:, 1] == 1
             string_length = block[:, 12:16].copy().view("<u4").ravel()
             if little.all() and np.all(string_length == string_length[0]):
-                layout = _layout(int(string_length[0]))
+                layout = imu_layout(int(string_length[0]))
                 if layout["size"] != length:
                     layout = None
         if layout is None:

@@ -2,8 +2,9 @@
 work), without ROS both. Imu in, corrected Imu out; services to calibrate, inspect, reset, save and switch
 the correction; /diagnostics at 1 Hz.
 
-Wiring only. The Imu callback corrects and publishes (core.correction's one correction, as every corrected
-copy of a recording) and pushes the raw sample into a shared ring. The work runs in a worker process
+Wiring only. The Imu callback reads the message's serialised bytes, corrects and publishes them patched
+(core.correction's one correction, as every corrected copy of a recording) and pushes the raw sample into a
+shared ring. The work runs in a worker process
 (io/worker_process.py): it feeds the ring to the session every FEED_PERIOD_S and runs the services' jobs,
 which answer when the job ends (ros/boundary.py); so the stream never waits for a fit, a disk, or even
 the lock of the interpreter doing them. No exception from a callback ends the process (ros/boundary.py);
@@ -22,16 +23,20 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
+
+from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, imu_offsets
 
 from ..core.calibration import Calibration
 from ..io.in_force import ERROR, OK, WARN
@@ -86,6 +91,7 @@ class CalibrationNode(Node):
         self._starting = starting_snapshot(self._params.settings, path, calibrate_service, opened)
         self._started = time.monotonic()
         self._last_imu: float | None = None
+        self._frame_bytes: bytes | None = None  # the frame_id of the last Imu read as bytes
         self._last_temperature: float | None = None
         self._silence_reminders = SilenceReminders()
         self.add_on_set_parameters_callback(guard("parameters", self._on_set_parameters,
@@ -99,7 +105,9 @@ class CalibrationNode(Node):
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._markers = self.create_publisher(MarkerArray, "calibration/markers", MARKER_QOS)
         self._markers_of = b""  # the pose map last published, pickled
-        self.create_subscription(Imu, "imu/data_raw", guard("imu", self._on_imu), INPUT_QOS)
+        # Raw: the message's CDR bytes, read and patched in place (msg_tools/imu_cdr.py); building a Python
+        # Imu and serialising it again is most of a relay's CPU per message.
+        self.create_subscription(Imu, "imu/data_raw", guard("imu", self._on_imu_cdr), INPUT_QOS, raw=True)
         # Optional: true while the vehicle is armed or flying (remap `armed` to the stack's state); nothing
         # is collected meanwhile. Reliable: one lost "true" would let a flight in.
         self.create_subscription(Bool, "armed", guard("armed", self._on_armed), ARMED_QOS)
@@ -143,6 +151,38 @@ class CalibrationNode(Node):
         return answer
 
     # ------------------------------------------------------------------ stream (hot path)
+    def _on_imu_cdr(self, raw: bytes) -> None:
+        """One Imu as its serialised bytes: the same correction as `_on_imu`, the same bytes out as
+        serialising its message (test_imu_cdr_path); any layout but the standard little-endian one goes
+        through `_on_imu`."""
+        offsets = imu_offsets(raw)
+        if offsets is None:
+            self._on_imu(deserialize_message(raw, Imu))
+            return
+        frame_end, gyro_at, accel_at = offsets
+        stream = self._stream
+        frame = raw[FRAME_AT:frame_end]
+        if frame != self._frame_bytes:  # the frame_id's text only when its bytes change
+            frame_id = frame.decode()
+            if frame_id != stream.frame_id:
+                stream.set_frame_id(frame_id)
+            self._frame_bytes = frame
+        self._last_imu = time.monotonic()
+        sec, nanosec = STAMP.unpack_from(raw, 4)
+        gx, gy, gz = VECTOR.unpack_from(raw, gyro_at)
+        ax, ay, az = VECTOR.unpack_from(raw, accel_at)
+        stream.buffer_imu(sec * 1_000_000_000 + nanosec, ax, ay, az, gx, gy, gz)
+        correction = stream.in_force.correction
+        if correction is not None and stream.enabled and math.isfinite(ax) and math.isfinite(ay) \
+                and math.isfinite(az):
+            out = bytearray(raw)
+            VECTOR.pack_into(out, accel_at, *correction.apply(ax, ay, az))
+            VECTOR.pack_into(out, gyro_at, *correction.apply_gyro(gx, gy, gz))
+            correction.covariance_into(np.frombuffer(out, "<f8", 9, accel_at + COVARIANCE_AFTER))
+            correction.angular_covariance_into(np.frombuffer(out, "<f8", 9, gyro_at + COVARIANCE_AFTER), gx, gy, gz)
+            raw = bytes(out)
+        self._publisher.publish(raw)
+
     def _on_imu(self, msg: Imu) -> None:
         header = msg.header
         stream = self._stream

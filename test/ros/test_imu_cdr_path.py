@@ -1,0 +1,143 @@
+"""The node's Imu path over serialised bytes (msg_tools/imu_cdr.py, `_on_imu_cdr`): for any message it
+publishes the bytes that serialising its message path's output gives, and pushes the same raw sample; a
+message in another layout (big-endian) goes through the message path, a damaged one is one logged error.
+A real rclpy node in this process, its callbacks called directly, what it publishes captured."""
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import Imu
+
+from accel_calibration.core.calibration import Calibration, GyroQuality
+from accel_calibration.core.temperature_models import TemperatureModel
+from accel_calibration.io.calibration_file import save_calibration
+from msg_tools.conversions import make_temperature
+from msg_tools.imu_cdr import STAMP, VECTOR, imu_offsets
+
+START_NS = 1_700_000_000 * 10**9
+
+
+def calibration() -> Calibration:
+    rng = np.random.default_rng(5)
+    return Calibration(bias=rng.normal(0, 0.05, 3), matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
+                       bias_sigma=np.full(3, 2e-4), matrix_sigma=np.full((3, 3), 1e-5),
+                       gyro_bias_radps=np.array([0.01, -0.02, 0.003]),
+                       gyro_matrix=np.eye(3) + rng.normal(0, 0.01, (3, 3)),
+                       gyro_quality=GyroQuality(matrix_sigma=np.full((3, 3), 2e-4), residual_rms_mrad=0.5,
+                                                residual_max_mrad=1.0, motions=17,
+                                                bias_sigma_radps=np.full(3, 1e-4)),
+                       temperature=TemperatureModel("polynomial", 22.0, (15.0, 35.0),
+                                                    bias_coefficients=[[0.01, -0.01, 0.005]]))
+
+
+@pytest.fixture(scope="module")
+def node(ros, tmp_path_factory):
+    from accel_calibration.ros.node import CalibrationNode
+
+    path = tmp_path_factory.mktemp("imu_cdr") / "cal.yaml"
+    save_calibration(calibration(), path)
+    node = CalibrationNode(parameter_overrides=[Parameter("calibration_file", value=str(path))])
+    node._on_temperature(make_temperature(START_NS, 27.5))  # the drift takes part
+    published: list[object] = []
+    pushed: list[tuple[object, ...]] = []
+    node._publisher.publish = published.append
+    buffer_imu = node._stream.buffer_imu
+    node._stream.buffer_imu = lambda *sample: (pushed.append(sample), buffer_imu(*sample))
+    node.captured = published, pushed
+    yield node
+    node.close()
+    node.destroy_node()
+
+
+def sent_bytes(published: object) -> bytes:
+    return published if isinstance(published, bytes) else bytes(serialize_message(published))
+
+
+def bits(sample: tuple[object, ...]) -> bytes:
+    """A pushed sample, NaN payloads and signs included."""
+    return struct.pack("<q6d", *sample)
+
+
+values = st.floats(allow_nan=True, allow_infinity=True, width=64)
+finite = st.floats(-1e3, 1e3)
+covariances = st.one_of(st.just([-1.0] + [0.0] * 8), st.just([0.0] * 9),
+                        st.lists(st.floats(0, 1e-2), min_size=9, max_size=9))
+
+
+@st.composite
+def imus(draw):
+    msg = Imu()
+    msg.header.frame_id = draw(st.sampled_from(["imu_link", "", "imu", "a" * 33, "bâse_ïmu"]) | st.text(max_size=20))
+    stamp = START_NS + draw(st.integers(0, 10**12))
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+    vectors = st.tuples(*[st.one_of(finite, values)] * 3)
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = draw(vectors)
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = draw(vectors)
+    msg.orientation_covariance[0] = -1.0
+    msg.linear_acceleration_covariance = np.array(draw(covariances))
+    msg.angular_velocity_covariance = np.array(draw(covariances))
+    return msg
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(msg=imus(), enabled=st.booleans(), noise=st.sampled_from([None, (4e-4, 1e-5)]))
+def test_the_bytes_path_publishes_what_the_message_path_would(node, msg, enabled, noise):
+    published, pushed = node.captured
+    node._stream.enabled = enabled
+    node._stream.set_noise(*(noise or (None, None)))
+    raw = bytes(serialize_message(msg))
+    sent = deserialize_message(raw, Imu)  # a frame_id is a C string: a NUL ends it
+    offsets = imu_offsets(raw)
+    assert offsets is not None
+    assert raw[16:offsets.frame_end].decode() == sent.header.frame_id
+    assert VECTOR.unpack_from(raw, offsets.accel)[2] == msg.linear_acceleration.z or math.isnan(
+        msg.linear_acceleration.z)
+    assert STAMP.unpack_from(raw, 4) == (msg.header.stamp.sec, msg.header.stamp.nanosec)
+
+    node._on_imu(sent)
+    node._on_imu_cdr(raw)
+    assert node._stream.frame_id == sent.header.frame_id
+    assert sent_bytes(published[-1]) == sent_bytes(published[-2])
+    assert bits(pushed[-1]) == bits(pushed[-2])
+    corrected = enabled and all(map(math.isfinite, (msg.linear_acceleration.x, msg.linear_acceleration.y,
+                                                    msg.linear_acceleration.z)))
+    assert (sent_bytes(published[-1]) != raw) == corrected  # else passed through untouched
+
+
+def test_a_big_endian_message_goes_through_the_message_path(node):
+    from rosbags.typesys import Stores, get_typestore
+
+    published, _ = node.captured
+    node._stream.enabled = True
+    msg = Imu()
+    msg.header.frame_id = "imu_link"
+    msg.linear_acceleration.z = 9.8
+    msg.angular_velocity.x = 0.3
+    raw = bytes(serialize_message(msg))
+    store = get_typestore(Stores.ROS2_JAZZY)
+    big = bytes(store.serialize_cdr(store.deserialize_cdr(raw, "sensor_msgs/msg/Imu"), "sensor_msgs/msg/Imu",
+                                    little_endian=False))
+    assert big[1] == 0 and imu_offsets(big) is None
+    node._on_imu_cdr(raw)
+    node._on_imu_cdr(big)
+    assert isinstance(published[-2], bytes) and isinstance(published[-1], Imu)
+    assert sent_bytes(published[-1]) == published[-2]
+    assert published[-1].linear_acceleration.z != 9.8  # corrected
+
+
+@pytest.mark.parametrize("damaged", [b"", b"\x00\x01\x00\x00", b"\x00\x01\x00\x00" + bytes(40),
+                                     b"\x00\x01\x00\x00" + struct.pack("<iII", 1, 2, 10**6) + bytes(300)])
+def test_a_damaged_message_is_one_logged_error_and_nothing_published(node, damaged):
+    published, _ = node.captured
+    callback = next(s.callback for s in node.subscriptions if s.topic_name.endswith("imu/data_raw"))
+    before, errors = len(published), node._boundary.errors["imu"]
+    callback(damaged)  # must not raise: the executor would end
+    assert len(published) == before
+    assert node._boundary.errors["imu"] == errors + 1
