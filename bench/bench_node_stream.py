@@ -6,8 +6,10 @@ sensor between still poses (1.5 s still, 0.5 s turning), so the node's work find
 Targets, at 1, 2 and 4 kHz, in every run, each against the relay measured just before it: the node's p99
 latency within the relay's p99 + 0.5 ms; delivered >= 99.9 % at 1 and 2 kHz; CPU per message <= 1.3x the
 relay's. BENCH_RUNS (10) runs per rate, BENCH_RATES="1000,2000" to choose the rates, BENCH_SECONDS (10)
-of stream per run. BENCH_RELAY: `events` (default: the relay on rclpy's EventsExecutor, the cheapest bare relay
-rclpy offers and so the strictest peer) or `single` (`rclpy.spin`, the SingleThreadedExecutor).
+of stream per run. BENCH_RELAY: `events` (default: a relay of typed messages on rclpy's EventsExecutor, the node's own
+executor: what a bare rclpy relay costs as written), `raw` (the same relay over serialised bytes, never building
+a Python message, as the node's Imu path does: the floor of any rclpy relay) or `single` (`rclpy.spin`, the
+SingleThreadedExecutor).
 
 The measuring processes take their share of the 2 cores too, so the subscriber spins an EventsExecutor, and the
 stream starts only once the measured process tree is idle (its imports, and the node's worker's, done).
@@ -72,7 +74,8 @@ def wait_idle(pid: int, timeout: float = 60.0) -> None:
 def run(kind: str, rate: float, workdir: Path, domain: int) -> dict:
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     if kind == "relay":
-        peer = "relay-events" if os.environ.get("BENCH_RELAY", "events") == "events" else "relay"
+        relays = {"events": "relay-events", "single": "relay", "raw": "relay-raw"}
+        peer = relays[os.environ.get("BENCH_RELAY", "events")]
         target = subprocess.Popen([PY, HERE / "stream_peers.py", peer], env=env)
     else:
         cal = workdir / "cal.yaml"

@@ -82,11 +82,13 @@ def spin_events(node, done) -> None:
         executor.spin_until_future_complete(never, timeout_sec=0.1)
 
 
-def relay(events: bool) -> None:
+def relay(events: bool, raw: bool = False) -> None:
+    """`raw`: the messages as their serialised bytes, never built as Python messages (rclpy's conversion
+    is most of a relay's CPU per message): the floor of any rclpy relay's cost."""
     rclpy.init()
     node = rclpy.create_node("bench_relay")
     pub = node.create_publisher(Imu, "imu/data_calibrated", QOS)
-    node.create_subscription(Imu, "imu/data_raw", pub.publish, QOS)
+    node.create_subscription(Imu, "imu/data_raw", pub.publish, QOS, raw=raw)
     try:
         if events:
             spin_events(node, lambda: False)
@@ -121,7 +123,7 @@ if __name__ == "__main__":
     command = sys.argv[1]
     if command == "publish":
         publish(float(sys.argv[2]), float(sys.argv[3]))
-    elif command in ("relay", "relay-events"):
-        relay(events=command == "relay-events")
+    elif command in ("relay", "relay-events", "relay-raw"):
+        relay(events=command != "relay", raw=command == "relay-raw")
     elif command == "subscribe":
         subscribe(float(sys.argv[2]), sys.argv[3])
