@@ -188,6 +188,7 @@ class CalibrationNode(Node):
         stream = self._stream
         if header.frame_id != stream.frame_id:
             stream.set_frame_id(header.frame_id)
+            self._frame_bytes = None  # the bytes path compares its next frame_id again
         self._last_imu = time.monotonic()
         a, w = msg.linear_acceleration, msg.angular_velocity
         ax, ay, az, gx, gy, gz = a.x, a.y, a.z, w.x, w.y, w.z

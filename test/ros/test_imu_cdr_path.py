@@ -130,6 +130,14 @@ def test_a_big_endian_message_goes_through_the_message_path(node):
     assert isinstance(published[-2], bytes) and isinstance(published[-1], Imu)
     assert sent_bytes(published[-1]) == published[-2]
     assert published[-1].linear_acceleration.z != 9.8  # corrected
+    # The frame_id a big-endian message brings is the stream's; the bytes path then notices its own again.
+    msg.header.frame_id = "other_link"
+    node._on_imu_cdr(bytes(store.serialize_cdr(store.deserialize_cdr(bytes(serialize_message(msg)),
+                                                                      "sensor_msgs/msg/Imu"),
+                                               "sensor_msgs/msg/Imu", little_endian=False)))
+    assert node._stream.frame_id == "other_link"
+    node._on_imu_cdr(raw)
+    assert node._stream.frame_id == "imu_link"
 
 
 @pytest.mark.parametrize("damaged", [b"", b"\x00\x01\x00\x00", b"\x00\x01\x00\x00" + bytes(40),
