@@ -15,26 +15,13 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import Imu
 
-from accel_calibration.core.calibration import Calibration, GyroQuality
-from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import save_calibration
 from msg_tools.conversions import make_temperature
 from msg_tools.imu_cdr import STAMP, VECTOR, imu_offsets
 
+from helpers.sensors import calibration_with_drift
+
 START_NS = 1_700_000_000 * 10**9
-
-
-def calibration() -> Calibration:
-    rng = np.random.default_rng(5)
-    return Calibration(bias=rng.normal(0, 0.05, 3), matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
-                       bias_sigma=np.full(3, 2e-4), matrix_sigma=np.full((3, 3), 1e-5),
-                       gyro_bias_radps=np.array([0.01, -0.02, 0.003]),
-                       gyro_matrix=np.eye(3) + rng.normal(0, 0.01, (3, 3)),
-                       gyro_quality=GyroQuality(matrix_sigma=np.full((3, 3), 2e-4), residual_rms_mrad=0.5,
-                                                residual_max_mrad=1.0, motions=17,
-                                                bias_sigma_radps=np.full(3, 1e-4)),
-                       temperature=TemperatureModel("polynomial", 22.0, (15.0, 35.0),
-                                                    bias_coefficients=[[0.01, -0.01, 0.005]]))
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +29,7 @@ def node(ros, tmp_path_factory):
     from accel_calibration.ros.node import CalibrationNode
 
     path = tmp_path_factory.mktemp("imu_cdr") / "cal.yaml"
-    save_calibration(calibration(), path)
+    save_calibration(calibration_with_drift(), path)
     node = CalibrationNode(parameter_overrides=[Parameter("calibration_file", value=str(path))])
     node._on_temperature(make_temperature(START_NS, 27.5))  # the drift takes part
     published: list[object] = []

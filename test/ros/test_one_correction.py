@@ -13,13 +13,14 @@ from rclpy.parameter import Parameter
 from accel_calibration.bag.corrected_copy import write_corrected_bag
 from accel_calibration.bag.recording import open_recording
 from accel_calibration.bag.replay import replay_bag
-from accel_calibration.core.calibration import Calibration, GyroQuality
+from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.correction import Correction
-from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import save_calibration
 from msg_tools.bag_writer import write_session_bag
 from msg_tools.conversions import make_imu, make_temperature
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+from helpers.sensors import calibration_with_drift
 
 START_NS = 1_700_000_000 * 10**9
 COVARIANCE = np.diag([1.6e-3, 1.6e-3, 1.6e-3]).ravel()  # what the driver reports, (m/s^2)^2
@@ -36,19 +37,6 @@ def recording(tmp_path_factory):
     write_session_bag(bag, samples, start_ns=START_NS, storage="mcap", accel_covariance=COVARIANCE,
                       gyro_covariance=GYRO_COVARIANCE)
     return samples, bag
-
-
-def calibration_with_drift() -> Calibration:
-    rng = np.random.default_rng(2)
-    return Calibration(bias=rng.normal(0, 0.05, 3), matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
-                       bias_sigma=np.full(3, 2e-4), matrix_sigma=np.full((3, 3), 1e-5),
-                       gyro_bias_radps=np.array([0.01, -0.02, 0.003]),
-                       gyro_matrix=np.eye(3) + rng.normal(0, 0.01, (3, 3)),
-                       gyro_quality=GyroQuality(matrix_sigma=np.full((3, 3), 2e-4), residual_rms_mrad=0.5,
-                                                residual_max_mrad=1.0, motions=17,
-                                                bias_sigma_radps=np.full(3, 1e-4)),
-                       temperature=TemperatureModel("polynomial", 22.0, (15.0, 35.0),
-                                                    bias_coefficients=[[0.01, -0.01, 0.005]]))
 
 
 def test_a_corrected_bag_is_what_the_node_publishes(ros, recording, tmp_path):
