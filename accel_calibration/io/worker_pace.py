@@ -48,10 +48,9 @@ class Pacer:
     def _pause(self, signum: int, frame: FrameType | None) -> None:
         if not self._armed:  # a signal that was on its way when the slices ended
             return
-        time.sleep(self.pause_s)
+        time.sleep(self.pause_s)  # the block cannot end meanwhile: it runs in this thread
         self.pauses += 1
-        if self._armed:
-            signal.setitimer(signal.ITIMER_REAL, self.slice_s)
+        signal.setitimer(signal.ITIMER_REAL, self.slice_s)
 
     @contextmanager
     def paced(self, on: bool = True) -> Iterator[None]:

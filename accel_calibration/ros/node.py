@@ -39,6 +39,7 @@ from visualization_msgs.msg import MarkerArray
 from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, imu_offsets
 
 from ..core.calibration import Calibration
+from ..core.correction import Correction
 from ..io.in_force import ERROR, OK, WARN
 from ..io.live_calibration import WorkSnapshot, diagnostic_values, file_status, open_calibration_file, starting_snapshot
 from ..io.live_stream import LiveStream, imu_ring, temperature_ring
@@ -172,9 +173,8 @@ class CalibrationNode(Node):
         gx, gy, gz = VECTOR.unpack_from(raw, gyro_at)
         ax, ay, az = VECTOR.unpack_from(raw, accel_at)
         stream.buffer_imu(sec * 1_000_000_000 + nanosec, ax, ay, az, gx, gy, gz)
-        correction = stream.in_force.correction
-        if correction is not None and stream.enabled and math.isfinite(ax) and math.isfinite(ay) \
-                and math.isfinite(az):
+        correction = self._correction_for(ax, ay, az)
+        if correction is not None:
             out = bytearray(raw)
             VECTOR.pack_into(out, accel_at, *correction.apply(ax, ay, az))
             VECTOR.pack_into(out, gyro_at, *correction.apply_gyro(gx, gy, gz))
@@ -193,14 +193,23 @@ class CalibrationNode(Node):
         a, w = msg.linear_acceleration, msg.angular_velocity
         ax, ay, az, gx, gy, gz = a.x, a.y, a.z, w.x, w.y, w.z
         stream.buffer_imu(header.stamp.sec * 1_000_000_000 + header.stamp.nanosec, ax, ay, az, gx, gy, gz)
-        correction = stream.in_force.correction
-        if correction is not None and stream.enabled and math.isfinite(ax) and math.isfinite(ay) \
-                and math.isfinite(az):
+        correction = self._correction_for(ax, ay, az)
+        if correction is not None:
             a.x, a.y, a.z = correction.apply(ax, ay, az)
             w.x, w.y, w.z = correction.apply_gyro(gx, gy, gz)
             correction.covariance_into(msg.linear_acceleration_covariance)
             correction.angular_covariance_into(msg.angular_velocity_covariance, gx, gy, gz)
         self._publisher.publish(msg)  # non-finite samples pass on untouched: the stack sees what the driver sent
+
+    def _correction_for(self, ax: float, ay: float, az: float) -> Correction | None:
+        """The correction a sample gets, both paths: none while switched off, or for a non-finite acceleration
+        (it passes on untouched: the stack sees what the driver sent)."""
+        stream = self._stream
+        correction = stream.in_force.correction
+        if correction is None or not stream.enabled \
+                or not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
+            return None
+        return correction
 
     def _on_temperature(self, msg: Temperature) -> None:
         self._last_temperature = time.monotonic()
