@@ -167,13 +167,25 @@ def test_a_message_in_another_frame_than_the_calibration_is_warned_and_counted(r
 
 
 def test_a_service_callback_that_raises_answers_failure_and_the_node_carries_on(running_node, tester):
+    """The fault is planted where only calibration/get reads it and stays in place across a diagnostics tick:
+    a fault planted in shared state (the calibration in force) is read by the 1 Hz diagnostics timer too,
+    whose failure was then counted beside the service's whenever the call took longer than the time to the
+    next tick (a loaded machine)."""
     node = running_node()
     tester.wait_ready()
-    node._stream.in_force.calibration = object()  # calibration/get cannot serialise this: its callback raises
+
+    def raising_calibration_text():
+        raise AttributeError("planted")
+
+    node._stream.calibration_text = raising_calibration_text
+    seen = len(tester.diagnostics)
     answer = tester.call("calibration/get")
     assert not answer.success and answer.message.startswith("internal error (AttributeError")
+    # A diagnostics tick with the fault still in place does not touch it: only the service's callback failed.
+    assert tester.spin_until(lambda: len(tester.diagnostics) >= seen + 2, 20)
+    assert dict(node._boundary.errors) == {"calibration/get": 1}
     assert node.counters()["callback_errors"] == 1
-    node._stream.in_force.calibration = None
+    del node._stream.calibration_text
     assert not tester.call("calibration/get").success  # still answering, now the ordinary refusal
     assert tester.call("calibration/enable", data=True).success
 
