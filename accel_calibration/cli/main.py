@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -54,7 +55,78 @@ def _check_finite(args: argparse.Namespace) -> None:
             raise CalibrationError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
 
 
+class _WatchedStdout:
+    """sys.stdout as the commands see it, noting the first write to it that failed: a failure there (the reader
+    of a pipe gone, a full device) is told from a failure of the command's own files by where it happened."""
+
+    def __init__(self, stream: object) -> None:
+        self.stream = stream
+        self.failure: OSError | None = None
+
+    def write(self, text: str) -> int:
+        try:
+            written: int = self.stream.write(text)  # type: ignore[attr-defined]
+        except OSError as error:
+            self.failure = self.failure or error
+            raise
+        return written
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()  # type: ignore[attr-defined]
+        except OSError as error:
+            self.failure = self.failure or error
+            raise
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.stream, name)
+
+
+def _stdout_lost(failure: OSError, stream: object) -> int:
+    """Python's recipe for a broken pipe: what is still buffered goes to devnull (no second error at exit), exit 1;
+    quietly for a reader that has gone (as `| head` expects), in one line for anything else (a full device)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stream.fileno())  # type: ignore[attr-defined]
+        os.close(devnull)
+    except (OSError, AttributeError, ValueError):
+        pass  # not a file descriptor (a test's capture): nothing to flush at exit
+    if not isinstance(failure, BrokenPipeError):
+        try:
+            print(f"{PROG}: error: cannot write the standard output: {failure.strerror or failure}", file=sys.stderr)
+        except OSError:
+            pass
+    return 1
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command's exit code; its output lost (stdout closed, full, a pipe whose reader left) is exit 1 in at
+    most one line, never a traceback."""
+    original = sys.stdout
+    watched = None if original is None else _WatchedStdout(original)
+    if watched is not None:
+        sys.stdout = watched
+    leaving: SystemExit | None = None
+    try:
+        try:
+            status = _main(argv)
+        except SystemExit as exit_:  # --help: argparse itself ignores a failed write, then exits
+            leaving, status = exit_, 0
+        if watched is not None:
+            watched.flush()
+    except OSError:
+        if watched is None or watched.failure is None:
+            raise
+    finally:
+        sys.stdout = original
+    if watched is not None and watched.failure is not None:
+        return _stdout_lost(watched.failure, original)
+    if leaving is not None:
+        raise leaving
+    return status
+
+
+def _main(argv: Sequence[str] | None) -> int:
     try:
         args = _parser().parse_args(argv)
         _check_finite(args)
