@@ -109,25 +109,98 @@ def add_local_gravity_options(parser: argparse.ArgumentParser) -> None:
                         help="with --latitude: height above the WGS84 ellipsoid, m (default 0; -p height_m:=...)")
 
 
-def local_gravity(args: argparse.Namespace) -> tuple[float, str] | None:
-    """(g, where it came from) from --gravity or --latitude [--height], checked as the node's settings
-    check them; None when neither was given."""
+# The node's own parameters (ros/parameters.NODE_PARAMETERS): its file (replay writes --output), its output's
+# QoS and its silence warning mean nothing to a recording.
+NODE_ONLY_PARAMETERS = ("calibration_file", "output_reliability", "stream_timeout_s")
+GRAVITY_FLAGS = {"gravity": "--gravity", "latitude_deg": "--latitude", "height_m": "--height"}
+ParameterSources = list[tuple[str, dict[str, Any]]]
+
+
+def parameter_sources(args: argparse.Namespace) -> ParameterSources:
+    """(where, {parameter: value}) for each place the command's options give the node's parameters: the
+    --params-file blocks rcl would give the node, then each -p NAME:=VALUE, in the order they apply."""
+    from ..io.calibration_file import safe_yaml_load
+    from ..io.params_file import DEFAULT_NODE, params_file_parameters
+
+    sources: ParameterSources = []
+    node = getattr(args, "node", None)
+    if node is not None:
+        check_node_name(node)
+    if getattr(args, "params_file", None):
+        values = params_file_parameters(args.params_file, node or DEFAULT_NODE, error=CalibrationError)
+        for name in NODE_ONLY_PARAMETERS:
+            values.pop(name, None)
+        sources.append((f"--params-file {args.params_file}", values))
+    for item in getattr(args, "param", None) or []:
+        name, sep, text = item.partition(":=")
+        if not sep:
+            raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
+        sources.append((f"-p {name.strip()}", {name.strip(): safe_yaml_load(text, f"-p {item}: value",
+                                                                             error=CalibrationError)}))
+    return sources
+
+
+def _said_gravity(args: argparse.Namespace, sources: ParameterSources) -> dict[str, tuple[Any, str]]:
+    """{gravity parameter: (value, where)} from the parameters and the flags; two places saying one
+    parameter differently are one line. A parameters file's defaults (gravity 9.80665, latitude .nan,
+    height 0: the package's own file lists them) say nothing."""
+    import math
+
+    defaults = {"gravity": STANDARD_GRAVITY, "height_m": 0.0}
+    flags = [(flag, {name: getattr(args, name.split("_")[0], None)}) for name, flag in GRAVITY_FLAGS.items()]
+    said: dict[str, tuple[Any, str]] = {}
+    for where, values in [*sources, *flags]:
+        for name in GRAVITY_FLAGS:
+            value = values.get(name)
+            if value is None:
+                continue
+            if where.startswith("--params-file") and (
+                    value == defaults.get(name) or (isinstance(value, float) and math.isnan(value))):
+                continue
+            if name in said and not _same_value(said[name][0], value):
+                raise CalibrationError(f"{name} is given twice, {value!r} by {where} and {said[name][0]!r} by "
+                                       f"{said[name][1]}: give it in one place")
+            said[name] = (value, where)
+    return said
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    import math
+
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return bool(a == b)
+
+
+def local_gravity(args: argparse.Namespace, sources: ParameterSources | None = None) -> tuple[float, str] | None:
+    """(g, where it came from) from every place a command takes it: --gravity, --latitude [--height], and
+    the parameters gravity, latitude_deg and height_m of -p and --params-file (parameter_sources); checked
+    as the node's settings check them. Given in two places differently, or g and a latitude both: one
+    line. None when no place gives it."""
     from ..core.settings import Settings
 
-    gravity, latitude, height = (getattr(args, name, None) for name in ("gravity", "latitude", "height"))
+    said = _said_gravity(args, parameter_sources(args) if sources is None else sources)
+    gravity, latitude, height = (said.get(name) for name in GRAVITY_FLAGS)
     if gravity is not None and latitude is not None:
-        raise CalibrationError("--gravity and --latitude exclude each other: give the local g or where it is")
+        if (gravity[1], latitude[1]) == ("--gravity", "--latitude"):
+            raise CalibrationError("--gravity and --latitude exclude each other: give the local g or where it is")
+        raise CalibrationError(f"gravity ({gravity[1]}) and latitude_deg ({latitude[1]}) exclude each other: give "
+                               "the local g or where it is")
     if height is not None and latitude is None:
-        raise CalibrationError("--height needs --latitude (the normal gravity's height above the ellipsoid)")
-    values = {"gravity": gravity, "latitude_deg": latitude, "height_m": height}
-    given = {name: value for name, value in values.items() if value is not None}
-    if not given:
+        raise CalibrationError("--height needs --latitude (the normal gravity's height above the ellipsoid)"
+                               if height[1] == "--height" else
+                               f"height_m ({height[1]}) needs latitude_deg (the normal gravity's height above the "
+                               "ellipsoid)")
+    if not said:
         return None
     try:
-        settings = Settings.from_parameters(given)
-    except CalibrationError as error:  # named as the flags are
-        text = str(error).replace("latitude_deg", "--latitude").replace("height_m", "--height")
-        raise CalibrationError(text.replace("gravity must", "--gravity must")) from None
+        settings = Settings.from_parameters({name: value for name, (value, _) in said.items()})
+    except CalibrationError as error:  # named as the user gave them
+        text = str(error)
+        for name, (_, where) in said.items():
+            if where in GRAVITY_FLAGS.values():
+                text = text.replace(f"{name} must", f"{where} must")
+        raise CalibrationError(text) from None
     return settings.gravity, settings.gravity_source
 
 
@@ -191,22 +264,12 @@ def replay_settings(args: argparse.Namespace) -> Any:
     then the flags of FLAG_PARAMETERS the command offers (add_settings_options)."""
     from ..bag.replay import ReplaySettings
     from ..core.settings import Settings
-    from ..io.calibration_file import safe_yaml_load
-    from ..io.params_file import DEFAULT_NODE, params_file_parameters
 
+    sources = parameter_sources(args)
+    local_gravity(args, sources)  # the local g given in two places differently refused in one line first
     values: dict[str, Any] = {}
-    if args.node is not None:
-        check_node_name(args.node)
-    if args.params_file:  # the blocks rcl would give the node (io/params_file.py)
-        values.update(params_file_parameters(args.params_file, args.node or DEFAULT_NODE, error=CalibrationError))
-        values.pop("calibration_file", None)  # the node's file; replay writes --output
-        values.pop("output_reliability", None)
-    for item in args.param:
-        name, sep, text = item.partition(":=")
-        if not sep:
-            raise CalibrationError(f"-p {item}: write NAME:=VALUE, e.g. -p static.window_s:=0.3")
-        values[name.strip()] = safe_yaml_load(text, f"-p {item}: value", error=CalibrationError)
-    local_gravity(args)  # the flags' own one-line refusals, before the parameters combine them
+    for _, given in sources:
+        values.update(given)
     offered = vars(args)
     for flag, name in FLAG_PARAMETERS.items():
         if offered.get(flag) is not None:  # a flag this command does not offer is absent, not None

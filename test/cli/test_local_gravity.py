@@ -3,14 +3,17 @@ sigma where 9.80665 would be off by the ratio; the file records where its g came
 older files load; --gravity with --latitude is one line."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
 
 from accel_calibration.cli.main import main
+from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.gravity import normal_gravity
 from accel_calibration.core.units import STANDARD_GRAVITY
-from accel_calibration.io.calibration_file import load_calibration
+from accel_calibration.io.calibration_file import load_calibration, save_calibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, rotation_with_up, spread_orientations
 
 from helpers.one_line import refused
@@ -85,3 +88,60 @@ def test_gravity_and_latitude_together_are_one_line(equator, tmp_path, capsys, c
     refused(capsys, [*args, "--gravity", "9.79", "--latitude", "47"], "--gravity and --latitude exclude each other")
     refused(capsys, [*args, "--height", "500"], "--height needs --latitude")
     refused(capsys, [*args, "--latitude", "91"], "--latitude must be within -90..90")
+
+
+@pytest.fixture(scope="module")
+def equator_recording(tmp_path_factory):
+    """A sensor recorded at the equator (g 0.27 % below 1 g) and its true calibration, whose file says 1 g: only
+    the local g given somewhere tells the check the sensor has not changed."""
+    rng = np.random.default_rng(8)
+    errors = SensorErrors.mpu6050_like(rng, noise_mps2=0.02)
+    rotations = [rotation_with_up([0.0, 0.0, 1.0]), *spread_orientations(12, rng)]
+    s = SyntheticImu(errors, rotations, dwell_s=2.0, move_s=0.8, rate_hz=100.0, gravity=EQUATOR_G, seed=8).samples()
+    folder = tmp_path_factory.mktemp("equator")
+    recording = folder / "rec.csv"
+    rows = "".join(f"{t},{a!r},{b!r},{c!r}\n" for t, (a, b, c) in zip(s.t_ns.tolist(), s.accel_raw.tolist()))
+    recording.write_text("t_ns,ax,ay,az\n" + rows)
+    calibration = folder / "cal.yaml"
+    save_calibration(Calibration(bias=errors.bias_mps2, matrix=errors.matrix, bias_sigma=np.full(3, 1e-4),
+                                 matrix_sigma=np.where(np.tril(np.ones((3, 3))) > 0, 1e-5, 0.0)), str(calibration))
+    return calibration, recording, folder
+
+
+def params_file(folder, name: str, values: dict) -> str:
+    path = folder / name
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}))
+    return str(path)
+
+
+def test_check_takes_the_local_g_from_wherever_it_is_given(equator_recording, capsys):
+    calibration, recording, folder = equator_recording
+    check = ["check", str(calibration), str(recording)]
+    assert main(check) == 3  # 1 g against a sensor at the equator: its scale looks 0.27 % off
+    assert "scale" in capsys.readouterr().out.splitlines()[0]
+    for given in (["--latitude", "0"], ["-p", "latitude_deg:=0.0"], ["-p", "latitude_deg:=0.0", "-p", "height_m:=0.0"],
+                  ["-p", f"gravity:={EQUATOR_G!r}"], ["--gravity", repr(EQUATOR_G)],
+                  ["--params-file", params_file(folder, "lat.yaml", {"latitude_deg": 0.0})],
+                  ["--params-file", params_file(folder, "g.yaml", {"gravity": EQUATOR_G})]):
+        assert main([*check, *given]) == 0, given
+        assert f"g = {EQUATOR_G:.7g} m/s^2" in capsys.readouterr().out, given
+
+
+def test_the_package_params_file_says_no_local_g(equator_recording, capsys):
+    """Its gravity 9.80665 and latitude .nan are the defaults: a flag beside it is no conflict."""
+    calibration, recording, _ = equator_recording
+    shipped = str(Path(__file__).parents[2] / "config" / "accel_calibration.yaml")
+    assert main(["check", str(calibration), str(recording), "--params-file", shipped, "--latitude", "0"]) == 0
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("command", ["replay", "check"])
+def test_local_g_given_twice_differently_is_one_line(equator_recording, capsys, command):
+    calibration, recording, folder = equator_recording
+    args = [command, *([calibration] if command == "check" else []), recording]
+    lat47 = params_file(folder, "lat47.yaml", {"latitude_deg": 47.0})
+    refused(capsys, [*args, "--latitude", "0", "-p", "latitude_deg:=47.0"], "latitude", "-p", "--latitude")
+    refused(capsys, [*args, "--params-file", lat47, "--latitude", "0"], "latitude", "--params-file", "--latitude")
+    refused(capsys, [*args, "-p", "gravity:=9.79", "--latitude", "0"], "exclude each other")
+    refused(capsys, [*args, "--params-file", lat47, "-p", "gravity:=9.79"], "exclude each other")
+    refused(capsys, [*args, "-p", "height_m:=500.0"], "height_m (-p height_m) needs latitude_deg")
