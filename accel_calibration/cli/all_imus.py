@@ -17,12 +17,43 @@ if TYPE_CHECKING:
     from ..bag.replay import ReplayResult, ReplaySettings
 
 LOG_FORMATS = ("ulog", "dataflash")
+SET_FILE_NAME = re.compile(r"imu\d+(_dev\d+)?\.yaml")  # the names file_name gives
 
 
 def file_name(instance: int, sensor_id: str) -> str:
     """imu<N>_dev<ID>.yaml (imu<N>.yaml where the log names no device)."""
     device = re.search(r"(\d+)$", sensor_id)
     return f"imu{instance}" + (f"_dev{device.group(1)}" if device and int(device.group(1)) else "") + ".yaml"
+
+
+def _is_calibration(path: Path) -> bool:
+    from ..io.calibration_file import load_calibration
+
+    try:
+        load_calibration(path)
+    except (CalibrationError, OSError):
+        return False
+    return True
+
+
+def _write_set(directory: Path, texts: dict[Path, str]) -> list[str]:
+    """The run's files written as one set (io/output_paths.write_set_atomically): what each did, and the files
+    of an earlier run there that this one did not write (an IMU this log lacks or failed), named, kept."""
+    from ..io.output_paths import write_set_atomically
+
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise CalibrationError(f"cannot make output directory {directory}: {error.strerror}") from None
+    earlier = sorted(p for p in directory.iterdir() if SET_FILE_NAME.fullmatch(p.name) and p not in texts)
+    written = write_set_atomically({path: text.encode("utf-8") for path, text in texts.items()},
+                                   _is_calibration, "a calibration")
+    lines = [f"replaced {path} (its earlier calibration)" if replaced else f"written {path}"
+             for path, replaced in written]
+    if earlier:
+        lines.append(f"not of this run, left as they were: {', '.join(map(str, earlier))} (an earlier run's: "
+                     "remove them if they are not current)")
+    return lines
 
 
 def _check_arguments(args: argparse.Namespace) -> str:
@@ -88,7 +119,7 @@ def alignment_lines(replays: dict[int, ReplayResult]) -> list[str]:
 def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
     import sys
 
-    from ..io.calibration_file import checked_calibration_text, write_text_atomically
+    from ..io.calibration_file import checked_calibration_text
     from ..io.output_paths import check_outputs
     from .options import PROG
 
@@ -107,14 +138,8 @@ def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
         lines += [f"IMU {instance} ({replay.source.sensor_id or 'no device ID'}): {len(replay.poses)} static poses; "
                   f"{replay.result.summary()}", f"fitted to {replay.calibration.fitted_to}"]
     lines += alignment_lines(replays)
-    if texts:  # every file's text made: now the files
-        try:
-            directory.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise CalibrationError(f"cannot make output directory {directory}: {error.strerror}") from None
-        for target, text in texts.items():
-            write_text_atomically(str(target), text)
-            lines.append(f"written {target}")
+    if texts:  # every file's text made: now the files, as one set
+        lines += _write_set(directory, texts)
     print("\n".join(lines))
     for message in errors:
         print(f"{PROG}: error: {message}", file=sys.stderr)

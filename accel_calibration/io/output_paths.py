@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 
 from ..core.errors import CalibrationError
@@ -102,19 +102,11 @@ def _umask() -> int:
     return 0o022
 
 
-def write_bytes_atomically(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write beside the real target and rename over it, so a reader (or a crash) never sees half a file
-    and the old file stays whole when the write fails. A symlink is written through to its target (the
-    link stays a link); the replaced file's permissions (and, where allowed, owner) are kept; a new
-    file gets 0666 less the umask. The temp file is removed on any failure, an interrupt included."""
-    target = write_target(path)
-    directory = target.parent
-    info = _stat(target)
-    if info is not None and not stat.S_ISREG(info.st_mode):
-        raise OutputPathError(f"cannot write {path}: it exists and is not a regular file")
-    tmp_name = None
+def _staged(target: Path, data: bytes, info: os.stat_result | None) -> str:
+    """`data` in a temp file beside `target`, flushed to disk, with the mode (and, where allowed, owner) of the
+    file it will replace, or 0666 less the umask; its name. Removed again on any failure, an interrupt included."""
+    fd, tmp_name = tempfile.mkstemp(prefix=temp_prefix(target), suffix=".tmp", dir=target.parent)
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=temp_prefix(target), suffix=".tmp", dir=directory)
         with os.fdopen(fd, "wb") as tmp:
             if info is not None:
                 try:
@@ -127,17 +119,116 @@ def write_bytes_atomically(path: str | os.PathLike[str], data: bytes) -> None:
             tmp.write(data)
             tmp.flush()
             os.fsync(tmp.fileno())
+    except BaseException:
+        _remove(tmp_name)
+        raise
+    return tmp_name
+
+
+def _remove(path: str | Path) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def write_bytes_atomically(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write beside the real target and rename over it, so a reader (or a crash) never sees half a file
+    and the old file stays whole when the write fails. A symlink is written through to its target (the
+    link stays a link); the replaced file's permissions (and, where allowed, owner) are kept; a new
+    file gets 0666 less the umask. The temp file is removed on any failure, an interrupt included."""
+    target = write_target(path)
+    info = _stat(target)
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        raise OutputPathError(f"cannot write {path}: it exists and is not a regular file")
+    tmp_name = None
+    try:
+        tmp_name = _staged(target, data, info)
         os.replace(tmp_name, target)
         tmp_name = None
-        _fsync_directory(directory)
+        _fsync_directory(target.parent)
     except OSError as error:
         raise OutputPathError(f"cannot write {path}: {error.strerror or error}") from None
     finally:
         if tmp_name is not None:
-            try:
-                os.unlink(tmp_name)
-            except OSError:
-                pass
+            _remove(tmp_name)
+
+
+def check_replaceable(paths: Iterable[Path], replaceable: Callable[[Path], bool], what: str) -> None:
+    """Refuse an existing file among `paths` that is not a regular file or not `what` (`replaceable` says)."""
+    for path in paths:
+        info = _stat(write_target(path))
+        if info is None:
+            continue
+        if not stat.S_ISREG(info.st_mode) or not replaceable(path):
+            raise OutputPathError(f"{path} exists and is not {what}: not replaced; move it away or write "
+                                  "elsewhere")
+
+
+def write_set_atomically(files: Mapping[Path, bytes], replaceable: Callable[[Path], bool],
+                         what: str) -> list[tuple[Path, bool]]:
+    """Write a set of files as one: every file staged beside its target first (temp file, on disk), then all
+    renamed into place; a failure anywhere leaves every file of the earlier set as it was (the ones already
+    renamed are put back from hard links taken before). An existing file that is not `what` (`replaceable`
+    says) is never replaced. Returns (path, whether it replaced a file) per file."""
+    check_replaceable(files, replaceable, what)
+    targets = {path: write_target(path) for path in files}
+    staged: dict[Path, str] = {}
+    kept: dict[Path, str | None] = {}  # the earlier file, as a hard link beside it (None: there was none)
+    placed: list[Path] = []
+    failed: Path | None = None
+    try:
+        for path, data in files.items():
+            failed = path
+            staged[path] = _staged(targets[path], data, _stat(targets[path]))
+        for path in files:
+            failed = path
+            kept[path] = _kept(targets[path])
+        for path in files:
+            failed = path
+            os.replace(staged[path], targets[path])
+            del staged[path]
+            placed.append(path)
+    except OSError as error:
+        _put_back(placed, targets, kept)
+        raise OutputPathError(f"cannot write {failed}: {error.strerror or error}; none of the {len(files)} files "
+                              f"written, the files there as they were") from None
+    finally:
+        for tmp_name in staged.values():
+            _remove(tmp_name)
+        for path, link in kept.items():  # a placed file's link was put back (or, after a success, is not needed)
+            if link is not None and (path not in placed or len(placed) == len(files)):
+                _remove(link)
+    for directory in {target.parent for target in targets.values()}:
+        _fsync_directory(directory)
+    return [(path, kept[path] is not None) for path in files]
+
+
+def _kept(target: Path) -> str | None:
+    """A hard link to the file at `target` (a temp name beside it), to put it back if the set fails; None when
+    there is no file."""
+    info = _stat(target)
+    if info is None:
+        return None
+    link = tempfile.mktemp(prefix=temp_prefix(target), suffix=".tmp", dir=target.parent)
+    try:
+        os.link(target, link)
+    except OSError:  # a filesystem without hard links (FAT on an SD card): a copy instead
+        return _staged(target, target.read_bytes(), info)
+    return link
+
+
+def _put_back(placed: list[Path], targets: Mapping[Path, Path], kept: Mapping[Path, str | None]) -> None:
+    """Undo the renames of a set that failed: each earlier file back from its link, each new one removed."""
+    for path in placed:
+        link = kept.get(path)
+        try:
+            if link is None:
+                os.unlink(targets[path])
+            else:
+                os.replace(link, targets[path])
+        except OSError:
+            pass  # best effort: the error already says the set failed
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -4,6 +4,7 @@ the IMUs from the poses they held together, with its 1 sigma and the axes observ
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -91,3 +92,79 @@ def test_rotation_about_gravity_is_unobservable_from_one_pose(spread):
         assert np.isnan(result.sigma_mrad[2]) and abs(result.rotation_mrad[2]) < 0.05
         assert np.all(np.abs(result.rotation_mrad[:2] - truth[:2] * 1e3) < 4 * result.sigma_mrad[:2])
         assert "not observed" in result.describe("IMU 0", "IMU 1")
+
+
+# --- the files of one run are written as a set ---------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def two_imu_log(tmp_path_factory):
+    log = tmp_path_factory.mktemp("set") / "bench.ulg"
+    write_px4_log(log, simulate(11, mounting_mrad=MOUNTING_MRAD))
+    return log
+
+
+def set_names():
+    return [f"imu0_dev{DEVICES[0]}.yaml", f"imu1_dev{DEVICES[1]}.yaml"]
+
+
+def earlier_set(out_dir):
+    """The calibrations of an earlier run (identity, so they are told from this run's), and their bytes."""
+    from accel_calibration.core.calibration import Calibration
+    from accel_calibration.io.calibration_file import save_calibration
+
+    out_dir.mkdir()
+    for name in set_names():
+        save_calibration(Calibration.identity(frame_id="earlier"), out_dir / name)
+    return {name: (out_dir / name).read_bytes() for name in set_names()}
+
+
+def test_a_file_there_that_is_no_calibration_is_refused_and_nothing_written(two_imu_log, tmp_path, capsys):
+    out_dir = tmp_path / "cal"
+    out_dir.mkdir()
+    notes = out_dir / set_names()[1]
+    notes.write_text("my notes on IMU 1\n")
+    assert main(["replay", str(two_imu_log), "--all-imus", "-o", str(out_dir)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("accel-calib: error: ") and "not a calibration" in err, err
+    assert notes.read_text() == "my notes on IMU 1\n"
+    assert sorted(p.name for p in out_dir.iterdir()) == [set_names()[1]]
+
+
+def test_what_is_replaced_is_listed_and_an_older_sets_leftover_named(two_imu_log, tmp_path, capsys):
+    out_dir = tmp_path / "cal"
+    earlier_set(out_dir)
+    from accel_calibration.core.calibration import Calibration
+    from accel_calibration.io.calibration_file import save_calibration
+
+    save_calibration(Calibration.identity(frame_id="earlier"), out_dir / "imu2.yaml")  # a run with 3 IMUs
+    assert main(["replay", str(two_imu_log), "--all-imus", "-o", str(out_dir)]) == 0
+    out = capsys.readouterr().out
+    for name in set_names():
+        assert f"replaced {out_dir / name}" in out, out
+        assert load_calibration(out_dir / name).frame_id != "earlier"
+    assert re.search(rf"not of this run.*{re.escape(str(out_dir / 'imu2.yaml'))}", out), out
+    assert load_calibration(out_dir / "imu2.yaml").frame_id == "earlier"  # named, never removed
+
+
+@pytest.mark.parametrize("fails_at", ["write", "rename"])
+def test_a_failure_on_the_second_file_leaves_the_whole_earlier_set(two_imu_log, tmp_path, capsys, monkeypatch,
+                                                                    fails_at):
+    import os
+
+    from accel_calibration.io import output_paths
+
+    out_dir = tmp_path / "cal"
+    before = earlier_set(out_dir)
+    real = {"write": os.fsync, "rename": os.replace}[fails_at]
+
+    def second_fails(*args):  # the disk full at IMU 1's file: its data (fsync), or its rename into place
+        path = os.readlink(f"/proc/self/fd/{args[0]}") if fails_at == "write" else str(args[1])
+        if set_names()[1] in Path(path).name:
+            raise OSError(28, "No space left on device")
+        return real(*args)
+
+    monkeypatch.setattr(output_paths.os, {"write": "fsync", "rename": "replace"}[fails_at], second_fails)
+    assert main(["replay", str(two_imu_log), "--all-imus", "-o", str(out_dir)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left" in err and "as they were" in err, err
+    assert {p.name: p.read_bytes() for p in out_dir.iterdir()} == before  # no temp file left either
