@@ -17,14 +17,15 @@ import numpy as np
 
 from .calibration import Calibration
 from .change_rule import ChangeJudgement, ChangeRule
-from .coverage import CONDITION_LIMIT, FACE_COSINE, orientation_advice
+from .coverage import FACE_COSINE, orientation_advice
+from .observability import Observability, observability
 from .pose import Pose
 from .units import AXES, MG
 
 QUANTITIES = ("bias", "scale")
-# A parameter is not observable when this share of it (in the Jacobi-scaled normal equations) lies in
-# directions whose curvature is below 1/CONDITION_LIMIT of the best observed one.
-UNOBSERVED_SHARE = 0.05
+# A combination of changes the poses cannot tell apart is named by the changes with at least this share
+# of it (a unit vector in effect units): "bias z or scale z", not every term with a trace in it.
+GROUP_MEMBER_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -50,15 +51,45 @@ class AxisChange:
 
 
 @dataclass(frozen=True)
+class GroupChange:
+    """A combination of changes the poses observe but cannot tell apart (a z bias or a z gain, from poses
+    near level): its effect on |a| at 1 g (m/s^2), judged as a bias; the orientations that would part it."""
+
+    members: tuple[str, ...]  # "bias z", "scale z"
+    change: float
+    sigma: float
+    judgement: ChangeJudgement
+    advice: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        return " or ".join(self.members) if len(self.members) < 3 else \
+            ", ".join(self.members[:-1]) + " or " + self.members[-1]
+
+    def said(self, mg: str = ".2f", sigmas: str = ".1f", sigma_word: str = "sigma") -> str:
+        """'bias z or scale z moved (these poses cannot tell which) by +5.02 mg at 1 g (31.2 sigma): turn z down'."""
+        which = " (these poses cannot tell which)" if len(self.members) > 1 else ""
+        bound = "" if self.judgement.by_sigma else ", beyond the bound"
+        turn = f": {'; '.join(self.advice)}" if self.advice else ""
+        return (f"{self.name} moved{which} by {self.change / MG:+{mg}} mg at 1 g "
+                f"({self.judgement.sigmas:{sigmas}} {sigma_word}{bound}){turn}")
+
+
+@dataclass(frozen=True)
 class CheckResult:
     gravity: float
     poses: tuple[PoseCheck, ...]
     changes: tuple[AxisChange, ...]
     advice: tuple[str, ...]  # orientations that would observe what is not observed
+    groups: tuple[GroupChange, ...] = ()  # what the poses observe of the changes they cannot tell apart
 
     @property
     def moved(self) -> list[AxisChange]:
         return [c for c in self.changes if c.judgement is not None and c.judgement.flagged]
+
+    @property
+    def moved_groups(self) -> list[GroupChange]:
+        return [g for g in self.groups if g.judgement.flagged and g.members]
 
     @property
     def poses_off(self) -> list[int]:
@@ -71,7 +102,7 @@ class CheckResult:
     @property
     def verdict(self) -> str:
         """'moved', 'holds' or 'cannot tell'."""
-        if self.moved or self.poses_off:
+        if self.moved or self.moved_groups or self.poses_off:
             return "moved"
         return "cannot tell" if self.unobserved or not self.poses else "holds"
 
@@ -89,11 +120,11 @@ def check_calibration(calibration: Calibration, poses: Sequence[Pose], rule: Cha
     checks = tuple(PoseCheck(terms.directions[i], poses[i].samples, float(terms.residual[i]), float(sigma[i]),
                              rule.judge(float(terms.residual[i]), float(sigma[i]), np.inf))
                    for i in range(len(poses)))
-    changes = _axis_changes(terms, sigma, rule)
+    changes, groups = _axis_changes(terms, sigma, rule, calibration.matrix)
     unseen_axes = sorted({AXES.index(c.axis) for c in changes if c.change is None})
     advice = tuple(orientation_advice(d) for d in _faces()
                    if int(np.argmax(np.abs(d))) in unseen_axes and float(np.max(terms.directions @ d)) < FACE_COSINE)
-    return CheckResult(g, checks, changes, advice)
+    return CheckResult(g, checks, changes, advice, groups)
 
 
 def _faces() -> np.ndarray:
@@ -108,6 +139,7 @@ class _Terms:
     shared: np.ndarray  # (n, 12) d|c| / d(b, M row-major): how the calibration's own error shows
     calibration_sigma: np.ndarray  # (12,) its 1-sigma of b and M
     directions: np.ndarray  # (n, 3) unit corrected force
+    gravity: float
 
 
 def _linearised(calibration: Calibration, poses: Sequence[Pose], g: float) -> _Terms:
@@ -128,49 +160,56 @@ def _linearised(calibration: Calibration, poses: Sequence[Pose], g: float) -> _T
     calibration_sigma = np.concatenate([
         np.zeros(3) if calibration.bias_sigma is None else calibration.bias_sigma,
         np.zeros(9) if calibration.matrix_sigma is None else np.asarray(calibration.matrix_sigma).ravel()])
-    return _Terms(residual, noise, jacobian, shared, calibration_sigma, directions)
+    return _Terms(residual, noise, jacobian, shared, calibration_sigma, directions, g)
 
 
-def _axis_changes(terms: _Terms, pose_sigma: np.ndarray, rule: ChangeRule) -> tuple[AxisChange, ...]:
-    """Weighted least squares of the residuals on the changes the poses observe. The file keeps the
-    calibration's 1-sigmas but not their correlations, so its share of a change's sigma is bounded by
-    the sum of the absolute contributions (exact for a bias, which maps one to one)."""
-    weights = 1.0 / np.square(pose_sigma)
-    weighted = terms.jacobian * np.sqrt(weights)[:, None]
-    observed = _observed(weighted)
-    estimate, sigma = np.full(6, np.nan), np.full(6, np.nan)
-    if observed.any():
-        columns = terms.jacobian[:, observed]
-        solve = np.linalg.solve(columns.T @ (columns * weights[:, None]), (columns * weights[:, None]).T)
-        estimate[observed] = solve @ terms.residual
-        from_noise = np.einsum("ij,j,ij->i", solve, terms.noise, solve)
-        from_calibration = np.abs(solve @ terms.shared) @ terms.calibration_sigma
-        sigma[observed] = np.sqrt(from_noise + np.square(from_calibration))
+def _axis_changes(terms: _Terms, pose_sigma: np.ndarray, rule: ChangeRule,
+                  matrix: np.ndarray) -> tuple[tuple[AxisChange, ...], tuple[GroupChange, ...]]:
+    """Weighted least squares of the residuals on the changes the poses observe (core/observability.py:
+    the rule the watch and a fit's prior use too), in the observed directions only, so a move the poses
+    cannot place stays in its own direction. The file keeps the calibration's 1-sigmas but not their
+    correlations, so its share of a change's sigma is bounded by the sum of the absolute contributions
+    (exact for a bias, which maps one to one)."""
+    gain = float(np.mean(np.abs(np.diag(matrix))))
+    unit = np.array([1.0 / gain] * 3 + [1.0 / terms.gravity] * 3)  # 1 m/s^2 of effect at 1 g
+    seen = observability(terms.jacobian, [f"{q} {a}" for q in QUANTITIES for a in AXES], unit)
+    estimator = seen.estimator(terms.jacobian, 1.0 / np.square(pose_sigma))
     bounds = {"bias": rule.max_bias_change_mg * MG, "scale": rule.max_scale_change}
     out = []
     for j in range(6):
         quantity, axis = QUANTITIES[j // 3], AXES[j % 3]
-        if not observed[j]:
+        if not seen.observed[j]:
             out.append(AxisChange(quantity, axis, None, None, None))
             continue
-        value, s = float(estimate[j]), float(sigma[j])
+        value, s = _combination(estimator[j], terms)
         out.append(AxisChange(quantity, axis, value, s, rule.judge(value, s, bounds[quantity])))
+    return tuple(out), _group_changes(seen, estimator, terms, rule)
+
+
+def _combination(row: np.ndarray, terms: _Terms) -> tuple[float, float]:
+    """A linear combination of the residuals (row @ residual) and its sigma: the poses' noise through it
+    and the calibration's sigma carried the same way (bounded as _axis_changes says)."""
+    from_noise = float(np.sum(row**2 * terms.noise))
+    from_calibration = float(np.abs(row @ terms.shared) @ terms.calibration_sigma)
+    return float(row @ terms.residual), float(np.sqrt(from_noise + from_calibration**2))
+
+
+def _group_changes(seen: Observability, estimator: np.ndarray, terms: _Terms,
+                   rule: ChangeRule) -> tuple[GroupChange, ...]:
+    """Per group of changes the poses cannot tell apart, each combination of them they do observe (its
+    effect on |a| at 1 g), named by the changes that make it up."""
+    out = []
+    for group in seen.groups:
+        for direction in seen.group_directions(group):
+            # Scaled so its largest member counts one to one: "5 mg at 1 g" is a 5 mg bias z or as much scale z.
+            row = (direction / float(np.max(np.abs(direction))) / seen.unit) @ estimator
+            value, s = _combination(row, terms)
+            members = tuple(seen.names[i] for i in group if direction[i] ** 2 >= GROUP_MEMBER_SHARE)
+            axes = sorted({AXES.index(name[-1]) for name in members})
+            advice = tuple(orientation_advice(d) for d in _faces()
+                           if int(np.argmax(np.abs(d))) in axes and float(np.max(terms.directions @ d)) < FACE_COSINE)
+            out.append(GroupChange(members, value, s, rule.judge(value, s, rule.max_bias_change_mg * MG), advice))
     return tuple(out)
-
-
-def _observed(weighted: np.ndarray) -> np.ndarray:
-    """Which of the six changes the weighted Jacobian observes: those with almost none of their
-    Jacobi-scaled weight in the normal matrix's flat directions."""
-    normal = weighted.T @ weighted
-    scale = np.sqrt(np.diag(normal))
-    if not np.any(scale > 0):
-        return np.zeros(len(scale), dtype=bool)
-    safe = np.where(scale > 0, scale, 1.0)
-    values, vectors = np.linalg.eigh(normal / np.outer(safe, safe))
-    flat = vectors[:, values < values.max() / CONDITION_LIMIT]
-    share = np.sum(flat**2, axis=1)
-    observed: np.ndarray = (scale > 0) & (share < UNOBSERVED_SHARE)
-    return observed
 
 
 def describe(result: CheckResult) -> list[str]:
@@ -193,6 +232,11 @@ def describe(result: CheckResult) -> list[str]:
         mark = "  <- moved" if c.judgement.flagged else ""
         lines.append(f"  {c.name}: {c.change * unit:+.3f} ± {c.sigma * unit:.3f} "
                      f"{'mg' if c.quantity == 'bias' else 'ppm'} ({c.judgement.sigmas:.1f} sigma){mark}")
+    for group in result.groups:
+        if len(group.members) > 1:
+            mark = "  <- moved" if group.judgement.flagged else ""
+            lines.append(f"  {group.name} (not told apart; effect at 1 g): {group.change / MG:+.3f} ± "
+                         f"{group.sigma / MG:.3f} mg ({group.judgement.sigmas:.1f} sigma){mark}")
     return lines
 
 
@@ -203,6 +247,7 @@ def _verdict_line(result: CheckResult) -> str:
                                            f"{c.change * 100:+.3f} %")
                 + f" ({c.judgement.sigmas:.1f} sigma{'' if c.judgement.by_sigma else ', beyond the bound'})"
                 for c in result.moved if c.change is not None and c.judgement is not None]
+        said += [group.said() for group in result.moved_groups]
         off = result.poses_off
         if off:
             said.append(f"{len(off)} of {poses} poses off |a| = g beyond the k-sigma rule")

@@ -74,6 +74,7 @@ def watch_state(result: CheckResult) -> WatchState:
         said = [f"{c.name} " + (f"{c.change / MG:+.1f} mg" if c.quantity == "bias" else f"{c.change * 100:+.2f} %")
                 + f" ({c.judgement.sigmas:.0f} σ)"
                 for c in result.moved if c.change is not None and c.judgement is not None]
+        said += [group.said(mg=".1f", sigmas=".0f", sigma_word="σ") for group in result.moved_groups]
         off = result.poses_off
         if off:
             said.append(f"{len(off)} of {poses} poses off |a| = g")
