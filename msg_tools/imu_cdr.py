@@ -14,7 +14,7 @@ import struct
 from functools import lru_cache
 from typing import NamedTuple
 
-__all__ = ["STAMP", "VECTOR", "ImuOffsets", "imu_layout", "imu_offsets"]
+__all__ = ["STAMP", "VECTOR", "ImuOffsets", "frame_id_length", "imu_layout", "imu_offsets"]
 
 STAMP = struct.Struct("<iI")  # sec, nanosec at byte 4
 VECTOR = struct.Struct("<3d")  # a Vector3
@@ -45,6 +45,15 @@ def imu_offsets(raw: bytes) -> ImuOffsets | None:
     if len(raw) < FRAME_AT + 1 or raw[0] != 0 or raw[1] != 1:
         return None
     return _offsets(len(raw), int.from_bytes(raw[12:16], "little"))
+
+
+def frame_id_length(raw: bytes) -> int | None:
+    """The frame_id's length field (its NUL counted) in the message's own byte order, or None where the
+    bytes are too short to hold it or the encapsulation is not plain CDR. 0 is no string at all: a damaged
+    message, whose fields after it a deserialiser reads shifted."""
+    if len(raw) < FRAME_AT or raw[0] != 0 or raw[1] not in (0, 1):
+        return None
+    return int.from_bytes(raw[12:16], "little" if raw[1] == 1 else "big")
 
 
 @lru_cache(maxsize=256)

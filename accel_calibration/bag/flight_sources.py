@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..core.flight_state import FlightState, combined, spans_from_states
+from ..core.text import quoted
 from .bag_io import BagError
 
 # PX4 (msg/VehicleStatus.msg): ARMING_STATE_ARMED = 2 in every version since 1.4 (INIT 0, STANDBY/DISARMED 1).
@@ -90,16 +91,6 @@ def dataflash_flight_state(arm: tuple[np.ndarray, np.ndarray] | None,
 _COMPARISONS: dict[str, Callable[[Any, Any], object]] = {
     "==": operator.eq, "!=": operator.ne, "<=": operator.le, ">=": operator.ge, "<": operator.lt, ">": operator.gt}
 _EXPRESSION = re.compile(r"^\s*(not\s+)?([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)\s*(?:(==|!=|<=|>=|<|>)\s*(\S+))?\s*$")
-
-
-QUOTED_CHARACTERS = 60  # of an expression echoed in an error: enough to recognise it, never a screenful
-
-
-def quoted(text: str) -> str:
-    """`text` as an error quotes it: repr, cut to QUOTED_CHARACTERS with its length said."""
-    if len(text) <= QUOTED_CHARACTERS:
-        return repr(text)
-    return f"{text[:QUOTED_CHARACTERS]!r}... ({len(text)} characters)"
 
 
 def field_test(expression: str) -> Callable[[object], bool]:

@@ -16,6 +16,7 @@ from typing import Any, Protocol
 from ..core.calibration import Calibration
 from ..core.settings import Settings
 from ..core.stream.collection_pause import CollectionPause
+from ..core.text import quoted
 from .calibration_file import calibration_to_yaml
 from .in_force import CalibrationInForce
 from .sample_ring import SampleRing
@@ -89,7 +90,7 @@ class LiveStream:
         self.on_frame_id(frame_id)
         if self.frame_id is not None:
             self.set_aside["frame_id_changes"] += 1
-            self._log.warning(f"{self._imu_topic} frame_id changed from {self.frame_id!r} to {frame_id!r}",
+            self._log.warning(f"{self._imu_topic} frame_id changed from {quoted(self.frame_id)} to {quoted(frame_id)}",
                               throttle_duration_sec=LOG_THROTTLE_S)
         self.frame_id = frame_id
         self.check_frame()
@@ -100,8 +101,8 @@ class LiveStream:
                 and calibration.frame_id != self.frame_id:
             self.set_aside["frame_id_mismatch"] += 1
             self._log.warning(
-                f"the calibration in force was made for frame {calibration.frame_id!r} but {self._imu_topic} is "
-                f"in {self.frame_id!r}: is this the same sensor?", throttle_duration_sec=LOG_THROTTLE_S)
+                f"the calibration in force was made for frame {quoted(calibration.frame_id)} but {self._imu_topic} "
+                f"is in {quoted(self.frame_id)}: is this the same sensor?", throttle_duration_sec=LOG_THROTTLE_S)
 
     # ------------------------------------------------------------------ from the calibration work
     def install(self, calibration: Calibration | None) -> None:

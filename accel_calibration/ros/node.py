@@ -36,7 +36,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, imu_offsets
+from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, frame_id_length, imu_offsets
 
 from ..core.calibration import Calibration
 from ..core.correction import Correction
@@ -158,13 +158,20 @@ class CalibrationNode(Node):
         through `_on_imu`."""
         offsets = imu_offsets(raw)
         if offsets is None:
+            if frame_id_length(raw) == 0:
+                raise ValueError("an Imu whose frame_id length is 0 (a CDR string counts its NUL) is damaged: "
+                                 "not published")
             self._on_imu(deserialize_message(raw, Imu))
             return
         frame_end, gyro_at, accel_at = offsets
         stream = self._stream
         frame = raw[FRAME_AT:frame_end]
         if frame != self._frame_bytes:  # the frame_id's text only when its bytes change
-            frame_id = frame.decode()
+            try:
+                frame_id = frame.decode()
+            except UnicodeDecodeError:  # rclpy replaces each bad byte, which changes the message's length
+                self._on_imu(deserialize_message(raw, Imu))
+                return
             if frame_id != stream.frame_id:
                 stream.set_frame_id(frame_id)
             self._frame_bytes = frame

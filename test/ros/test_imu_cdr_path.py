@@ -17,7 +17,7 @@ from sensor_msgs.msg import Imu
 
 from accel_calibration.io.calibration_file import save_calibration
 from msg_tools.conversions import make_temperature
-from msg_tools.imu_cdr import STAMP, VECTOR, imu_offsets
+from msg_tools.imu_cdr import FRAME_AT, STAMP, VECTOR, imu_offsets
 
 from helpers.sensors import calibration_with_drift
 
@@ -136,3 +136,75 @@ def test_a_damaged_message_is_one_logged_error_and_nothing_published(node, damag
     callback(damaged)  # must not raise: the executor would end
     assert len(published) == before
     assert node._boundary.errors["imu"] == errors + 1
+
+
+def _with_frame_bytes(frame: bytes, z: float = 9.8) -> bytes:
+    """A little-endian Imu whose frame_id is these bytes (any bytes: a driver's, not Python's text)."""
+    msg = Imu()
+    msg.header.frame_id = "x" * len(frame)
+    msg.linear_acceleration.z = z
+    msg.angular_velocity.x = 0.25
+    raw = bytearray(serialize_message(msg))
+    raw[FRAME_AT:FRAME_AT + len(frame)] = frame
+    return bytes(raw)
+
+
+@pytest.mark.parametrize("frame", [b"\xff\xfe", b"imu_\xc3", b"\x80" * 7, b"caf\xe9_link"])
+def test_a_frame_id_that_is_not_utf8_is_published_as_rclpy_publishes_it(node, frame):
+    """rclpy decodes such a frame_id (each bad byte U+FFFD) and publishes the message: so does the bytes path,
+    the same bytes, for every message of such a stream."""
+    published, _ = node.captured
+    node._stream.enabled = True
+    errors, before = node._boundary.errors["imu"], len(published)
+    raws = [_with_frame_bytes(frame, z=9.8 + k / 100) for k in range(20)]
+    callback = next(s.callback for s in node.subscriptions if s.topic_name.endswith("imu/data_raw"))
+    for raw in raws:
+        callback(raw)
+    assert node._boundary.errors["imu"] == errors and len(published) == before + 20
+    for raw, out in zip(raws, published[before:]):
+        expected = deserialize_message(raw, Imu)
+        node._on_imu(expected)
+        assert sent_bytes(out) == sent_bytes(published.pop())
+    assert node._stream.frame_id == frame.decode(errors="replace")
+
+
+@pytest.mark.parametrize("little_endian", [True, False])
+def test_a_frame_id_length_of_zero_is_a_damaged_message(node, little_endian):
+    """A CDR string's length counts its NUL: 0 is no string at all, and what follows would be read shifted."""
+    from rosbags.typesys import Stores, get_typestore
+
+    published, _ = node.captured
+    msg = Imu()
+    msg.header.frame_id = "imu_link"
+    msg.linear_acceleration.z = 9.8
+    raw = bytes(serialize_message(msg))
+    if not little_endian:
+        store = get_typestore(Stores.ROS2_JAZZY)
+        raw = bytes(store.serialize_cdr(store.deserialize_cdr(raw, "sensor_msgs/msg/Imu"), "sensor_msgs/msg/Imu",
+                                        little_endian=False))
+    damaged = raw[:12] + bytes(4) + raw[16:]
+    callback = next(s.callback for s in node.subscriptions if s.topic_name.endswith("imu/data_raw"))
+    before, errors = len(published), node._boundary.errors["imu"]
+    callback(damaged)
+    assert len(published) == before
+    assert node._boundary.errors["imu"] == errors + 1
+
+
+def test_a_huge_frame_id_is_not_written_whole_into_the_log(node):
+    published, _ = node.captured
+    lines: list[str] = []
+
+    class Recorder:
+        def __getattr__(self, level):
+            return lambda message, **kwargs: lines.append(message)
+
+    log, node._stream._log = node._stream._log, Recorder()
+    try:
+        for frame in ("h" * 200_000, "imu_link"):
+            msg = Imu()
+            msg.header.frame_id = frame
+            node._on_imu_cdr(bytes(serialize_message(msg)))
+    finally:
+        node._stream._log = log
+    assert lines and all(len(line) < 400 for line in lines), [len(line) for line in lines]
+    assert any("200000 characters" in line for line in lines)
