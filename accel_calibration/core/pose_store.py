@@ -1,7 +1,10 @@
 """The poses the online calibration holds: a new pose at an orientation already held is merged
 into it (its mean gets better, the geometry does not change) when the two means agree within their
-noise; one at a new orientation, or one that disagrees (another tilt, or not still at all: a hover
-that passed as still must not pull a ground pose towards it), is added and the disagreement counted.
+noise: each one's standard error of the mean (its covariance, at least the noise floor of the poses held,
+over its samples) and a small allowance (`merge_tolerance_mg`). One at a new orientation, or one that
+disagrees (another tilt; a bias that moved, which a band of several mg would average into the poses from
+before; or not still at all: a hover that passed as still must not pull a ground pose towards it), is added
+and the disagreement counted.
 Bounded: at capacity a pose gives way, the oldest of those whose orientation is held more than once
 (so coverage is kept), else the oldest; a node that runs for days keeps a fixed size."""
 from __future__ import annotations
@@ -60,12 +63,14 @@ def merge_poses(a: Pose, b: Pose) -> Pose:
     )
 
 
-def means_agree(a: Pose, b: Pose, tolerance_mps2: float) -> bool:
-    """The two poses' mean accelerations differ by no more than their standard errors (covariance / samples)
-    plus `tolerance_mps2` per axis (what the standard errors do not hold: correlated noise, slow drift)
-    allow, at 99.9 %."""
+def means_agree(a: Pose, b: Pose, tolerance_mps2: float, noise_floor_var: float = 0.0) -> bool:
+    """The two poses' mean accelerations differ by no more than their standard errors (covariance / samples,
+    each axis' variance at least `noise_floor_var`, (m/s^2)^2: a pose whose samples happened to be quiet or
+    quantised claims no better mean than the sensor's noise allows) plus `tolerance_mps2` per axis (what the
+    standard errors do not hold: correlated noise, slow drift) allow, at 99.9 %."""
     difference = a.accel_mps2 - b.accel_mps2
-    covariance = (a.accel_cov / max(a.samples, 1) + b.accel_cov / max(b.samples, 1)
+    covariance = (_floored(a.accel_cov, noise_floor_var) / max(a.samples, 1)
+                  + _floored(b.accel_cov, noise_floor_var) / max(b.samples, 1)
                   + np.eye(3) * tolerance_mps2 ** 2)
     try:
         distance = float(difference @ np.linalg.solve(covariance, difference))
@@ -74,9 +79,16 @@ def means_agree(a: Pose, b: Pose, tolerance_mps2: float) -> bool:
     return distance <= AGREEMENT_CHI2 if np.isfinite(distance) else False
 
 
+def _floored(covariance: np.ndarray, floor_var: float) -> np.ndarray:
+    """`covariance` with each axis' variance raised to `floor_var` where below it (still positive semi-definite:
+    only the diagonal grows)."""
+    diagonal = np.diag(covariance)
+    return np.asarray(covariance + np.diag(np.maximum(floor_var - diagonal, 0.0)), dtype=float)
+
+
 class PoseStore:
     def __init__(self, *, merge_angle_deg: float = 5.0, capacity: int = 100, temperature_bin_degc: float | None = None,
-                 merge_tolerance_mps2: float = 0.02):
+                 merge_tolerance_mps2: float = 0.005):
         if not (0.0 < merge_angle_deg < 90.0):
             raise CalibrationError(f"merge_angle_deg must be in (0, 90), got {merge_angle_deg}")
         if not (isinstance(merge_tolerance_mps2, (int, float)) and 0.0 <= merge_tolerance_mps2 < np.inf):
@@ -126,11 +138,19 @@ class PoseStore:
         return [index for index, held in enumerate(self._poses)
                 if float(direction @ held.direction) >= self._cos_merge and self._same_bin(held, pose)]
 
+    def noise_floor_var(self) -> float:
+        """The noise of the poses held, per axis, (m/s^2)^2: the median of their per-axis variances (a hover
+        that passed as still does not raise it); 0 when none is held."""
+        if not self._poses:
+            return 0.0
+        return float(np.median([np.trace(held.accel_cov) / 3.0 for held in self._poses]))
+
     def add(self, pose: Pose) -> StoreEvent:
         neighbours = self._neighbours(pose)
+        floor = self.noise_floor_var() if neighbours else 0.0
         for index in neighbours:
             held = self._poses[index]
-            if means_agree(held, pose, self.merge_tolerance_mps2):
+            if means_agree(held, pose, self.merge_tolerance_mps2, floor):
                 self._poses[index] = merge_poses(held, pose)
                 self._merges[index] += 1
                 return StoreEvent(index, merged=True)

@@ -83,9 +83,10 @@ PARAMETERS: tuple[Parameter, ...] = (
               dynamic=True),
     Parameter("merge_angle_deg", 5.0, "a new pose within this angle of a held one (same temperature bin) refines it",
               0.1, 45.0),
-    Parameter("merge_tolerance_mg", 2.0,
+    Parameter("merge_tolerance_mg", 0.5,
               "a new pose is merged into a held one at its orientation only when their means agree within their "
-              "standard errors plus this, mg; otherwise it is kept apart and counted (merge_disagreements)",
+              "standard errors plus this, mg (what white noise does not explain: slow drift); otherwise it is kept "
+              "apart and counted (merge_disagreements)",
               0.0, 1000.0),
     Parameter("max_poses", 100, "pose store capacity; the oldest pose gives way beyond it", 6, 100_000),
     Parameter("accel_range_mps2", 16 * STANDARD_GRAVITY,

@@ -3,6 +3,8 @@ and calibration; every sequence a person can produce ends in a verdict, never an
 settings that were ignored before are honoured. No ROS here."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -19,6 +21,7 @@ from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientati
 
 from helpers.session_doors import per_message
 from helpers.session_streams import hostile, stream, temperature_readings
+from helpers.still_poses import poses_of, sensor
 
 G = 9.80665
 
@@ -320,3 +323,49 @@ def test_the_verdict_depends_on_the_poses_alone_not_on_the_refits_before_it(batc
     assert a.success and b.success, (a.message, b.message)
     np.testing.assert_array_equal(a.calibration.bias, b.calibration.bias)
     np.testing.assert_array_equal(a.calibration.matrix, b.calibration.matrix)
+
+
+def test_a_bias_moved_5_mg_is_kept_apart_and_counted_never_averaged_into_the_poses_held():
+    """A sensor calibrated, then its y bias moves 5 mg and the same orientations are held again: each new
+    pose disagrees with the one it would refine (5 mg is 25 of its standard errors), so it is kept apart and
+    counted, and the poses held keep the means they had."""
+    for seed in range(5):
+        errors, rng = sensor(4000 + seed)
+        orientations = spread_orientations(14, rng)
+        session = CalibrationSession()
+        for pose in poses_of(errors, orientations, rng):
+            session.add_pose(pose)
+        held, disagreements = len(session.store), session.counters.merge_disagreements
+        again = [session.add_pose(pose) for pose in poses_of(errors, orientations, rng, first_ns=50 * 10**9)]
+        assert all(e.merged for e in again) and len(session.store) == held  # unchanged: refined
+        means = [p.accel_mps2.copy() for p in session.store.poses]
+        moved = replace(errors, bias_mps2=errors.bias_mps2 + np.array([0.0, 5 * MG, 0.0]))
+        events = [session.add_pose(pose) for pose in poses_of(moved, orientations, rng, first_ns=100 * 10**9)]
+        assert not any(e.merged for e in events) and all(e.disagreed for e in events)
+        assert session.counters.merge_disagreements == disagreements + 14 and len(session.store) == held + 14
+        for before, now in zip(means, session.store.poses):
+            np.testing.assert_array_equal(before, now.accel_mps2)
+
+
+@settings(max_examples=200, deadline=None)
+@given(noise_mg=st.floats(0.5, 5.0), samples=st.integers(100, 5000), within=st.floats(0.0, 3.0),
+       direction=st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1)).filter(
+           lambda d: np.linalg.norm(d) > 0.1),
+       face=st.sampled_from([0, 1, 2]))
+def test_a_pose_within_its_standard_error_refines_one_5_mg_off_is_kept_apart(noise_mg, samples, within, direction,
+                                                                              face):
+    """With the default settings, for poses as the detector hands them over (0.5-5 mg of noise, 0.5-50 s at
+    100 Hz): a pose up to 3 standard errors of the difference from the held one is merged into it; a pose
+    5 mg off (a bias that moved) never is, whatever the direction."""
+    unit = np.asarray(direction) / np.linalg.norm(direction)
+    sigma = noise_mg * MG
+    held = Pose(accel_mps2=G * np.eye(3)[face], accel_cov=np.eye(3) * sigma**2, samples=samples, start_ns=0,
+                end_ns=10**9)
+    standard_error = np.sqrt(2 * sigma**2 / samples)
+    for offset, merged in ((within * standard_error, True), (5 * MG, False)):
+        session = CalibrationSession()
+        session.add_pose(held)
+        event = session.add_pose(replace(held, accel_mps2=held.accel_mps2 + offset * unit, start_ns=2 * 10**9,
+                                         end_ns=3 * 10**9))
+        assert event.merged is merged and event.disagreed is not merged, (offset / MG, standard_error / MG)
+        assert session.counters.merge_disagreements == (0 if merged else 1)

@@ -14,15 +14,17 @@ SAMPLES = 200  # 2 s at 100 Hz per pose
 NOISE_MPS2 = 0.02  # per sample and axis, ~2 mg
 
 
-def poses_of(errors: SensorErrors, rotations: list[Rotation], rng: np.random.Generator) -> list[Pose]:
+def poses_of(errors: SensorErrors, rotations: list[Rotation], rng: np.random.Generator,
+             first_ns: int = 0) -> list[Pose]:
     """The poses the detector hands over for these orientations: the mean of SAMPLES white-noise samples
-    (drawn as their mean and sample covariance) of the sensor's raw output."""
+    (drawn as their mean and sample covariance) of the sensor's raw output, 3 s apart from `first_ns`."""
     out = []
     for i, rotation in enumerate(rotations):
         true = rotation.inv().apply([0.0, 0.0, 9.80665])
         mean = errors.raw_from_true(true[None])[0] + rng.normal(0.0, errors.noise_mps2 / np.sqrt(SAMPLES), 3)
         cov = np.diag(rng.chisquare(SAMPLES - 1, 3) / (SAMPLES - 1)) * errors.noise_mps2**2
-        out.append(Pose(mean, cov, SAMPLES, i * 3_000_000_000, i * 3_000_000_000 + 2_000_000_000))
+        start = first_ns + i * 3_000_000_000
+        out.append(Pose(mean, cov, SAMPLES, start, start + 2_000_000_000))
     return out
 
 
