@@ -243,7 +243,16 @@ class CalibrationSession:
     def _too_noisy_text(self) -> str:
         """Why few poses were found when the sensor was hardly ever still (its quietest noise near or above
         the most a still pose may have): what to do about it, which limit refused its windows and how to
-        allow it; "" otherwise."""
+        allow it; "" otherwise. Mostly frozen samples (kept out before the detector) are said instead: the
+        floor then knew only the motions, so the noise it reports is theirs."""
+        counters = self.counters
+        if counters.frozen and 4 * counters.frozen >= counters.samples:
+            # A noise-free stream: no floor to learn from its still windows, so a threshold of 1 mg rms per axis.
+            threshold = 3.0 * MG**2
+            return (f"; {counters.frozen} of {counters.samples} samples repeat the one before bit for bit, in runs "
+                    f"of frozen_samples {self.settings.frozen_samples} or more, and were kept out (a frozen driver "
+                    "or bus: a live MEMS part always shows noise); for a noise-free sensor (a simulation): "
+                    f"-p frozen_samples:=1000000 -p static.accel_var_threshold:={threshold:.6f}")
         accel, gyro = self.detector.noise_near_ceilings
         noisy = ([] if accel is None else [f"accel {accel / MG:.1f} mg rms per axis (static.max_noise_mg "
                                            f"{self.settings.static_max_noise_mg:g})"]) \
