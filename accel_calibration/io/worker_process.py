@@ -22,7 +22,6 @@ import itertools
 import pickle
 import sys
 import threading
-import time
 import types
 from collections.abc import Callable
 from concurrent.futures import Future
@@ -57,6 +56,9 @@ class WorkerProcess:
         self._ids = itertools.count()
         self._send_lock = threading.Lock()  # services, parameters and timers send from several threads
         self._closing = False
+        self._closed = threading.Event()  # set at close: a restart waiting out its pause gives up at once
+        # Why jobs cannot be served now (the work died and is not yet started again); None while it runs.
+        self._down: str | None = None
         self._settings: Settings | None = None  # the latest sent, for a restarted work
         self._frame_id: str | None = None
         self._spawn()
@@ -84,8 +86,9 @@ class WorkerProcess:
         (success, one line) when the work has done it."""
         future: Future[tuple[bool, str]] = Future()
         with self._send_lock:
-            if self._closing:
-                future.set_exception(WorkerGone("the node is shutting down"))
+            if self._closing or self._down is not None:
+                # Never silence: no work would ever answer a job sent now.
+                future.set_exception(WorkerGone("the node is shutting down" if self._closing else self._down))
                 return future
             job_id = next(self._ids)
             self._jobs[job_id] = future
@@ -152,23 +155,31 @@ class WorkerProcess:
 
     def _gone(self) -> None:
         """The pipe closed: the work stopped (at close) or died. Its unanswered jobs fail; a death restarts it."""
+        pause = RESTART_AFTER_S if self.restarts else 0.0
         with self._send_lock:
             jobs, self._jobs = self._jobs, {}
             closing = self._closing
+            # Jobs submitted from now until the new work runs are refused at once (sent to the dead work's
+            # pipe, they would never be answered).
+            self._down = (f"the calibration worker process ended and is being started again (within {pause:g} s; "
+                          "the poses held are lost); call again then")
         for future in jobs.values():
             future.set_exception(WorkerGone("the node is shutting down" if closing
-                                            else "the calibration worker process ended; it is restarted"))
+                                            else "the calibration worker process ended before answering; it is "
+                                                 "started again (the poses held are lost)"))
         if closing:
             return
         self._process.join(timeout=1.0)
         self._log.error(f"calibration worker process ended (exit code {self._process.exitcode}); its poses are "
                         "lost, restarting it")
-        time.sleep(RESTART_AFTER_S if self.restarts else 0.0)
+        if self._closed.wait(pause):
+            return
         with self._send_lock:
             if self._closing:
                 return
             self.restarts += 1
             self._spawn()
+            self._down = None
             for message in ((("settings", self._settings),) if self._settings else ()) + (
                     (("frame_id", self._frame_id),) if self._frame_id else ()):
                 self._send(message)
@@ -182,6 +193,7 @@ class WorkerProcess:
         are answered 'not done'."""
         with self._send_lock:
             self._closing = True
+            self._closed.set()
             self._send(("stop",))
         self._process.join(timeout=STOP_TIMEOUT_S)
         if self._process.is_alive():

@@ -11,6 +11,7 @@ from typing import Any
 from rclpy.node import Node
 
 from ..io.live_calibration import LOG_THROTTLE_S
+from ..io.worker_protocol import WorkerGone
 
 Fallback = Callable[[tuple[Any, ...], Exception], Any]
 
@@ -64,6 +65,8 @@ class Boundary:
             def answer(done: Future[tuple[bool, str]]) -> None:
                 try:
                     response.success, response.message = done.result()
+                except WorkerGone as gone:  # the work was not there to do it: said, not counted as a failure
+                    response.success, response.message = False, f"{name} not done: {gone}"
                 except Exception as error:  # noqa: BLE001 - cancelled at shutdown, or a job that failed
                     self.errors[name] += 1
                     response.success, response.message = False, f"{name} not done: {type(error).__name__}: {error}"

@@ -203,3 +203,35 @@ def test_a_worker_process_that_dies_is_started_again_and_the_stream_never_stops(
     assert node.counters()["worker_restarts"] == 1
     answer = tester.call("calibrate")  # the new work answers (too few poses yet), the node carries on
     assert not answer.success and answer.message.startswith("not calibrated")
+
+
+class _LoggedLines:
+    """In place of the worker's logger: every line kept (rclpy refuses one call site of several severities)."""
+
+    def __init__(self):
+        self.lines = []
+
+    def __getattr__(self, level):
+        return lambda message, **kwargs: self.lines.append(message)
+
+
+def test_a_calibrate_while_the_worker_is_started_again_after_a_second_death_is_answered(running_node, tester):
+    """After a second death the work is started again only after a pause: a /calibrate asked meanwhile is
+    answered at once, `success: false` with the reason, and one asked after is answered by the new work."""
+    node = running_node()
+    tester.wait_ready()
+    logged = node._worker._log = _LoggedLines()
+    for death in (1, 2):
+        os.kill(node._worker._process.pid, signal.SIGKILL)
+        # The node has seen the death and is about to start the work again (after the pause, the second time).
+        assert tester.spin_until(lambda death=death: sum("restarting it" in line for line in logged.lines) == death,
+                                 60)
+        if death == 1:
+            assert tester.spin_until(lambda: node._worker.restarts == 1 and node._worker.alive, 60)
+            assert node._worker.submit("ping").result(timeout=60) == (True, "")
+    answer = tester.call("calibrate", timeout=3.0)  # before the pause ends: not by the new work
+    assert not answer.success and "started again" in answer.message, answer.message
+    assert tester.spin_until(lambda: node._worker.restarts == 2 and node._worker.alive, 60)
+    assert node._worker.submit("ping").result(timeout=60) == (True, "")
+    answer = tester.call("calibrate")
+    assert not answer.success and answer.message.startswith("not calibrated"), answer.message
