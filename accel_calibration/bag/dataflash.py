@@ -75,6 +75,8 @@ class DataflashSamples:
     # the log holds no calibration of this instance (the samples are then corrected by one not known).
     logged_correction: LoggedCorrection | None = None
     imu_instances: tuple[int, ...] = ()  # every IMU instance the log holds
+    accel_device_id: int | None = None  # INS_ACC_ID, INS_ACC2_ID, ... of the instance read, where logged
+    gyro_device_id: int | None = None  # INS_GYR_ID, INS_GYR2_ID, ...
 
 
 def _parameter_names(instance: int) -> tuple[str, str, str]:
@@ -96,20 +98,35 @@ def autopilot_calibration(params: Mapping[str, float], instance: int) -> Autopil
     return AutopilotCalibration(instance, offsets, scale, caltemp)
 
 
-def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
-                   ) -> DataflashSamples:
-    """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read."""
+def _device_ids(params: Mapping[str, float], instance: int) -> tuple[int | None, int | None]:
+    """(INS_ACC_ID, INS_GYR_ID) of an instance (INS_ACC2_ID, INS_GYR2_ID for 1, ...); None where not logged or 0."""
+    suffix = "" if instance == 0 else str(instance + 1)
+    devices = []
+    for name in (f"INS_ACC{suffix}_ID", f"INS_GYR{suffix}_ID"):
+        value = params.get(name)
+        devices.append(int(value) if value is not None and np.isfinite(value) and 0 < value < 2**32 else None)
+    return devices[0], devices[1]
+
+
+@dataclass
+class _Scan:
+    rows: list[tuple[Any, ...]]  # pymavlink's message fields of the instance wanted (it ships no types)
+    instances: set[int]
+    arm: list[tuple[int, int]]
+    events: list[tuple[int, int]]
+    params: dict[str, float]
+    bytes_read: int
+
+
+def _scan(path: Path, wanted: int | None) -> _Scan:
+    """The IMU records of instance `wanted` (None: none kept), every instance seen, ARM and EV, the parameters;
+    one DataflashError line for a log pymavlink cannot read or had to skip damage in."""
     from pymavlink import DFReader
 
-    path = Path(path)
     head = read_head(path, lambda stream: stream.read(len(MAGIC)), DataflashError, "a .bin file")
     if head[:2] != HEAD:
         raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
-    wanted = 0 if instance is None else instance
-    rows: list[tuple[Any, ...]] = []  # pymavlink's message fields (it ships no types)
-    instances: set[int] = set()
-    arm: list[tuple[int, int]] = []
-    events: list[tuple[int, int]] = []
+    scan = _Scan([], set(), [], [], {}, 0)
     failure: str | None = None
     try:
         with captured_output() as chatter:
@@ -121,17 +138,17 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
                         break
                     kind = message.get_type()
                     if kind == "EV":
-                        events.append((int(message.TimeUS), int(message.Id)))
+                        scan.events.append((int(message.TimeUS), int(message.Id)))
                     elif kind == "ARM":
-                        arm.append((int(message.TimeUS), int(message.ArmState)))
+                        scan.arm.append((int(message.TimeUS), int(message.ArmState)))
                     else:
                         number = int(getattr(message, "I", 0)) if kind == "IMU" else IMU_TYPES.index(kind)
-                        instances.add(number)
+                        scan.instances.add(number)
                         if number == wanted:
-                            rows.append((message.TimeUS, message.AccX, message.AccY, message.AccZ,
-                                         message.GyrX, message.GyrY, message.GyrZ, getattr(message, "T", np.nan)))
-                params = dict(log.params)
-                offset_end = log.data_len
+                            scan.rows.append((message.TimeUS, message.AccX, message.AccY, message.AccZ,
+                                              message.GyrX, message.GyrY, message.GyrZ, getattr(message, "T", np.nan)))
+                scan.params = dict(log.params)
+                scan.bytes_read = log.data_len
             finally:
                 log.close()
     except (AttributeError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError) as error:
@@ -145,13 +162,29 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
         raise DataflashError(f"{path}: {damage}")
     if failure is not None:
         raise DataflashError(failure)
+    return scan
+
+
+def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
+    """{IMU instance: its accelerometer's device ID (INS_ACC_ID, ...), None where not logged} of the log."""
+    scan = _scan(Path(path), None)
+    return {n: _device_ids(scan.params, n)[0] for n in sorted(scan.instances)}
+
+
+def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
+                   ) -> DataflashSamples:
+    """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read."""
+    path = Path(path)
+    wanted = 0 if instance is None else instance
+    scan = _scan(path, wanted)
+    rows, params = scan.rows, scan.params
     if progress is not None:
-        progress.update(offset_end)
+        progress.update(scan.bytes_read)
     if not rows:
-        if not instances:
+        if not scan.instances:
             raise DataflashError(f"{path}: no accelerometer data (IMU records) in this DataFlash log")
         raise DataflashError(f"{path}: no IMU instance {wanted}; the log has instance(s) "
-                             f"{', '.join(map(str, sorted(instances)))}")
+                             f"{', '.join(map(str, sorted(scan.instances)))}")
     table = np.array(rows, dtype=float)
     t_ns = _stamps_ns(path, [row[0] for row in rows], "IMU")
     temperature = None
@@ -159,12 +192,13 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
     if np.any(np.isfinite(table[:, 7])):
         temperature = (t_ns.copy(), table[:, 7].copy())
         temperature_stream = f"IMU instance {wanted} T"
-    flight = dataflash_flight_state(_series(path, arm, "ARM"), _series(path, events, "EV"))
-    device = params.get("INS_ACC_ID" if wanted == 0 else f"INS_ACC{wanted + 1}_ID")
-    sensor_id = f"ardupilot accel {int(device)}" if device else ""
+    flight = dataflash_flight_state(_series(path, scan.arm, "ARM"), _series(path, scan.events, "EV"))
+    accel_device, gyro_device = _device_ids(params, wanted)
+    sensor_id = f"ardupilot accel {accel_device}" if accel_device else ""
     return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
                             temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted),
-                            ardupilot_correction(params, wanted, str(path)), tuple(sorted(instances)))
+                            ardupilot_correction(params, wanted, str(path)), tuple(sorted(scan.instances)),
+                            accel_device, gyro_device)
 
 
 def _series(path: Path, pairs: list[tuple[int, int]], what: str) -> tuple[np.ndarray, np.ndarray] | None:

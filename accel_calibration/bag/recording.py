@@ -68,6 +68,8 @@ class Recording:
     fitted_to: str = ""
     logged_correction: LoggedCorrection | None = None  # the correction undone (a log's own parameters)
     imu_instances: tuple[int, ...] = ()  # a log's IMU instances (ULog sensor_accel, DataFlash IMU), when read
+    accel_device_id: int | None = None  # the device IDs of the accelerometer and gyro read, where a log says them
+    gyro_device_id: int | None = None
 
     @property
     def unit(self) -> str:
@@ -374,7 +376,8 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
     return Recording(str(path), "ulog", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, vehicle=log.vehicle,
                      flight_state=log.flight_state, fitted_to=fitted_to, logged_correction=log.logged_correction,
-                     imu_instances=log.imu_instances)
+                     imu_instances=log.imu_instances, accel_device_id=log.accel_device_id,
+                     gyro_device_id=log.gyro_device_id)
 
 
 def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
@@ -395,7 +398,27 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
     return Recording(str(path), "dataflash", log.stream, log.t_ns, accel, gyro, log.temperature,
                      log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
                      autopilot_calibration=log.autopilot_calibration, fitted_to=fitted_to,
-                     logged_correction=log.logged_correction, imu_instances=log.imu_instances)
+                     logged_correction=log.logged_correction, imu_instances=log.imu_instances,
+                     accel_device_id=log.accel_device_id, gyro_device_id=log.gyro_device_id)
+
+
+LOGS = ("ulog", "dataflash")  # the formats with IMU instances (--instance)
+
+
+def log_accel_devices(path: str | os.PathLike[str], format: str | None = None) -> dict[int, int | None]:
+    """{IMU instance: its accelerometer's device ID, None where the log names none} of an autopilot log (ULog
+    sensor_accel instances, DataFlash IMU instances); {} for any other recording."""
+    kind = format or detect_format(path)
+    if kind not in LOGS:
+        return {}
+    _regular_file(Path(path))
+    if kind == "ulog":
+        from .ulog_reader import accel_devices
+
+        return accel_devices(path)
+    from .dataflash import accel_devices as dataflash_devices
+
+    return dataflash_devices(path)
 
 
 def _read_csv(path: str | os.PathLike[str], time_unit: str | None, units: str, counts_per_g: float | None,

@@ -322,6 +322,10 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
         fitted_to = recording.fitted_to if isinstance(recording, Recording) else ""  # a bag's messages say nothing
         if fitted_to:
             calibration = calibration.replace(fitted_to=fitted_to)
+        if isinstance(recording, Recording):  # the devices fitted, as the log names them (export's CAL_*_ID)
+            calibration = calibration.replace(
+                accel_device_id=recording.accel_device_id,
+                gyro_device_id=recording.gyro_device_id if calibration.gyro_bias_radps is not None else None)
         result = dataclasses.replace(verdict.result, calibration=calibration)
     # Poses the fit left out (fit.FitResult.outliers: each with its index into the store's poses).
     outliers = set(result.outlier_indices) if result is not None else set()

@@ -4,8 +4,10 @@ Two sources in a log:
 - `sensor_combined` (default): the estimator's IMU stream, accel in m/s^2 at `timestamp` +
   `accelerometer_timestamp_relative` (us), gyro in rad/s. Its temperature is the `temperature` field of
   the `sensor_accel` instance that `sensor_selection` names as the one feeding it (when logged).
-- `sensor_accel` / `sensor_gyro` of one IMU (`instance=N`): accel at `timestamp_sample`, the gyro of the
-  same instance interpolated to those stamps, the instance's `temperature` field as its temperature stream.
+- `sensor_accel` / `sensor_gyro` of one IMU (`instance=N`): accel at `timestamp_sample`, its gyro
+  interpolated to those stamps, the instance's `temperature` field as its temperature stream. The gyro is
+  paired with the accelerometer by device, not by instance number (paired_gyro): a gyro of its own die (BMI055,
+  BMI088) has an ID of its own, and the uORB instances of accelerometers and gyros need not line up.
 
 Errors are `UlogError` (one line naming the file); pyulog's own prints are kept off stdout.
 A log cut short mid-record (power lost while logging) is refused: pyulog would stop there without a word.
@@ -43,6 +45,7 @@ MAGIC = b"ULog\x01\x12\x35"
 RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF  # PX4: this sensor had no new sample in the message
 COMBINED = "sensor_combined"
 ACCEL, GYRO, SELECTION = "sensor_accel", "sensor_gyro", "sensor_selection"
+VEHICLE_IMU = "vehicle_imu"  # PX4's pairing of an accelerometer and a gyro (accel_device_id, gyro_device_id)
 
 
 class UlogError(BagError):
@@ -67,6 +70,8 @@ class UlogSamples:
     logged_correction: LoggedCorrection | None = None
     raw: bool = False
     imu_instances: tuple[int, ...] = ()  # the sensor_accel instances the log holds (read with instance=N)
+    accel_device_id: int | None = None  # the device IDs of what was read, where the log says them
+    gyro_device_id: int | None = None
 
 
 def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
@@ -75,12 +80,18 @@ def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progres
     from .flight_sources import ULOG_TOPICS, ulog_flight_state
 
     path = Path(path)
-    topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO]
+    topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO, VEHICLE_IMU]
     log = _load(path, topics + list(ULOG_TOPICS), progress)
     samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
     samples.flight_state = ulog_flight_state(log)
     samples.vehicle = logged_vehicle(log.msg_info_dict)
     return samples
+
+
+def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
+    """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds."""
+    log = _load(Path(path), [ACCEL])
+    return {d.multi_id: _device_id(d.data) for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
 
 
 # pyulog stops without a word at a record cut short by the end of the file. So the file is read with one
@@ -334,9 +345,13 @@ def _from_combined(path: Path, log: Any) -> UlogSamples:
         accel, stamp_us = accel[has_accel], stamp_us[has_accel]
         gyro = None if gyro is None else gyro[has_accel]
     temperature, temperature_stream, sensor_id = _selected_accel_temperature(path, log)
+    selection = _datasets(log, SELECTION)
+    selected = selection[0].data if selection else {}
     return UlogSamples(COMBINED, stamp_us * 1000, accel, gyro, temperature, temperature_stream, sensor_id,
                        logged_correction=_combined_correction(path, log),
-                       imu_instances=tuple(sorted({d.multi_id for d in _datasets(log, ACCEL)})))
+                       imu_instances=tuple(sorted({d.multi_id for d in _datasets(log, ACCEL)})),
+                       accel_device_id=_device_id(selected, "accel_device_id", -1),
+                       gyro_device_id=_device_id(selected, "gyro_device_id", -1))
 
 
 def _combined_correction(path: Path, log: Any) -> LoggedCorrection | None:
@@ -380,6 +395,40 @@ def _device(data: _Fields) -> str:
     return f"px4 device {int(data['device_id'][0])}" if "device_id" in data else ""
 
 
+def _device_id(data: _Fields, field: str = "device_id", row: int = 0) -> int | None:
+    """A logged device ID; None where not logged, or 0 (PX4: no device)."""
+    if field not in data or not len(data[field]):
+        return None
+    device = int(data[field][row])
+    return device if 0 < device < 2**32 else None
+
+
+def paired_gyro(log: Any, instance: int, accel_device: int | None) -> Any | None:
+    """The sensor_gyro dataset of the IMU whose accelerometer is sensor_accel `instance` of `accel_device`,
+    by device: the gyro of the same device (one chip: PX4's drivers register both under one ID), else the
+    gyro vehicle_imu pairs with it, else the gyro CAL_GYROn_ID names where CAL_ACCn_ID is the accelerometer.
+    Among gyros of one device the same instance first (two IMUs logged under one ID); the same instance
+    number only where nothing names the pair."""
+    from .logged_correction import px4_slot
+
+    gyros = {d.multi_id: d for d in _datasets(log, GYRO)}
+    if accel_device is None:
+        return gyros.get(instance)
+    params = {str(k): float(v) for k, v in log.initial_parameters.items()}
+    slot = px4_slot(params, "ACC", accel_device)
+    by_parameters = None if slot is None else params.get(f"CAL_GYRO{slot}_ID")
+    paired = [d.data["gyro_device_id"][i] for d in _datasets(log, VEHICLE_IMU)
+              if "accel_device_id" in d.data and "gyro_device_id" in d.data
+              for i in np.flatnonzero(np.asarray(d.data["accel_device_id"]) == accel_device)[:1]]
+    for device in (accel_device, *paired, by_parameters):
+        if device is None or not 0 < int(device) < 2**32:
+            continue
+        same = [n for n, g in sorted(gyros.items()) if _device_id(g.data) == int(device)]
+        if same:
+            return gyros[instance] if instance in same else gyros[same[0]]
+    return gyros.get(instance)
+
+
 def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
     accels = {d.multi_id: d for d in _datasets(log, ACCEL)}
     if not accels:
@@ -390,12 +439,7 @@ def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
     data = accels[instance].data
     stamp_us = _stamps_us(path, data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"], ACCEL)
     accel = _xyz(data, ("x", "y", "z"))
-    gyros = {d.multi_id: d for d in _datasets(log, GYRO)}
-    gyro_set = gyros.get(instance)
-    device = int(data["device_id"][0]) if "device_id" in data else None
-    if device is not None:  # the gyro of the same chip, whatever its instance number
-        gyro_set = next((g for g in gyros.values() if "device_id" in g.data and int(g.data["device_id"][0]) == device),
-                        gyro_set)
+    gyro_set = paired_gyro(log, instance, _device_id(data))
     gyro = None
     if gyro_set is not None:
         g = gyro_set.data
@@ -408,7 +452,9 @@ def _from_instance(path: Path, log: Any, instance: int) -> UlogSamples:
         temperature = _temperature_of(path, data)
         temperature_stream = f"sensor_accel instance {instance} temperature"
     return UlogSamples(f"sensor_accel instance {instance}", stamp_us * 1000, accel, gyro, temperature,
-                       temperature_stream, _device(data), raw=True, imu_instances=tuple(sorted(accels)))
+                       temperature_stream, _device(data), raw=True, imu_instances=tuple(sorted(accels)),
+                       accel_device_id=_device_id(data),
+                       gyro_device_id=None if gyro_set is None else _device_id(gyro_set.data))
 
 
 def _record(kind: bytes, body: bytes) -> bytes:

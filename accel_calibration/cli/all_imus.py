@@ -79,16 +79,27 @@ def _check_arguments(args: argparse.Namespace) -> str:
 
 
 def replay_every_imu(bag: str, settings: ReplaySettings) -> dict[int, ReplayResult]:
-    """Instance 0 first (it says which instances the log holds), then each other one."""
-    from ..bag.recording import Recording
+    """Each IMU instance the log holds (whichever numbers they have: a log may lack instance 0); a --prior that
+    names its device is put on that device's instance only (said), and one no IMU of the log is, one line."""
+    from ..bag.recording import log_accel_devices
     from ..bag.replay import replay_bag
+    from .options import file_accel_device
 
-    first = replay_bag(bag, dataclasses.replace(settings, instance=0))
-    instances = first.source.recording.imu_instances if isinstance(first.source.recording, Recording) else (0,)
-    replays = {0: first}
+    devices = log_accel_devices(bag, settings.format)
+    instances = sorted(devices) or [0]  # none: instance 0's read says what is wrong
+    prior = None if settings.prior is None else file_accel_device(settings.prior.calibration)
+    named = {n: d for n, d in devices.items() if d is not None}
+    if prior is not None and named and prior not in named.values():
+        listed = ", ".join(f"{d} (instance {n})" for n, d in named.items())
+        raise CalibrationError(f"--prior {settings.prior_path} is the calibration of device {prior}; the IMUs of "
+                               f"{bag} are devices {listed}: not this log's")
+    replays = {}
     for instance in instances:
-        if instance != 0:
-            replays[instance] = replay_bag(bag, dataclasses.replace(settings, instance=instance))
+        own = dataclasses.replace(settings, instance=instance)
+        if prior is not None and named.get(instance, prior) != prior:
+            own = dataclasses.replace(own, prior=None, prior_path=None)
+            print(f"IMU {instance} (device {named[instance]}): fitted without --prior (it is device {prior}'s)")
+        replays[instance] = replay_bag(bag, own)
     return replays
 
 

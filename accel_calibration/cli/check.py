@@ -11,6 +11,7 @@ from .options import (
     add_local_gravity_options,
     add_reader_options,
     add_settings_options,
+    instance_of_device,
     local_gravity,
     reader_fields,
     replay_settings,
@@ -53,11 +54,14 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(str(error).replace("k_sigma", "--k-sigma").replace("_", "-")) from None
     calibration = load_calibration(args.calibration)
     settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
+    settings, identity = instance_of_device(calibration, args.calibration, args.recording, settings)
     replay = replay_bag(args.recording, settings)  # its errors are one line (bag/replay.ReplayError)
     result = check_calibration(calibration, replay.poses, rule, gravity=None if located is None else located[0])
     lines = describe(result)
     if replay.flight_state is not None:
         lines.append(replay.flight_state.report_line())
+    if identity is not None:
+        lines.append(identity)
     print("\n".join(lines))
     if result.verdict == "moved":
         return DRIFT_EXIT_CODE

@@ -68,13 +68,18 @@ def _strict_float(text: str) -> float:
 
 
 def _device_id(args: argparse.Namespace, calibration: Calibration) -> int | None:
-    from ..io.autopilot_params import parse_device_id
+    """--device-id, else the file's; a --device-id other than the device the file names is one line."""
+    from .options import file_accel_device
 
-    if args.device_id is not None:
-        if not 0 < args.device_id < 2**32:
-            raise CalibrationError(f"--device-id must be a 32-bit device ID above 0, got {args.device_id}")
-        return int(args.device_id)
-    return parse_device_id(calibration.sensor_id)
+    named = file_accel_device(calibration)
+    if args.device_id is None:
+        return named
+    if not 0 < args.device_id < 2**32:
+        raise CalibrationError(f"--device-id must be a 32-bit device ID above 0, got {args.device_id}")
+    if named is not None and named != args.device_id:
+        raise CalibrationError(f"--device-id {args.device_id}: {args.calibration} is the calibration of device "
+                               f"{named}, not of this one (leave out --device-id, or export that device's file)")
+    return int(args.device_id)
 
 
 def fit_for(target: str, calibration: Calibration) -> AxisWiseCalibration:
@@ -142,7 +147,8 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
                          "whose ID is in CAL_ACCn_ID / CAL_GYROn_ID and TC_An_* only where TC_An_ID matches; "
                          "check them on the vehicle")
         parameters = px4_parameters(fitted, args.instance, device_id=device,
-                                    gyro_bias_radps=calibration.gyro_bias_radps)
+                                    gyro_bias_radps=calibration.gyro_bias_radps,
+                                    gyro_device_id=calibration.gyro_device_id)
         return px4_params_text(parameters, f"Onboard parameters {source}"), notes
     parameters = ardupilot_parameters(fitted, args.instance, reference_degc=calibration.reference_temperature_degc,
                                       gyro_bias_radps=calibration.gyro_bias_radps)

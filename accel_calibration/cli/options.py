@@ -278,6 +278,48 @@ def replay_settings(args: argparse.Namespace) -> Any:
                           temperature_topic=args.temperature_topic, **flight_state_settings(args))
 
 
+def file_accel_device(calibration: Any) -> int | None:
+    """The accelerometer's device ID a calibration names: its accel_device_id, or (files written before it)
+    the ID in its sensor_id ('px4 device ID', 'ardupilot accel ID')."""
+    from ..io.autopilot_params import parse_device_id
+
+    if calibration.accel_device_id is not None:
+        return int(calibration.accel_device_id)
+    return parse_device_id(calibration.sensor_id)
+
+
+def instance_of_device(calibration: Any, what: str, recording: str, settings: Any) -> tuple[Any, str | None]:
+    """(settings, line) to read an autopilot log as the IMU `calibration` is for (`what` names the file): the
+    instance whose accelerometer is the file's device, picked and said when no --instance was given; a
+    --instance of another device, or a log none of whose IMUs is it, one line. A file or a log that names no
+    device: the settings as they are (the line says a log names none)."""
+    import dataclasses
+
+    from ..bag.recording import detect_format, log_accel_devices
+
+    device = file_accel_device(calibration)
+    kind = settings.format or detect_format(recording)
+    if device is None or kind not in ("ulog", "dataflash"):
+        return settings, None
+    named = {n: d for n, d in log_accel_devices(recording, kind).items() if d is not None}
+    if not named:
+        return settings, f"{recording} names no device for its IMUs: not checked that it is {what}'s device {device}"
+    matching = [n for n, d in named.items() if d == device]
+    if settings.instance is not None:
+        if named.get(settings.instance, device) == device:
+            return settings, None
+        hint = f"; its device is --instance {matching[0]}" if matching else ", which the log does not hold"
+        raise CalibrationError(f"{what} is the calibration of device {device}, but {recording} --instance "
+                               f"{settings.instance} is device {named[settings.instance]}{hint}")
+    if not matching:
+        listed = ", ".join(f"{d} (instance {n})" for n, d in named.items())
+        raise CalibrationError(f"{what} is the calibration of device {device}; the IMUs of {recording} are devices "
+                               f"{listed}: not this sensor's recording")
+    stream = "sensor_accel instance" if kind == "ulog" else "IMU instance"
+    return (dataclasses.replace(settings, instance=matching[0]),
+            f"read {stream} {matching[0]} (device {device}) of {recording}: the device {what} is for")
+
+
 def calibration_in_force(path: str) -> Any:
     """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
     plausible under the default gates, else one line naming the problem."""

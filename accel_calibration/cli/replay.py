@@ -213,6 +213,9 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
     if args.prior is not None:
+        if args.temperature_model not in (None, "none"):  # the fit with a prior fits b and M alone, as fit says
+            raise CalibrationError(f"--prior fits the sphere models without a temperature model, not with "
+                                   f"--temperature-model {args.temperature_model}")
         settings = dataclasses.replace(settings, prior=replay_prior(args.prior, settings.session),
                                        prior_path=args.prior)
     if args.all_imus:
@@ -235,7 +238,7 @@ def run(args: argparse.Namespace) -> int:
             return option
         return str(Path(option) / (label + suffix))
 
-    jobs = [ReplayJob(bag, settings, output=target(args.output, label, ".yaml"),
+    jobs = [ReplayJob(bag, _prior_device(args, bag, settings), output=target(args.output, label, ".yaml"),
                       corrected=target(args.corrected_bag, label, ""), report=target(args.report, label, ".png"),
                       progress=not several, poses_out=target(args.poses_out, label, ".poses.csv"))
             for bag, label in zip(args.bags, labels)]
@@ -269,6 +272,18 @@ def run(args: argparse.Namespace) -> int:
     for message in errors:
         print(f"{PROG}: error: {message}", file=sys.stderr)
     return 1 if errors else 0
+
+
+def _prior_device(args: argparse.Namespace, bag: str, settings: ReplaySettings) -> ReplaySettings:
+    """An autopilot log read as the IMU --prior is the calibration of (said), or one line when it holds none."""
+    from .options import instance_of_device
+
+    if settings.prior is None:
+        return settings
+    settings, said = instance_of_device(settings.prior.calibration, f"--prior {args.prior}", bag, settings)
+    if said is not None:
+        print(said)
+    return settings
 
 
 def comparison_table(bags: Sequence[str], outcomes: Sequence[Outcome]) -> str:

@@ -219,6 +219,10 @@ class Calibration:
     # What the fit saw, where a recording says: "raw: ..." (the sensor's own output, or a log's stream with
     # the log's correction undone) or a stream as logged, corrected by a calibration this one goes on top of.
     fitted_to: str = ""
+    # The device IDs (PX4 / ArduPilot: bus type, bus, address, device type) of the accelerometer and of the
+    # gyro the calibration was fitted to, where the recording says them; a gyro of its own die has its own ID.
+    accel_device_id: int | None = None
+    gyro_device_id: int | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -288,6 +292,11 @@ class Calibration:
         gravity, M not singular, and the identifiers bounded (bounded_identifier)."""
         for name in ("frame_id", "sensor_id", "gravity_source"):
             object.__setattr__(self, name, bounded_identifier(getattr(self, name)))
+        for name in ("accel_device_id", "gyro_device_id"):
+            device = getattr(self, name)
+            if device is not None and (isinstance(device, bool) or not isinstance(device, int)
+                                       or not 0 < device < 2**32):
+                raise CalibrationError(f"{name} must be a 32-bit device ID above 0, got {device!r:.40}")
         if self.model not in CALIBRATION_MODELS:
             raise CalibrationError(f"unknown model {self.model!r}; expected one of {', '.join(CALIBRATION_MODELS)}")
         if not (isinstance(self.gravity, (int, float)) and np.isfinite(self.gravity) and self.gravity > 0):
@@ -418,6 +427,7 @@ class Calibration:
             and self.noise == other.noise
             and self.gravity_source == other.gravity_source
             and self.fitted_to == other.fitted_to
+            and (self.accel_device_id, self.gyro_device_id) == (other.accel_device_id, other.gyro_device_id)
         )
 
     # typeshed types object.__hash__ as a method; None is Python's documented way to mark a class unhashable.

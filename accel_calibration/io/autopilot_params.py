@@ -112,10 +112,11 @@ def _check_instance(autopilot: str, instance: int) -> None:
 # ---------------------------------------------------------------------------------------------- PX4
 
 def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int | None = None,
-                   gyro_bias_radps: np.ndarray | None = None) -> list[Parameter]:
+                   gyro_bias_radps: np.ndarray | None = None, gyro_device_id: int | None = None) -> list[Parameter]:
     """CAL_ACCn_* (and CAL_ACCn_ID when the device ID is known), TC_A* when the fit carries a drift
     polynomial, CAL_GYROn_*OFF from the gyro bias with CAL_GYROn_ID (PX4 applies a gyro slot only to the
-    device whose ID it holds; its IMU drivers register a chip's accel and gyro under one device ID).
+    device whose ID it holds): the gyro's own ID where known (a BMI088's gyro is a die of its own), else the
+    accelerometer's (PX4's drivers of a one-chip IMU register its accel and gyro under one device ID).
     Refuses values outside PX4's accepted ranges."""
     _check_instance("px4", instance)
     out: list[Parameter] = []
@@ -145,8 +146,9 @@ def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int
             for axis in range(3):
                 out.append(Parameter(f"{tc}X{power}_{axis}", float(rows[power, axis])))
     if gyro_bias_radps is not None:
-        if device_id is not None:
-            out.append(Parameter(f"CAL_GYRO{instance}_ID", device_id, integer=True))
+        gyro_device = device_id if gyro_device_id is None else gyro_device_id
+        if gyro_device is not None:
+            out.append(Parameter(f"CAL_GYRO{instance}_ID", gyro_device, integer=True))
         for axis, name in enumerate(AXES):
             out.append(Parameter(f"CAL_GYRO{instance}_{name}OFF", float(gyro_bias_radps[axis])))
     return out

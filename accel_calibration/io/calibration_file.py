@@ -20,6 +20,7 @@ Layout (keys other tools read are the first six; the rest is ours):
       noise: {rate_hz: .., accel_density_mps2_per_sqrt_hz: .., gyro_density_radps_per_sqrt_hz: ..}
                                 # white noise measured at the poses (Kalibr's *_noise_density)
       created: ISO 8601, frame_id, sensor_id, reference_temperature_degc
+      accel_device_id, gyro_device_id: the devices fitted (an autopilot log's IDs), when the recording says them
       parameter_sources:        # fitted with a prior: where each parameter came from
         prior: old.yaml
         parameters: {b_x: {from: poses, share_from_poses: 0.998, sigma: .., prior_sigma: ..}, ..}
@@ -149,6 +150,9 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     body["created"] = c.created
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
+    for name in ("accel_device_id", "gyro_device_id"):
+        if getattr(c, name) is not None:
+            body[name] = int(getattr(c, name))
     if c.fitted_to:
         body["fitted_to"] = c.fitted_to
     return {ROOT_KEY: body}
@@ -287,6 +291,8 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             created=str(body.get("created", "")),
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
+            accel_device_id=body.get("accel_device_id"),  # absent from older files; checked by Calibration
+            gyro_device_id=body.get("gyro_device_id"),
             gravity_source=str(body.get("gravity_source", "") or ""),  # absent from older files
             fitted_to=str(body.get("fitted_to", "") or "")[:1024],
             reference_temperature_degc=None if ref_t is None else _number(ref_t, "reference_temperature_degc"),

@@ -100,19 +100,29 @@ def write_ardupilot_log(path, board: Board, old_style: bool = False) -> None:
     write_dataflash(path, FORMATS_3X if old_style else FORMATS_4X, records)
 
 
-def write_px4_log(path, board: Board) -> None:
+def write_px4_log(path, board: Board, instances: tuple[int, int] = (0, 1), accel_devices: tuple[int, int] = DEVICES,
+                  gyro_devices: tuple[int, int] | None = None, gyro_instances: tuple[int, int] | None = None) -> None:
+    """IMU k as sensor_accel instance instances[k] of device accel_devices[k], its gyro as sensor_gyro instance
+    gyro_instances[k] (default: the same) of device gyro_devices[k] (default: the accelerometer's, one chip; a
+    BMI088's gyro is a die of its own, with its own ID), CAL_ACCk_ID / CAL_GYROk_ID naming them."""
+    gyro_devices = accel_devices if gyro_devices is None else gyro_devices
+    gyro_instances = instances if gyro_instances is None else gyro_instances
     params: dict[str, float | int] = {"SENS_BOARD_ROT": 2, "TC_A_ENABLE": 0, "TC_G_ENABLE": 0}
     topics = []
     for k, imu in enumerate(board.imus):
-        params[f"CAL_ACC{k}_ID"] = DEVICES[k]
-        params[f"CAL_GYRO{k}_ID"] = DEVICES[k]
+        params[f"CAL_ACC{k}_ID"] = accel_devices[k]
+        params[f"CAL_GYRO{k}_ID"] = gyro_devices[k]
         for axis, name in enumerate("XYZ"):
             params[f"CAL_ACC{k}_{name}OFF"] = float(imu.stale_offset[axis])
             params[f"CAL_ACC{k}_{name}SCALE"] = float(imu.stale_scale[axis])
             params[f"CAL_GYRO{k}_{name}OFF"] = float(imu.gyro_offset[axis])
-        topics.append(("sensor_accel", k, sensor_triplet_array(board.t_us, imu.raw, DEVICES[k], board.temperature)))
-        topics.append(("sensor_gyro", k, sensor_triplet_array(board.t_us, imu.gyro_raw, DEVICES[k], board.temperature)))
+        topics.append(("sensor_accel", instances[k],
+                       sensor_triplet_array(board.t_us, imu.raw, accel_devices[k], board.temperature)))
+    for k in sorted(range(len(board.imus)), key=lambda k: gyro_instances[k]):  # uORB instances in order
+        topics.append(("sensor_gyro", gyro_instances[k], sensor_triplet_array(board.t_us, board.imus[k].gyro_raw,
+                                                                              gyro_devices[k], board.temperature)))
     accel, gyro = logged(board.imus[0])
     topics.append(("sensor_combined", 0, sensor_combined_array(board.t_us, accel, gyro)))
-    topics.append(("sensor_selection", 0, sensor_selection_array(board.t_us[::100], DEVICES[0], DEVICES[0])))
+    topics.append(("sensor_selection", 0, sensor_selection_array(board.t_us[::100], accel_devices[0],
+                                                                 gyro_devices[0])))
     write_ulog(path, topics, parameters=params)
