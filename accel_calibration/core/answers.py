@@ -6,9 +6,11 @@ from .fit import FitResult
 __all__ = ["calibrate_answer", "yaml_quoted"]
 
 
-def calibrate_answer(result: FitResult, saved_message: str, gyro_refusal: str | None = None) -> str:
+def calibrate_answer(result: FitResult, saved_message: str, gyro_refusal: str | None = None,
+                     gyro_kept: bool = False) -> str:
     """/calibrate's answer when the calibration was applied: a YAML summary a person reads and a tool
-    parses (poses, residual, bias and its sigma, M, the temperature model, outliers, the gyro's)."""
+    parses (poses, residual, bias and its sigma, M, the temperature model, outliers, the gyro's).
+    `gyro_kept`: the fit's gyro part was not applied and the gyro calibration in force was kept."""
     c = result.calibration
     if c is None or c.quality is None or result.sigma is None:
         return f"saved: {saved_message}"
@@ -35,6 +37,9 @@ def calibrate_answer(result: FitResult, saved_message: str, gyro_refusal: str | 
         lines.append(f"gyro: {{applied: true, motions: {q.motions}, residual_rms_mrad: {q.residual_rms_mrad:.3f}, "
                      "matrix: [" + ", ".join("[" + ", ".join(f"{v:.7f}" for v in row) + "]" for row in c.gyro_matrix)
                      + "]}")
+    elif gyro_kept:
+        reason = gyro_refusal or "gyro: no gyro fit from these poses"
+        lines.append(f"gyro: {{applied: false, kept: in force, reason: {yaml_quoted(reason)}}}")
     elif gyro_refusal is not None:
         lines.append(f"gyro: {{applied: false, reason: {yaml_quoted(gyro_refusal)}}}")
     lines.append(f"saved: {saved_message}")

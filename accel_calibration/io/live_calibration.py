@@ -24,7 +24,7 @@ from ..core.fit import FitResult
 from ..core.fit_outliers import nearest_face
 from ..core.pose import Pose
 from ..core.pose_map import PoseMap, pose_map
-from ..core.session import CalibrationSession, Progress
+from ..core.session import CalibrationSession, Progress, Verdict
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
 from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
@@ -240,7 +240,7 @@ class LiveCalibration:
         self._log_refit(result, progress)
         verdict = self.session.auto_verdict(result)
         if verdict is not None and verdict.calibration is not None:
-            applied, message = self._apply(verdict.calibration, verdict.result, asked=False)
+            applied, message = self._apply(self._keeping_gyro(verdict)[0], verdict.result, asked=False)
             (log.info if applied else log.warning)(("auto-calibrated: " if applied
                                                     else "auto-calibration not applied: ") + message)
 
@@ -253,6 +253,23 @@ class LiveCalibration:
                        f"{progress.advice}")
         self._log.debug(f"refit: bias {np.round(calibration.bias, 6).tolist()} m/s^2, "
                         f"M {np.round(calibration.matrix, 7).tolist()}, {result.iterations} iterations")
+
+    def _keeping_gyro(self, verdict: Verdict) -> tuple[Calibration, bool]:
+        """The calibration a passed verdict puts in force, and whether it keeps the gyro part in force: a
+        verdict without a gyro matrix (its gyro fit refused, or none ran) never drops the matrix in force, nor
+        the bias it was fitted with (w = M_g (w_raw - b_g): one without the other is neither calibration).
+        A gyro part left out whole (implausible) keeps the bias in force too."""
+        new, old = verdict.calibration, self.in_force.calibration
+        assert new is not None
+        if old is None or new.gyro_matrix is not None or old.gyro_bias_radps is None \
+                or (old.gyro_matrix is None and new.gyro_bias_radps is not None):
+            return new, False
+        kept = new.replace(gyro_bias_radps=old.gyro_bias_radps, gyro_matrix=old.gyro_matrix,
+                           gyro_quality=old.gyro_quality)
+        loadable, left_aside = self.session.gates.loadable(kept)
+        if loadable is None or left_aside is not None:  # never hand on what the file's readers refuse
+            return new, False
+        return kept, True
 
     def _apply(self, calibration: Calibration, result: FitResult | None = None, asked: bool = True
                ) -> tuple[bool, str]:
@@ -288,12 +305,13 @@ class LiveCalibration:
             message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
-        applied, saved = self._apply(verdict.calibration, verdict.result)
+        calibration, gyro_kept = self._keeping_gyro(verdict)
+        applied, saved = self._apply(calibration, verdict.result)
         if not applied:
             self._log.warning(f"{self._calibrate_service}: {saved}")
             return False, saved
         self._log.info(f"{self._calibrate_service}: calibrated, {saved}")
-        return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal)
+        return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal, gyro_kept)
 
     def reset(self) -> tuple[bool, str]:
         self.feed()
