@@ -42,6 +42,8 @@ def calibrate_answer(result: FitResult, saved_message: str, gyro_refusal: str | 
         lines.append(f"gyro: {{applied: false, kept: in force, reason: {yaml_quoted(reason)}}}")
     elif gyro_refusal is not None:
         lines.append(f"gyro: {{applied: false, reason: {yaml_quoted(gyro_refusal)}}}")
+    if result.unchecked_line():  # a fit with a prior: what the poses could not check
+        lines.append(f"prior: {yaml_quoted(result.unchecked_line())}")
     lines.append(f"saved: {saved_message}")
     return "\n".join(lines)
 

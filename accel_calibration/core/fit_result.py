@@ -60,6 +60,9 @@ class ParameterSource:
     name: str  # b_x, M_zy, ... (SphereModel.parameter_names)
     sigma: float
     prior_sigma: float
+    # What the poses could not check of it (core/prior_evidence.py): "kept from the prior, not checked", or
+    # the parameters it is not separable from; "" when the poses observe it alone.
+    note: str = ""
 
     @property
     def share_from_poses(self) -> float:
@@ -180,5 +183,17 @@ class FitResult:
                  "(1 - (sigma / prior sigma)^2), and where it came from:"]
         for source in self.parameter_sources:
             lines.append(f"  {source.name:5s} {source.share_from_poses:6.1%}  sigma {source.sigma:.2g} "
-                         f"(prior {source.prior_sigma:.2g})  from {source.source}")
+                         f"(prior {source.prior_sigma:.2g})  from {source.source}"
+                         + (f": {source.note}" if source.note else ""))
+        if self.unchecked_line():
+            lines.append(self.unchecked_line())
         return lines
+
+    def unchecked_line(self) -> str:
+        """With a prior: what the poses could not check, in one line ('' when they observe every parameter)."""
+        kept = [s.name for s in self.parameter_sources if s.note.startswith("kept from the prior")]
+        joint = [s.name for s in self.parameter_sources if s.note.startswith("not separable")]
+        said = ([f"kept from the prior, not checked (these poses do not observe them): {', '.join(kept)}"] if kept
+                else []) + ([f"not separable by these poses, fitted given the prior's values of the rest: "
+                             f"{', '.join(joint)}"] if joint else [])
+        return "; ".join(said)

@@ -20,6 +20,7 @@ life); M keeps the file's sigma.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -33,6 +34,7 @@ from .fit_result import FitResult, ParameterSource, Sigma
 from .fit_solvers import LARGEST_VALUE, no_degree_of_freedom, not_finite, numerical_failure, quality_of
 from .gauss_newton import LeastSquaresSolution, gauss_newton_stacked
 from .models import SPHERE_MODELS, SphereModel
+from .prior_evidence import PriorEvidence, prior_evidence
 from .units import MG
 
 # The poses' noise is re-estimated until it changes by less than this fraction (a few rounds).
@@ -179,8 +181,10 @@ def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_va
     if settled.dof < 1.0:
         return no_degree_of_freedom(n, f"{model.size} parameters of model {name} and the prior", name,
                                     condition_number=settled.condition)
-    result = _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id)
-    conflict = result.success and _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled)
+    evidence = prior_evidence(model, accel, gravity, prior_values, prior_sigma, settled.variance)
+    result = _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id, evidence)
+    conflict = result.success and (evidence.refusal or
+                                   _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled))
     if conflict:
         return FitResult(False, conflict, name, condition_number=result.condition_number, poses=n,
                          residuals_mg=result.residuals_mg, missing_directions=result.missing_directions)
@@ -212,7 +216,7 @@ def _conflict(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_val
 
 
 def _result(accel: np.ndarray, model: SphereModel, gravity: float, settled: _Settled, prior_sigma: np.ndarray,
-            ref_temperature: float | None, frame_id: str) -> FitResult:
+            ref_temperature: float | None, frame_id: str, evidence: PriorEvidence) -> FitResult:
     """The FitResult of the last solve: posterior sigma s^2 H^-1, the Uncertainty of poses and prior
     (what the sigma gate's advice adds a pose to) and each parameter's share from the poses."""
     n, name = len(accel), model.name
@@ -247,6 +251,8 @@ def _result(accel: np.ndarray, model: SphereModel, gravity: float, settled: _Set
                                        reference_temperature_degc=ref_temperature)
     sources = tuple(ParameterSource(label, float(s), float(s0))
                     for label, s, s0 in zip(model.parameter_names(), stds.tolist(), prior_sigma.tolist()))
+    sources = tuple(dataclasses.replace(source, note=evidence.note(k, source.source))
+                    for k, source in enumerate(sources))
     message = (f"{solution.message}; with the prior, the poses' noise {math.sqrt(variance) / MG:.3g} mg "
                "estimated from their residuals")
     return FitResult(True, message, calibration=calibration, sigma=sigma,

@@ -24,6 +24,7 @@ Layout (keys other tools read are the first six; the rest is ours):
       parameter_sources:        # fitted with a prior: where each parameter came from
         prior: old.yaml
         parameters: {b_x: {from: poses, share_from_poses: 0.998, sigma: .., prior_sigma: ..}, ..}
+                                # + note: where the poses could not check it ("kept from the prior, not checked")
       fitted_to: what the fit saw, where a recording says (raw output, or a corrected stream as logged)
 """
 from __future__ import annotations
@@ -223,9 +224,11 @@ def calibration_to_yaml(calibration: Calibration, parameter_sources: tuple[Param
 
 def parameter_sources_block(parameter_sources: tuple[ParameterSource, ...], prior: str | None) -> dict[str, Any]:
     """Per parameter: from poses, prior or both, the share of its information from the poses
-    (1 - (sigma / prior_sigma)^2) and both sigma (raw units; M unitless)."""
+    (1 - (sigma / prior_sigma)^2), both sigma (raw units; M unitless) and, where the poses could not check
+    it, a note: "kept from the prior, not checked", or the parameters it is not separable from."""
     parameters = {source.name: {"from": source.source, "share_from_poses": round(source.share_from_poses, 4),
-                                "sigma": source.sigma, "prior_sigma": source.prior_sigma}
+                                "sigma": source.sigma, "prior_sigma": source.prior_sigma,
+                                **({"note": source.note} if source.note else {})}
                   for source in parameter_sources}
     return {"prior": prior or "", "parameters": parameters}
 
@@ -259,6 +262,20 @@ def _require_numbers(value: object, name: str, source: str) -> None:
             raise CalibrationFileError(f"{source}: {name} must be numbers, got {item!r:.40}{hint}")
 
 
+def _require_no_negative_sigma(uncertainty: dict[str, Any]) -> None:
+    """A 1-sigma is >= 0: a negative one would pass as a tight uncertainty (squared, it weighs as its size)."""
+    for key in ("bias", "matrix"):
+        values = uncertainty.get(key)
+        if values is None:
+            continue
+        try:
+            smallest = float(np.min(np.asarray(values, dtype=float)))
+        except (TypeError, ValueError):
+            continue  # the shape and numbers are Calibration's to refuse, with their own line
+        if smallest < 0:
+            raise CalibrationFileError(f"uncertainty.{key} has a negative value ({smallest:g}): a 1-sigma is >= 0")
+
+
 def calibration_from_dict(document: object, source: str = "calibration") -> Calibration:
     """Validate a parsed document and build the Calibration; every problem is a CalibrationError."""
     body = _body(document, source)
@@ -268,6 +285,7 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
         uncertainty = body.get("uncertainty") or {}
         if not isinstance(uncertainty, dict):
             raise CalibrationFileError("uncertainty must be a mapping")
+        _require_no_negative_sigma(uncertainty)
         ref_t = body.get("reference_temperature_degc")
         model = body["model"]
         if not isinstance(model, str):

@@ -311,6 +311,8 @@ class LiveCalibration:
             self._log.warning(f"{self._calibrate_service}: {saved}")
             return False, saved
         self._log.info(f"{self._calibrate_service}: calibrated, {saved}")
+        if verdict.result.unchecked_line():  # with a prior: what the poses could not check, said
+            self._log.warning(f"{self._calibrate_service}: {verdict.result.unchecked_line()}")
         return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal, gyro_kept)
 
     def reset(self) -> tuple[bool, str]:

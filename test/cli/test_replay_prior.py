@@ -58,3 +58,45 @@ def test_a_prior_without_uncertainty_is_one_line(tmp_path, capsys):
     code = main(["replay", str(tmp_path / "level.csv"), "--prior", str(tmp_path / "old.yaml")])
     assert_one_error_line(code, capsys.readouterr().err, "--prior")
     assert np.isfinite(old.bias).all()
+
+
+def test_a_prior_with_a_temperature_model_asked_is_one_line_as_fit_refuses_it(tmp_path, capsys):
+    """The fit with a prior fits b and M alone: a temperature model asked beside it is refused, not dropped."""
+    rng, moved, old = sensor_and_old_calibration(3)
+    write_recording(tmp_path / "level.csv", level_stream(moved, rng, seed=3))
+    save_calibration(old, tmp_path / "old.yaml")
+    code = main(["replay", str(tmp_path / "level.csv"), "--prior", str(tmp_path / "old.yaml"),
+                 "--temperature-model", "polynomial", "-o", str(tmp_path / "new.yaml")])
+    assert_one_error_line(code, capsys.readouterr().err, "--prior", "without a temperature model")
+    assert not (tmp_path / "new.yaml").exists()
+
+
+def test_another_sensors_calibration_as_prior_is_refused_in_one_line_naming_the_distance(tmp_path, capsys):
+    """14 poses within 30 deg of level against another sensor's calibration (its bias 96 mg away): it was
+    written with exit 0, 98 mg off over the sphere. Refused, saying what disagrees and by how much; nothing
+    written."""
+    rng, moved, _ = sensor_and_old_calibration(0)
+    _, _, other = sensor_and_old_calibration(50)
+    write_recording(tmp_path / "level.csv", level_stream(moved, rng, count=14, seed=0))
+    save_calibration(other, tmp_path / "other.yaml")
+    code = main(["replay", str(tmp_path / "level.csv"), "--prior", str(tmp_path / "other.yaml"),
+                 "-o", str(tmp_path / "new.yaml")])
+    err = assert_one_error_line(code, capsys.readouterr().err, "the poses disagree with the prior", "chi^2",
+                                "sigma")
+    assert "scale" in err or "bias" in err or "misalignment" in err, err
+    assert not (tmp_path / "new.yaml").exists()
+
+
+def test_what_the_level_poses_cannot_see_is_said_kept_from_the_prior_at_the_command_line_and_in_the_file(
+        tmp_path, capsys):
+    rng, moved, old = sensor_and_old_calibration(4)
+    write_recording(tmp_path / "level.csv", level_stream(moved, rng, seed=4))
+    save_calibration(old, tmp_path / "old.yaml")
+    out = tmp_path / "new.yaml"
+    assert main(["replay", str(tmp_path / "level.csv"), "--prior", str(tmp_path / "old.yaml"), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "kept from the prior, not checked" in printed and "M_zx" in printed, printed
+    parameters = yaml.safe_load(out.read_text())["accel_calibration"]["parameter_sources"]["parameters"]
+    assert parameters["M_zx"]["note"].startswith("kept from the prior, not checked"), parameters["M_zx"]
+    assert "M_zz" in parameters["b_z"]["note"], parameters["b_z"]
+    assert load_calibration(out).bias is not None  # the note is for people: the file loads as before

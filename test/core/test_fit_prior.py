@@ -146,3 +146,62 @@ def test_with_a_prior_finite_poses_never_raise():
         if not result.success:
             assert result.message and "\n" not in result.message
     assert not fit(cases[0], prior=old).success  # one pose: too few
+
+
+def sphere_error_mg(calibration, errors):
+    """The calibrated sensor's | |a| - g | over 2000 orientations: (rms, largest), mg."""
+    d = Rotation.random(2000, random_state=1).apply([0.0, 0.0, 1.0])
+    off = np.abs(np.linalg.norm(calibration.apply(errors.raw_from_true(G * d)), axis=1) - G) / MG
+    return float(np.sqrt(np.mean(off**2))), float(off.max())
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_another_sensors_calibration_as_prior_is_refused_naming_what_disagrees_and_by_how_much(seed):
+    """14 poses within 30 deg of level and the calibration of another sensor of the same kind (its bias
+    10-130 mg away, its gains and cross-axis terms 1-3 % off): kept, it would leave the sphere 25-100 mg off.
+    Refused, naming the parameters and the distance; the sensor's own calibration still serves."""
+    rng, moved, old = sensor_and_old_calibration(seed)
+    raw = level_poses(moved, rng, 14)
+    _, _, other = sensor_and_old_calibration(seed + 50)
+    for prior in (other, old.replace(matrix=other.matrix)):  # all of it, and its matrix with the right bias
+        result = fit(raw, prior=prior)
+        assert not result.success, sphere_error_mg(result.calibration, moved)
+        assert result.message.startswith("the poses disagree with the prior"), result.message
+        assert "chi^2" in result.message and "\n" not in result.message, result.message
+        assert any(name in result.message for name in ("bias", "scale", "misalignment")), result.message
+    own = fit(raw, prior=old)
+    assert own.success, own.message
+    assert sphere_error_mg(own.calibration, moved)[0] < 1.0
+
+
+def _gain_moved(errors, axis, factor):
+    matrix = errors.matrix.copy()
+    matrix[axis] *= factor  # the correction's row: the raw output's gain on that axis changed by 1/factor
+    return dataclasses.replace(errors, matrix=matrix)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_one_percent_x_gain_change_from_level_poses_is_refused_or_said_never_written_silently(seed):
+    rng, moved, old = sensor_and_old_calibration(seed)
+    moved = _gain_moved(moved, 0, 1.01)
+    result = fit(level_poses(moved, rng, 14), prior=old)
+    if not result.success:
+        assert "scale x" in result.message, result.message
+        return
+    by_name = {s.name: s for s in result.parameter_sources}
+    fitted = abs(result.calibration.matrix[0, 0] - moved.matrix[0, 0]) < 0.002 * moved.matrix[0, 0]
+    assert fitted or "kept from the prior, not checked" in by_name["M_xx"].note, by_name["M_xx"]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_z_gain_change_from_level_poses_is_not_silently_taken_up_as_a_z_bias(seed):
+    rng, moved, old = sensor_and_old_calibration(seed)
+    moved = _gain_moved(moved, 2, 1.01)
+    result = fit(level_poses(moved, rng, 14), prior=old)
+    if not result.success:
+        assert "scale z" in result.message, result.message
+        return
+    by_name = {s.name: s for s in result.parameter_sources}
+    assert "M_zz" in by_name["b_z"].note and "not separable" in by_name["b_z"].note, by_name["b_z"]
+    assert "kept from the prior, not checked" in by_name["M_zz"].note, by_name["M_zz"]
+    assert "not separable" in result.summary() and "kept from the prior, not checked" in result.summary()

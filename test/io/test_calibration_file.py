@@ -119,3 +119,16 @@ def test_calibration_is_immutable():
         cal.bias[0] = 1.0
     with pytest.raises(AttributeError):
         cal.model = "six"
+
+
+@pytest.mark.parametrize("field, uncertainty", [
+    ("uncertainty.bias", {"bias": [0.001, -0.001, 0.001]}),
+    ("uncertainty.matrix", {"matrix": [[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, -1e-4]]}),
+])
+def test_a_negative_sigma_is_refused_naming_the_field(tmp_path, field, uncertainty):
+    body = calibration_to_dict(fitted_calibration())["accel_calibration"]
+    body["uncertainty"] = uncertainty
+    path = _write(tmp_path / "cal.yaml", body)
+    with pytest.raises(CalibrationError, match=field.replace(".", r"\.") + ".*negative") as caught:
+        load_calibration(path)
+    assert "\n" not in str(caught.value)
