@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from .history import DRIFT_EXIT_CODE, add_change_rule_options
 from .options import (
@@ -16,6 +20,11 @@ from .options import (
     reader_fields,
     replay_settings,
 )
+
+if TYPE_CHECKING:
+    from ..bag.replay import ReplayResult
+    from ..core.calibration import Calibration
+    from ..core.pose import Pose
 
 CANNOT_TELL_EXIT_CODE = 1
 
@@ -56,13 +65,62 @@ def run(args: argparse.Namespace) -> int:
     settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
     settings, identity = instance_of_device(calibration, args.calibration, args.recording, settings)
     replay = replay_bag(args.recording, settings)  # its errors are one line (bag/replay.ReplayError)
-    result = check_calibration(calibration, replay.poses, rule, gravity=None if located is None else located[0])
+    poses, quantised = _quantised_poses(replay)
+    unchecked_temperature = _temperature_problem(calibration, poses)
+    poses = [p if p.temperature_degc is None or np.isfinite(p.temperature_degc)
+             else dataclasses.replace(p, temperature_degc=None) for p in poses]
+    result = check_calibration(calibration, poses, rule, gravity=None if located is None else located[0])
     lines = describe(result)
+    verdict = result.verdict
+    if unchecked_temperature is not None:  # never a silent verdict on a model applied where it was not fitted
+        if verdict == "moved":
+            lines[0] += f"; but {unchecked_temperature}"
+        else:
+            lines[0:1] = [f"cannot tell: {unchecked_temperature}", f"as corrected there: {lines[0]}"]
+            verdict = "cannot tell"
+    lines += [line for line in (quantised, identity) if line is not None]
     if replay.flight_state is not None:
         lines.append(replay.flight_state.report_line())
-    if identity is not None:
-        lines.append(identity)
     print("\n".join(lines))
-    if result.verdict == "moved":
+    if verdict == "moved":
         return DRIFT_EXIT_CODE
-    return CANNOT_TELL_EXIT_CODE if result.verdict == "cannot tell" else 0
+    return CANNOT_TELL_EXIT_CODE if verdict == "cannot tell" else 0
+
+
+def _quantised_poses(replay: ReplayResult) -> tuple[list[Pose], str | None]:
+    """The poses with the quantisation of their samples in their sigma (core/quantisation.py), and the line
+    saying the LSB allowed for; as they are where the samples are on no grid (or were streamed, not kept)."""
+    from ..bag.recording import Recording
+    from ..core.quantisation import quantisation_steps, with_quantisation
+    from ..core.units import MG
+
+    recording = replay.source.recording
+    if not isinstance(recording, Recording) or not replay.poses:
+        return list(replay.poses), None
+    steps = quantisation_steps(recording.accel_mps2)
+    if not np.any(steps > 0):
+        return list(replay.poses), None
+    said = " ".join(f"{step / MG:.3g}" if step > 0 else "-" for step in steps)
+    return with_quantisation(replay.poses, steps), (
+        f"samples quantised: LSB {said} mg (x y z); a pose's mean is trusted to LSB/sqrt(12) where its noise is "
+        "below the LSB, and the sigmas above allow for it")
+
+
+def _temperature_problem(calibration: Calibration, poses: Sequence[Pose]) -> str | None:
+    """Where a temperature model cannot be checked: poses without a temperature (corrected at its reference), or
+    outside the range it was calibrated over (clamped to its edge); None for a calibration without one."""
+    model = calibration.temperature
+    if model is None or not poses:
+        return None
+    low, high = (float(v) for v in model.range_degc)
+    calibrated = f"the calibration's temperature model, calibrated over {low:.1f}..{high:.1f} degC,"
+    temperatures = np.array([np.nan if p.temperature_degc is None else p.temperature_degc for p in poses])
+    missing = int(np.sum(~np.isfinite(temperatures)))
+    if missing:
+        return (f"{missing} of {len(poses)} poses have no temperature: {calibrated} cannot be checked without it "
+                f"(they were corrected at its reference {model.reference_degc:.1f} degC)")
+    outside = temperatures[(temperatures < low) | (temperatures > high)]
+    if len(outside):
+        return (f"{len(outside)} of {len(poses)} poses at {outside.min():.1f}..{outside.max():.1f} degC, outside "
+                f"the range {calibrated} not checked there (it holds its edge)")
+    return None

@@ -99,3 +99,63 @@ def test_bad_input_is_one_line(calibration_file, tmp_path, capsys):
     refused(capsys, ["check", tmp_path / "absent.yaml", path], "absent.yaml")
     refused(capsys, ["check", calibration_file, tmp_path / "absent.csv"], "absent.csv")
     refused(capsys, ["check", calibration_file, path, "--k-sigma", "0"], "--k-sigma must be a positive number")
+
+
+LSB_MPS2 = 4 * MG  # a +-16 g part read at 12 bits
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_samples_quantised_above_their_noise_do_not_read_as_moved(tmp_path, capsys, seed):
+    """0.5 mg of noise under a 4 mg LSB: a pose's mean is off by up to half an LSB whatever its sample count,
+    and its samples' scatter says nothing of that. The sensor is unchanged: never 'moved'."""
+    errors = SensorErrors.mpu6050_like(np.random.default_rng(40 + seed), noise_mps2=0.5 * MG)
+    s = samples(errors, seed=40 + seed)
+    s = dataclasses.replace(s, accel_raw=np.round(s.accel_raw / LSB_MPS2) * LSB_MPS2)
+    path, calibration = tmp_path / "quantised.csv", tmp_path / "cal.yaml"
+    write_recording(path, s, "csv")
+    save_calibration(Calibration(bias=errors.bias_mps2, matrix=errors.matrix, bias_sigma=np.full(3, 0.1 * MG),
+                                 matrix_sigma=np.where(np.tril(np.ones((3, 3))) > 0, 1e-4, 0.0)), str(calibration))
+    code = main(["check", str(calibration), str(path)])
+    out = capsys.readouterr().out
+    assert code != 3, out
+    assert "quantised" in out, out  # the figures say the LSB they allowed for
+
+
+def thermal_calibration(path) -> None:
+    """The truth with a temperature model calibrated over 20..30 degC (no drift: the sensor has none)."""
+    from accel_calibration.core.temperature_models import TemperatureModel
+
+    errors = truth()
+    model = TemperatureModel(kind="polynomial", reference_degc=25.0, range_degc=(20.0, 30.0),
+                             bias_coefficients=np.zeros((1, 3)), scale_coefficients=np.zeros((1, 3)))
+    save_calibration(Calibration(bias=errors.bias_mps2, matrix=errors.matrix, bias_sigma=np.full(3, 0.1 * MG),
+                                 matrix_sigma=np.where(np.tril(np.ones((3, 3))) > 0, 1e-4, 0.0), temperature=model),
+                     str(path))
+
+
+@pytest.mark.parametrize("temperature, said", [(45.0, "outside"), (None, "no temperature"),
+                                                (float("nan"), "no temperature")])
+def test_a_temperature_model_checked_where_it_cannot_be_says_so(tmp_path, capsys, temperature, said):
+    calibration, path = tmp_path / "thermal.yaml", tmp_path / "rec.csv"
+    thermal_calibration(calibration)
+    s = samples(truth(), seed=11)
+    if temperature is None:
+        columns = np.column_stack([s.accel_raw, s.gyro_raw])
+        header = "t_ns,ax,ay,az,gx,gy,gz"
+    else:
+        columns = np.column_stack([s.accel_raw, s.gyro_raw, np.full(len(s.t_ns), temperature)])
+        header = "t_ns,ax,ay,az,gx,gy,gz,temperature"
+    rows = [f"{START_NS + t},{','.join(repr(float(v)) for v in row)}" for t, row in zip(s.t_ns, columns)]
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    code = main(["check", str(calibration), str(path)])
+    captured = capsys.readouterr()
+    assert code == 1, captured.out + captured.err
+    verdict = captured.out.splitlines()[0]
+    assert verdict.startswith("cannot tell:") and said in verdict and "20.0..30.0 degC" in verdict, verdict
+
+
+def test_a_temperature_model_within_its_range_holds(tmp_path, capsys):
+    calibration, path = tmp_path / "thermal.yaml", tmp_path / "rec.csv"
+    thermal_calibration(calibration)
+    write_recording(path, samples(truth(), seed=11), "csv")  # the synthetic sensor sits at 25 degC
+    assert main(["check", str(calibration), str(path)]) == 0, capsys.readouterr().out
