@@ -11,7 +11,7 @@ from accel_calibration.cli.main import main
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import load_calibration
 
-from helpers.autopilot_logs import DEVICES, simulate, write_px4_log
+from helpers.autopilot_logs import DEVICES, simulate, write_ardupilot_log, write_px4_log
 from helpers.one_line import refused
 
 GYRO_DEVICES = (2490378, 2555914)  # BMI088 gyro dies: IDs of their own
@@ -140,3 +140,16 @@ def test_all_imus_with_a_prior_puts_it_on_its_own_device_only(two_imu_log, tmp_p
     stranger = tmp_path / "stranger.yaml"
     stranger.write_text(imu1.read_text().replace(str(DEVICES[1]), str(OTHER_DEVICE)))
     refused(capsys, ["replay", log, "--all-imus", "--prior", stranger, "-o", tmp_path / "other"], str(OTHER_DEVICE))
+
+
+def test_check_picks_the_dataflash_instance_of_the_files_device(tmp_path, capsys):
+    log = tmp_path / "00000009.BIN"
+    write_ardupilot_log(log, simulate(25), devices=DEVICES)
+    imu1 = tmp_path / "imu1.yaml"
+    assert main(["replay", str(log), "--instance", "1", "-o", str(imu1)]) == 0
+    assert load_calibration(imu1).accel_device_id == DEVICES[1]
+    capsys.readouterr()
+    assert main(["check", str(imu1), str(log)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("holds:") and f"IMU instance 1 (device {DEVICES[1]})" in out, out
+    refused(capsys, ["check", imu1, log, "--instance", "0"], str(DEVICES[0]), "--instance 1")

@@ -78,10 +78,13 @@ def logged(imu: Imu) -> tuple[np.ndarray, np.ndarray]:
     return ((imu.raw - imu.stale_offset) * imu.stale_scale) @ YAW_90.T, (imu.gyro_raw - imu.gyro_offset) @ YAW_90.T
 
 
-def ardupilot_parameters(board: Board) -> dict[str, float]:
+def ardupilot_parameters(board: Board, devices: tuple[int, int] | None = None) -> dict[str, float]:
+    """`devices`: INS_ACC_ID, INS_ACC2_ID (and the same INS_GYR*_ID: one chip each), logged where given."""
     params = {"AHRS_ORIENTATION": 2.0}
     for k, imu in enumerate(board.imus):
         n = "" if k == 0 else str(k + 1)
+        if devices is not None:
+            params[f"INS_ACC{n}_ID"] = params[f"INS_GYR{n}_ID"] = float(devices[k])
         for axis, name in enumerate("XYZ"):
             params[f"INS_ACC{n}OFFS_{name}"] = float(imu.stale_offset[axis])
             params[f"INS_ACC{n}SCAL_{name}"] = float(imu.stale_scale[axis])
@@ -89,8 +92,8 @@ def ardupilot_parameters(board: Board) -> dict[str, float]:
     return params
 
 
-def write_ardupilot_log(path, board: Board, old_style: bool = False) -> None:
-    records = parameter_records(START_US - 1000, ardupilot_parameters(board))
+def write_ardupilot_log(path, board: Board, old_style: bool = False, devices: tuple[int, int] | None = None) -> None:
+    records = parameter_records(START_US - 1000, ardupilot_parameters(board, devices))
     per_imu = []
     for k, imu in enumerate(board.imus):
         accel, gyro = logged(imu)
