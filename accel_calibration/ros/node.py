@@ -72,6 +72,9 @@ class CalibrationNode(Node):
         self._params = NodeParameters(self)
         node_values = self._params.node_values
         self._stream_timeout_s = float(node_values["stream_timeout_s"])
+        settings = self._params.settings
+        self._gravity_text = f"{settings.gravity:.5f} ({settings.gravity_source})"
+        self.get_logger().info(f"gravity {settings.gravity:.5f} m/s^2 in use ({settings.gravity_source})")
         self._imu_topic = self.resolve_topic_name("imu/data_raw")
         self._temperature_topic = self.resolve_topic_name("imu/temperature")
         path = self._calibration_path(node_values["calibration_file"])
@@ -141,6 +144,18 @@ class CalibrationNode(Node):
         # One file per node (namespace and name), so two instances never write the same file.
         relative = self.get_fully_qualified_name().lstrip("/")
         return Path(os.path.expanduser("~/.ros/accel_calibration")) / f"{relative}.yaml"
+
+    def set_parameters_atomically(self, parameter_list: list[RosParameter]) -> SetParametersResult:
+        """A parameter fixed at start-up is read-only in its descriptor: its change is refused here with the
+        reason, and setting it to its value (a `ros2 param load` of a dump) is accepted, before rclpy would
+        refuse both in its own words."""
+        refusal, rest = self._params.screen(parameter_list)
+        if refusal is not None:
+            return refusal
+        return super().set_parameters_atomically(rest) if rest else SetParametersResult(successful=True)
+
+    def set_parameters(self, parameter_list: list[RosParameter]) -> list[SetParametersResult]:
+        return [self.set_parameters_atomically([parameter]) for parameter in parameter_list]
 
     def _on_set_parameters(self, parameters: list[RosParameter]) -> SetParametersResult:
         answer, settings = self._params.judge(parameters, self._stream.settings)
@@ -285,8 +300,9 @@ class CalibrationNode(Node):
         calibration = stream.in_force.calibration
         if not self._worker.alive:
             level, message = ERROR, f"calibration worker not running (restarted {self._worker.restarts} times)"
+        stream_values = {**stream.values(), "gravity_mps2": self._gravity_text}
         status = diagnostic_status(f"accel_calibration: {self.get_fully_qualified_name()}", _LEVELS[level], message,
-                                   work.progress, diagnostic_values(stream.values(), work.values), self.counters(),
+                                   work.progress, diagnostic_values(stream_values, work.values), self.counters(),
                                    dict(self._boundary.errors), calibration, stream.hardware_id(), health,
                                    stream.pause.reasons, calibration is not None)
         array = DiagnosticArray(status=[status])

@@ -4,7 +4,11 @@ checked before rcl parses it; the read-only mirrors of the calibration in force.
 
 A `ros2 param dump` loads back quietly (`--params-file` or `ros2 param load`): the mirrors and rclpy's own
 parameters are known, and setting a parameter that is fixed at start-up to the value it has is accepted
-(only a change is refused, with the reason)."""
+(only a change is refused, with the reason). Those parameters are read-only in their descriptors (`ros2 param
+describe`), so rclpy would refuse even the same value, and with its own words: `NodeParameters.screen`
+answers them before rclpy sees them (CalibrationNode.set_parameters_atomically).
+
+`gravity` is the gravity in use: with latitude_deg, the normal gravity there."""
 from __future__ import annotations
 
 import math
@@ -17,7 +21,7 @@ from rclpy.parameter import Parameter as RosParameter
 
 from ..core.calibration import Calibration
 from ..core.errors import SettingsError
-from ..core.settings import PARAMETERS, RELIABILITIES, Parameter, Settings, changed, check_value
+from ..core.settings import BY_NAME, PARAMETERS, RELIABILITIES, Parameter, Settings, changed, check_value
 
 MIRROR_PREFIX = "calibration."
 # Parameters of the node itself (not of the session): fixed at start-up.
@@ -39,18 +43,27 @@ MIRRORS = (
 RCLPY_PARAMETERS = ("use_sim_time", "start_type_description_service")
 
 
+FIXED = frozenset(p.name for p in PARAMETERS + NODE_PARAMETERS if not p.dynamic)  # read-only while running
+_ALL = {**BY_NAME, **{p.name: p for p in NODE_PARAMETERS}}
+
+
+def _range(parameter: Parameter) -> tuple[list[FloatingPointRange], list[IntegerRange]]:
+    """The descriptor's range of a bounded parameter (0 included where 0 means "learned")."""
+    if parameter.low is None or parameter.high is None:
+        return [], []
+    if type(parameter.default) is int:
+        return [], [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high), step=0)]
+    low = 0.0 if parameter.zero_means_auto else float(parameter.low)
+    return [FloatingPointRange(from_value=low, to_value=float(parameter.high), step=0.0)], []
+
+
 def _descriptor(parameter: Parameter) -> ParameterDescriptor:
     fixed = "" if parameter.dynamic else " (fixed at start-up)"
-    descriptor = ParameterDescriptor(description=parameter.description + fixed)
-    # rclpy checks a declared default against its range, and NaN ("not given") is within none.
-    if parameter.low is not None and parameter.high is not None and not parameter.nan_means_unset:
-        if type(parameter.default) is int:
-            descriptor.integer_range = [IntegerRange(from_value=int(parameter.low), to_value=int(parameter.high),
-                                                     step=0)]
-        else:
-            low = 0.0 if parameter.zero_means_auto else float(parameter.low)
-            descriptor.floating_point_range = [FloatingPointRange(from_value=low, to_value=float(parameter.high),
-                                                                  step=0.0)]
+    descriptor = ParameterDescriptor(description=parameter.description + fixed, read_only=not parameter.dynamic)
+    # rclpy checks a declared value against its range, and NaN ("not given") is within none: such a range is
+    # added once declared (NodeParameters._show_ranges).
+    if not parameter.nan_means_unset:
+        descriptor.floating_point_range, descriptor.integer_range = _range(parameter)
     if parameter.choices:
         descriptor.additional_constraints = "one of: " + ", ".join(parameter.choices)
     return descriptor
@@ -74,8 +87,13 @@ class NodeParameters:
         for parameter in PARAMETERS + NODE_PARAMETERS:
             if parameter.name in overrides:
                 values[parameter.name] = check_value(parameter, overrides[parameter.name].value)
-            self.node.declare_parameter(parameter.name, values.get(parameter.name, parameter.default),
+        session_values = {p.name: values[p.name] for p in PARAMETERS if p.name in values}
+        settings = Settings.from_parameters(session_values)
+        declared = {**values, "gravity": settings.gravity}  # the gravity in use (latitude_deg's, when given)
+        for parameter in PARAMETERS + NODE_PARAMETERS:
+            self.node.declare_parameter(parameter.name, declared.get(parameter.name, parameter.default),
                                         _descriptor(parameter), ignore_override=True)
+        self._show_ranges()
         for name, default, text in MIRRORS:
             # Mirrors of the calibration in force: set by the node alone, never taken from a params file.
             self.node.declare_parameter(MIRROR_PREFIX + name, default,
@@ -86,8 +104,28 @@ class NodeParameters:
         for name in sorted(n for n in overrides if n not in known and not n.startswith("qos_overrides.")):
             self.node.get_logger().warning(f"unknown parameter {name!r} ignored (typo?)")
         node_values = {p.name: values.get(p.name, p.default) for p in NODE_PARAMETERS}
-        session_values = {p.name: values[p.name] for p in PARAMETERS if p.name in values}
-        return Settings.from_parameters(session_values), node_values
+        return settings, node_values
+
+    def _show_ranges(self) -> None:
+        """The range of a parameter whose default is NaN ("not given"), shown once it is declared. Safe
+        because such parameters are fixed at start-up: no later value reaches rclpy's range check."""
+        for parameter in PARAMETERS + NODE_PARAMETERS:
+            if parameter.nan_means_unset:
+                assert parameter.name in FIXED
+                descriptor = self.node.describe_parameter(parameter.name)  # the node's own, not a copy
+                descriptor.floating_point_range, descriptor.integer_range = _range(parameter)
+
+    def screen(self, parameters: list[RosParameter]) -> tuple[SetParametersResult | None, list[RosParameter]]:
+        """Before rclpy applies the descriptors: (the refusal of a change to a parameter fixed at start-up,
+        naming it, or None; the parameters left to set, without those set to the value they have)."""
+        rest = []
+        for parameter in parameters:
+            if parameter.name not in FIXED:
+                rest.append(parameter)
+            elif not self._unchanged(parameter):
+                return SetParametersResult(successful=False, reason=f"{parameter.name} is fixed at start-up "
+                                           "(read-only); restart to change it"), []
+        return None, rest
 
     def judge(self, parameters: list[RosParameter], settings: Settings) -> tuple[SetParametersResult, Settings | None]:
         """(the answer to a set_parameters, the new settings to take when they changed)."""
@@ -121,9 +159,13 @@ class NodeParameters:
 
     def _unchanged(self, parameter: RosParameter) -> bool:
         try:
-            return bool(self.node.get_parameter(parameter.name).value == parameter.value)
+            before = self.node.get_parameter(parameter.name).value
         except Exception:  # noqa: BLE001 - not declared: a change
             return False
+        declared = _ALL.get(parameter.name)
+        if declared is not None and type(declared.default) is float and type(parameter.value) is not float:
+            return False  # another type is a change (rclpy's typing refuses it)
+        return not changed(before, parameter.value)
 
     def mirror(self, calibration: Calibration) -> None:
         """Update the read-only mirrors of the calibration in force (a parameter event tells listeners)."""

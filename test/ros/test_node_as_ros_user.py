@@ -180,3 +180,47 @@ def test_a_temperature_stamped_an_hour_ahead_is_screened_and_counted(make_node, 
     assert abs(node._stream.in_force.temperature_degc - 25.0) < 0.1
     assert node.counters()["temperature_future"] == 1
     assert diagnostics_of(node)["temperature_future"] == "1"
+
+
+def test_the_gravity_in_use_is_the_gravity_parameter_on_diagnostics_and_in_the_log(make_node, log_lines):
+    """Finding: with latitude_deg given, `ros2 param get gravity` said 9.80665 while the normal gravity there
+    was used, and neither /diagnostics nor the log said which."""
+    from accel_calibration.core.gravity import normal_gravity
+
+    used = normal_gravity(0.0, 1000.0)  # 9.7772 m/s^2
+    node = make_node(latitude_deg=0.0, height_m=1000.0)
+    assert node._params.settings.gravity == used
+    assert node.get_parameter("gravity").value == used
+    assert diagnostics_of(node)["gravity_mps2"].startswith(f"{used:.5f} (WGS84 normal gravity")
+    assert any(f"gravity {used:.5f} m/s^2" in text for severity, text in log_lines if severity == 20), log_lines
+    standard = make_node()
+    assert diagnostics_of(standard)["gravity_mps2"] == "9.80665 (standard)"
+
+
+def test_a_start_up_parameter_changed_at_run_time_is_refused_as_fixed(make_node):
+    """Finding: latitude_deg set at run time was refused as "gravity and latitude_deg exclude each other"."""
+    node = make_node(latitude_deg=45.0)
+    for name, value in (("latitude_deg", 47.0), ("height_m", 100.0), ("gravity", 9.79), ("model", "six")):
+        result = node.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful and result.reason.startswith(f"{name} is fixed at start-up"), result.reason
+    plain = make_node()
+    result = plain.set_parameters([Parameter("latitude_deg", value=47.0)])[0]
+    assert not result.successful and result.reason.startswith("latitude_deg is fixed at start-up"), result.reason
+    assert plain.set_parameters([Parameter("min_poses", value=16)])[0].successful  # a run-time one still changes
+
+
+def test_descriptors_say_read_only_and_the_range_enforced(make_node):
+    """`ros2 param describe`: every start-up-only parameter is read-only, every run-time one is not, and every
+    parameter whose values are bounded shows its range."""
+    from accel_calibration.core.settings import PARAMETERS
+    from accel_calibration.ros.parameters import NODE_PARAMETERS
+
+    node = make_node()
+    for parameter in PARAMETERS + NODE_PARAMETERS:
+        descriptor = node.describe_parameter(parameter.name)
+        assert descriptor.read_only == (not parameter.dynamic), parameter.name
+        if parameter.low is not None:
+            ranges = list(descriptor.floating_point_range) + list(descriptor.integer_range)
+            assert len(ranges) == 1, parameter.name
+            low = 0.0 if parameter.zero_means_auto else parameter.low
+            assert (ranges[0].from_value, ranges[0].to_value) == (low, parameter.high), parameter.name
