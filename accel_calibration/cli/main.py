@@ -42,10 +42,21 @@ class _OneLineParser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog=PROG, description="Calibrate MEMS accelerometers: a_true = M (a_raw - b), SI units.")
+    parser.add_argument("--version", action="version", version=f"{PROG} {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_OneLineParser)
     for command in COMMANDS.values():
         command.add_parser(commands)
     return parser
+
+
+def _version() -> str:
+    """The installed distribution's version (setup.py's), or "unknown" for a source tree never installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("accel_calibration")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _check_finite(args: argparse.Namespace) -> None:

@@ -185,6 +185,29 @@ class NodeParameters:
             self._mirroring.on = False
 
 
+def usage(program: str) -> str:
+    """`calibration_node --help`: how to start it and every parameter with its default (the descriptions:
+    `ros2 param describe`, docs/node.md)."""
+    lines = [f"usage: {program} [--help] [--ros-args [-p NAME:=VALUE]... [-r FROM:=TO]... [--params-file FILE]]",
+             "",
+             "Calibrates an IMU live: imu/data_raw (sensor_msgs/Imu) in, imu/data_calibrated out; services calibrate,",
+             "calibration/get, calibration/reset, calibration/save, calibration/enable, calibration/pause;",
+             "/diagnostics at 1 Hz; calibration/markers for RViz. Details: docs/node.md.",
+             "",
+             "parameters (-p NAME:=VALUE; * = changeable at run time):"]
+    for parameter in PARAMETERS + NODE_PARAMETERS:
+        default = parameter.default
+        shown = "not given" if isinstance(default, float) and math.isnan(default) else repr(default)
+        lines.append(f"  {parameter.name}{' *' if parameter.dynamic else ''} (default {shown})")
+    return "\n".join(lines)
+
+
+def asks_for_help(argv: list[str]) -> bool:
+    """-h or --help among the program's own arguments (those after --ros-args are ROS's)."""
+    own = argv[:argv.index("--ros-args")] if "--ros-args" in argv else argv
+    return any(arg in ("-h", "--help") for arg in own)
+
+
 def params_file_problem(argv: list[str]) -> str | None:
     """rcl reports a missing or broken --params-file in several lines of its own (or hangs on a FIFO, or
     recurses on deep nesting): say it in one line first."""

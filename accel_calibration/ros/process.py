@@ -15,7 +15,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import AccelCalibrationError
 from ..io.live_calibration import LOG_THROTTLE_S
-from .parameters import first_line, params_file_problem
+from .parameters import asks_for_help, first_line, params_file_problem, usage
 
 __all__ = ["GIL_SWITCH_INTERVAL_S", "run_node", "spin_until"]
 
@@ -45,7 +45,11 @@ def spin_until(node: Node, stop: threading.Event) -> None:
 def run_node(program: str, make_node: Callable[[], Node], args: list[str] | None = None) -> int:
     """Start ROS, build the node, spin it until SIGINT/SIGTERM, tear down. A bad start is one line, exit 2."""
     stop = threading.Event()
-    problem = params_file_problem(sys.argv[1:] if args is None else args)
+    argv = sys.argv[1:] if args is None else args
+    if asks_for_help(argv):
+        print(usage(program))
+        return 0
+    problem = params_file_problem(argv)
     if problem is not None:
         print(f"{program}: error: {problem}", file=sys.stderr)
         return 2
