@@ -39,6 +39,11 @@ class StreamHealth:
         return list(self.problem_by_input().values())
 
 
+def waiting_advice(imu_topic: str) -> str:
+    """The advice before any Imu message came: no orientation to turn to yet."""
+    return f"waiting for data on {imu_topic}: no Imu message yet"
+
+
 FIRST_REMINDER_S = 10.0
 MAX_REMINDER_S = 320.0  # a silence of hours is still said every few minutes, not every few seconds
 
@@ -75,7 +80,7 @@ def diagnostic_status(name: str, level: bytes, message: str, progress: Progress,
         level = DiagnosticStatus.WARN
     advice = progress.advice
     if health.imu_silent_s is None:  # nothing to turn yet: the sensor is not heard at all
-        advice = f"no Imu message on {health.imu_topic} yet"
+        advice = waiting_advice(health.imu_topic)
     elif calibration is not None and not progress.ready and progress.poses < progress.min_poses:
         # Calibrated (from a file, or earlier): the missing faces only refine it.
         advice = f"calibration in force; more poses would refine it ({advice})"

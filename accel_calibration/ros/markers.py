@@ -1,7 +1,8 @@
 """The pose map (core/pose_map.py) as visualization_msgs/MarkerArray for RViz and Foxglove: a faint unit
 sphere, the poses held as points on it coloured by status, the orientation to turn to next as an arrow
-from the centre, and the holes in coverage as small grey points. Each array starts with DELETEALL, so a
-reset or a dropped pose leaves nothing stale behind."""
+from the centre, the advice as text above the sphere (RViz draws no arrow's `text`), and the holes in
+coverage as small grey points. Each array starts with DELETEALL, so a reset or a dropped pose leaves nothing
+stale behind. The node publishes them latched (Transient Local): RViz sees them only with that durability."""
 from __future__ import annotations
 
 from collections.abc import Iterable
@@ -20,10 +21,12 @@ STATUS_COLOURS = {PoseStatus.USED: (0.1, 0.8, 0.2, 1.0), PoseStatus.MERGED: (0.2
                   PoseStatus.OUTLIER: (0.9, 0.1, 0.1, 1.0)}
 NEXT_COLOUR = (1.0, 0.6, 0.0, 1.0)
 HOLE_COLOUR = (0.6, 0.6, 0.6, 0.8)
+TEXT_COLOUR = (1.0, 1.0, 1.0, 1.0)
+TEXT_HEIGHT_M, TEXT_ABOVE_M = 0.12, 1.5
 SPHERE_COLOUR = (0.8, 0.8, 0.8, 0.15)
 POSE_SIZE_M, HOLE_SIZE_M = 0.08, 0.04  # the sphere has radius 1 (m in RViz: scale the view, not the data)
 # Marker ids within the namespace: the array is rebuilt whole each time.
-SPHERE_ID, POSES_ID, NEXT_ID, HOLES_ID = 0, 1, 2, 3
+SPHERE_ID, POSES_ID, NEXT_ID, HOLES_ID, ADVICE_ID = 0, 1, 2, 3, 4
 
 
 def _colour(rgba: tuple[float, float, float, float]) -> ColorRGBA:
@@ -63,6 +66,12 @@ def pose_markers(pose_map: PoseMap, frame_id: str, stamp: Time) -> MarkerArray:
         arrow.color = _colour(NEXT_COLOUR)
         arrow.text = pose_map.advice
         markers.append(arrow)
+    if pose_map.advice:
+        text = _marker(Marker.TEXT_VIEW_FACING, ADVICE_ID, frame_id, stamp, TEXT_HEIGHT_M)
+        text.pose.position.z = TEXT_ABOVE_M
+        text.color = _colour(TEXT_COLOUR)
+        text.text = pose_map.advice
+        markers.append(text)
     if len(pose_map.holes):
         hole_points = _marker(Marker.SPHERE_LIST, HOLES_ID, frame_id, stamp, HOLE_SIZE_M)
         hole_points.points = _points(pose_map.holes)

@@ -12,6 +12,7 @@ signals end the spin loop (ros/process.py).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import multiprocessing
@@ -45,7 +46,14 @@ from ..io.live_calibration import WorkSnapshot, diagnostic_values, file_status, 
 from ..io.live_stream import LiveStream, imu_ring, temperature_ring
 from ..io.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
-from .diagnostics import NAMESAKE_CHECKS_S, SilenceReminders, StreamHealth, diagnostic_status, namesake_problem
+from .diagnostics import (
+    NAMESAKE_CHECKS_S,
+    SilenceReminders,
+    StreamHealth,
+    diagnostic_status,
+    namesake_problem,
+    waiting_advice,
+)
 from .markers import pose_markers
 from .parameters import NODE_PARAMETERS, NodeParameters
 from .process import run_node, spin_until
@@ -311,7 +319,10 @@ class CalibrationNode(Node):
         self._publish_markers(work.pose_map, array.header.stamp)
 
     def _publish_markers(self, current: Any, stamp: Any) -> None:
-        """The pose map on calibration/markers, when the work has made a new one."""
+        """The pose map on calibration/markers, when the work has made a new one; before any Imu, no way to
+        turn: the text says what it waits for."""
+        if self._last_imu is None:
+            current = dataclasses.replace(current, next_direction=None, advice=waiting_advice(self._imu_topic))
         pickled = pickle.dumps(current)  # each snapshot is a new object: compare what it holds
         if pickled != self._markers_of:
             self._markers_of = pickled

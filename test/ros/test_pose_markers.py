@@ -61,3 +61,48 @@ def test_the_markers_show_the_poses_held_and_where_to_turn_next(tmp_path, tester
     assert tester.call("calibration/reset").success
     assert tester.spin_until(lambda: markers_of(received[-1], POSES_ID) is None, 10.0)
     assert received[-1].markers[0].action == Marker.DELETEALL
+
+
+def _text_marker(array: MarkerArray) -> Marker | None:
+    return next((m for m in array.markers if m.action == Marker.ADD and m.type == Marker.TEXT_VIEW_FACING), None)
+
+
+def test_the_advice_is_a_text_marker_rviz_draws():
+    """RViz draws no arrow's `text`: the advice is a TEXT_VIEW_FACING marker of its own, above the sphere."""
+    from builtin_interfaces.msg import Time
+
+    from accel_calibration.core.pose_map import pose_map
+    from accel_calibration.core.session import CalibrationSession
+    from accel_calibration.ros.markers import pose_markers
+
+    session = CalibrationSession()
+    progress = session.progress()
+    array = pose_markers(pose_map(session, None, progress), "imu_link", Time())
+    text = _text_marker(array)
+    assert text is not None and text.text == progress.advice and progress.advice.startswith("turn")
+    assert text.header.frame_id == "imu_link" and text.scale.z > 0 and text.color.a == 1.0
+    assert text.pose.position.z > 1.0  # above the unit sphere, not inside it
+
+
+def test_before_any_imu_the_markers_wait_for_data_and_point_nowhere(ros, tmp_path):
+    """Finding: before any Imu arrived the arrow said "turn x up"."""
+    from rclpy.parameter import Parameter
+
+    from accel_calibration.ros.node import CalibrationNode
+    from msg_tools.conversions import make_imu
+
+    node = CalibrationNode(parameter_overrides=[Parameter("calibration_file", value=str(tmp_path / "cal.yaml"))])
+    published: list[MarkerArray] = []
+    node._markers.publish = published.append
+    try:
+        node._publish_diagnostics()
+        waiting = published[-1]
+        assert markers_of(waiting, NEXT_ID) is None
+        assert _text_marker(waiting).text == "waiting for data on /imu/data_raw: no Imu message yet"
+        node._on_imu(make_imu(START_NS, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
+        node._publish_diagnostics()
+        heard = published[-1]
+        assert markers_of(heard, NEXT_ID) is not None and _text_marker(heard).text.startswith("turn")
+    finally:
+        node.close()
+        node.destroy_node()

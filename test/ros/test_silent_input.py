@@ -71,7 +71,7 @@ def test_before_any_imu_message_the_advice_says_nothing_has_arrived():
     for uptime_s in (0.5, 30.0):
         status = status_of(silent_since_start(uptime_s))
         values = {kv.key: kv.value for kv in status.values}
-        assert values["advice"] == f"no Imu message on {IMU} yet", values["advice"]
+        assert values["advice"] == f"waiting for data on {IMU}: no Imu message yet", values["advice"]
         assert "turn" not in status.message, status.message
 
 
