@@ -31,6 +31,17 @@ if TYPE_CHECKING:
     from .recording import BagStream, Recording
 
 
+def distinct_directions(poses: list[Pose], merge_angle_deg: float) -> int:
+    """How many directions the poses hold: one within merge_angle_deg of a direction counted is that one (the
+    pose store keeps holds of one direction apart when their means disagree, so its length is no count)."""
+    cos_merge = np.cos(np.radians(merge_angle_deg))
+    counted: list[np.ndarray] = []
+    for pose in poses:
+        if all(float(pose.direction @ direction) < cos_merge for direction in counted):
+            counted.append(pose.direction)
+    return len(counted)
+
+
 @dataclass(frozen=True)
 class ReplaySettings:
     """The session's settings (the node's parameters, same defaults and checks) and which topics to read."""
@@ -309,7 +320,9 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
         if len(session.store) < need and s.prior is None:
             problem = ("too few static poses for a calibration (no multi-pose session in this recording; "
                        f"{session.settings.model} needs {need} orientations): " + problem)
-        problem = (f"found {len(poses)} static pose{'' if len(poses) == 1 else 's'} ({len(session.store)} distinct) "
+        directions = distinct_directions(session.store.poses, session.settings.merge_angle_deg)
+        problem = (f"found {len(poses)} static pose{'' if len(poses) == 1 else 's'} ({directions} distinct "
+                   f"direction{'' if directions == 1 else 's'}) "
                    f"in {recording.stream} ({samples} {recording.unit}, {duration:.1f} s): {problem}")
     result = verdict.result
     if verdict.success:

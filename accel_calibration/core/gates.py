@@ -11,7 +11,7 @@ from .calibration import Calibration
 from .coverage import NextOrientation, ParameterSigma, SigmaBounds, next_orientation, parameter_sigmas, worst
 from .errors import CalibrationError
 from .fit import FitResult
-from .plausibility import bias_scale_refusal, loadable_part
+from .plausibility import GYRO_SCALE_BAND, bias_scale_refusal, loadable_part
 from .refusal import Gate, Refusal
 from .settings import Settings
 
@@ -30,6 +30,7 @@ class QualityGates:
     max_misalignment_sigma_mrad: float = 5.0  # ~5 mg at 1 g
     max_bias_mps2: float = 2.0  # plausibility: MEMS zero-g offsets are below ~150 mg
     scale_band: tuple[float, float] = (0.9, 1.1)  # plausibility: gain of each axis (row norm of M)
+    gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND  # the gyro's (gyro.scale_min, gyro.scale_max)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.min_poses, int) and self.min_poses >= 6):
@@ -48,7 +49,8 @@ class QualityGates:
         return cls(min_poses=settings.min_poses, max_residual_rms_mg=settings.max_residual_rms_mg,
                    max_bias_sigma_mg=settings.max_bias_sigma_mg, max_scale_sigma_ppm=settings.max_scale_sigma_ppm,
                    max_misalignment_sigma_mrad=settings.max_misalignment_sigma_mrad,
-                   max_bias_mps2=settings.max_bias_mps2, scale_band=(settings.scale_min, settings.scale_max))
+                   max_bias_mps2=settings.max_bias_mps2, scale_band=(settings.scale_min, settings.scale_max),
+                   gyro_scale_band=(settings.gyro_scale_min, settings.gyro_scale_max))
 
     @property
     def sigma_bounds(self) -> SigmaBounds:
@@ -113,4 +115,5 @@ class QualityGates:
     def loadable(self, calibration: Calibration) -> tuple[Calibration | None, str | None]:
         """What of a calibration that passed the gates may be saved: core/plausibility.loadable_part at
         these bounds, the check the file's readers (the node, `apply`, `report`) make before using it."""
-        return loadable_part(calibration, max_bias_mps2=self.max_bias_mps2, scale_band=self.scale_band)
+        return loadable_part(calibration, max_bias_mps2=self.max_bias_mps2, scale_band=self.scale_band,
+                             gyro_scale_band=self.gyro_scale_band)

@@ -10,6 +10,7 @@ import numpy as np
 
 from .errors import CalibrationError
 from .gyro_fit import GyroFitResult, turn_advice, unobserved_axes
+from .plausibility import GYRO_SCALE_BAND
 from .units import AXES
 
 
@@ -24,7 +25,7 @@ class GyroGates:
     # ~100 ppm and ~0.15 mrad.
     max_scale_sigma_ppm: float = 1000.0
     max_misalignment_sigma_mrad: float = 1.5
-    scale_band: tuple[float, float] = (0.9, 1.1)  # gain of each axis (row norm of M_g), SI raw rates
+    scale_band: tuple[float, float] = GYRO_SCALE_BAND  # gain of each axis (row norm of M_g), SI raw rates
 
     def __post_init__(self) -> None:
         if isinstance(self.min_motions, bool) or not isinstance(self.min_motions, int) or self.min_motions < 5:
@@ -94,6 +95,6 @@ def scale_gate(result: GyroFitResult, scale_band: tuple[float, float]) -> str | 
     gains = np.linalg.norm(result.matrix, axis=1)
     outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
     if outside:
-        return (f"gyro: gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (is the gyro in "
-                "rad/s?)")
+        return (f"gyro: gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} "
+                "(gyro.scale_min..gyro.scale_max; is the gyro in rad/s?)")
     return None

@@ -14,8 +14,9 @@ from .units import AXES
 # MEMS gyro zero-rate offsets are below ~0.35 rad/s (MPU-6050: +-20 deg/s); 1 rad/s leaves margin.
 MAX_GYRO_BIAS_RADPS = 1.0
 # A gyro matrix (rad/s in, rad/s out) whose axis gain is outside this is a gyro in other units or a bad fit:
-# MEMS gyro scale errors are a few percent.
-GYRO_SCALE_BAND = (0.8, 1.25)
+# MEMS gyro scale errors are a few percent. The one band of the gyro's gain, `gyro.scale_min`..`gyro.scale_max`:
+# the gyro gate's default (core/gyro_gates.GyroGates) and what a reader checks a file against.
+GYRO_SCALE_BAND = (0.9, 1.1)
 # Beyond any MEMS part's operating range (-40..125 degC); also keeps the polynomial in floating range.
 PLAUSIBLE_TEMPERATURE_DEGC = (-100.0, 200.0)
 # An entry this far from the structure's zero is a hand edit or another model, not rounding.
@@ -128,7 +129,8 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
                          max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS,
                          gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
     """None when the calibration may be put in force, else the first problem, one line. The bias and
-    scale gates take the node's settings (`max_bias_mps2`, `scale_min`, `scale_max`); with a
+    scale gates take the node's settings (`max_bias_mps2`, `scale_min`, `scale_max`, `gyro.scale_min`,
+    `gyro.scale_max`); with a
     temperature model they must hold over the whole calibrated range, not only at T_ref."""
     problem = structure_problem(calibration) or _orientation_problem(calibration.matrix, "the matrix M")
     if problem is not None:
@@ -152,8 +154,9 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
         gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
         outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
         if outside:
-            return (f"gyro matrix: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (a MEMS gyro's scale "
-                    "error is a few percent: a gyro in other units than rad/s, or a bad fit)")
+            return (f"gyro matrix: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (gyro.scale_min.."
+                    "gyro.scale_max; a MEMS gyro's scale error is a few percent: a gyro in other units than rad/s, "
+                    "or a bad fit)")
     if calibration.quadratic is not None:
         # q a^2 at 1 g beyond 10 % of g is not a quadratic error but another model (e.g. a file in g).
         worst = float(np.max(np.abs(calibration.quadratic))) * calibration.gravity

@@ -104,7 +104,9 @@ class CalibrationInForce:
         try:
             calibration = load_calibration(self.path)
             implausible = plausibility_problem(calibration, max_bias_mps2=self.settings.max_bias_mps2,
-                                               scale_band=(self.settings.scale_min, self.settings.scale_max))
+                                               scale_band=(self.settings.scale_min, self.settings.scale_max),
+                                               gyro_scale_band=(self.settings.gyro_scale_min,
+                                                                self.settings.gyro_scale_max))
             if implausible is not None:
                 raise CalibrationError(f"{self.path}: implausible for an accelerometer in m/s^2 ({implausible})")
         except CalibrationError as error:

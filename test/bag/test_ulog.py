@@ -84,7 +84,7 @@ def test_second_log_per_instance_temperatures(shared):
 def test_sample_ulg_is_one_still_stretch_said_in_one_line(shared, tmp_path, capsys):
     poses_out, cal = tmp_path / "poses.csv", tmp_path / "cal.yaml"
     refused(capsys, ["replay", shared(SAMPLE), "--poses-out", poses_out, "-o", cal], "found 2 static poses",
-            "(1 distinct) in sensor_combined (17070 samples, 68.9 s)", "sphere9 needs 12 orientations")
+            "(1 distinct direction) in sensor_combined (17070 samples, 68.9 s)", "sphere9 needs 12 orientations")
     assert not cal.exists()
     rows = poses_out.read_text().splitlines()
     header = rows[0].split(",")

@@ -89,7 +89,8 @@ def test_a_quality_without_a_matrix_is_refused(calibrated):
 
 @pytest.mark.parametrize("matrix, match", [
     (np.diag([1.0, 1.0, -1.0]), "gyro matrix is mirrored"),
-    (np.eye(3) * 57.3, r"gyro matrix: correction gain .* outside 0.8..1.25 \(.*other units than rad/s"),
+    (np.eye(3) * 57.3,
+     r"gyro matrix: correction gain .* outside 0.9..1.1 \(gyro.scale_min..gyro.scale_max; .*other units than rad/s"),
 ])
 def test_implausible_gyro_matrices_are_not_put_in_force(calibrated, matrix, match):
     calibration, _ = calibrated
