@@ -20,6 +20,7 @@ from ..core.errors import CalibrationError
 if TYPE_CHECKING:  # imported where used: `accel-calib --help` does not pay for YAML and the fits
     from ..core.axis_calibration import AxisWiseCalibration, Correction, Cost
     from ..core.calibration import Calibration
+    from ..io.autopilot_params import Parameter
     from ..io.estimator_yaml import NoiseFigures
 
 TARGETS = ("px4", "ardupilot", "kalibr", "openvins")
@@ -149,12 +150,29 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
         parameters = px4_parameters(fitted, args.instance, device_id=device,
                                     gyro_bias_radps=calibration.gyro_bias_radps,
                                     gyro_device_id=calibration.gyro_device_id)
-        return px4_params_text(parameters, f"Onboard parameters {source}"), notes
+        return px4_params_text(parameters, f"Onboard parameters {source}"), notes + _thermal_notes(parameters)
     parameters = ardupilot_parameters(fitted, args.instance, reference_degc=calibration.reference_temperature_degc,
                                       gyro_bias_radps=calibration.gyro_bias_radps)
+    notes += _thermal_notes(parameters)
     if calibration.gyro_bias_radps is not None:
         notes.append("ArduPilot recomputes INS_GYR*OFFS at every boot unless INS_GYR_CAL = 0")
     return ardupilot_param_text(parameters, source), notes
+
+
+def _thermal_notes(parameters: list[Parameter]) -> list[str]:
+    """What the switch-offs of the vehicle's own thermal compensation among `parameters` do, one line each."""
+    off = {p.name for p in parameters if p.name.endswith("_ENABLE") and p.value == 0}
+    raw = ("this calibration is of the raw sensor (replay undoes the compensation a log had on), so the vehicle's "
+           "own compensation must not be applied before it")
+    notes = []
+    if "TC_A_ENABLE" in off:
+        gyro = " and TC_G_ENABLE 0 (the gyro offset too)" if "TC_G_ENABLE" in off else ""
+        notes.append(f"TC_A_ENABLE 0{gyro} written: {raw}; it is one switch for every accelerometer of the "
+                     "vehicle: load every IMU's calibration (replay --all-imus), or those left keep no thermal "
+                     "compensation")
+    notes += [f"{name} 0 written: {raw} (ArduPilot's INS_TCALn holds this IMU's accelerometer and gyro)"
+              for name in sorted(off) if name.startswith("INS_TCAL")]
+    return notes
 
 
 def _noise_figures(args: argparse.Namespace, calibration: Calibration) -> NoiseFigures:

@@ -114,9 +114,11 @@ def _check_instance(autopilot: str, instance: int) -> None:
 def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int | None = None,
                    gyro_bias_radps: np.ndarray | None = None, gyro_device_id: int | None = None) -> list[Parameter]:
     """CAL_ACCn_* (and CAL_ACCn_ID when the device ID is known), TC_A* when the fit carries a drift
-    polynomial, CAL_GYROn_*OFF from the gyro bias with CAL_GYROn_ID (PX4 applies a gyro slot only to the
-    device whose ID it holds): the gyro's own ID where known (a BMI088's gyro is a die of its own), else the
-    accelerometer's (PX4's drivers of a one-chip IMU register its accel and gyro under one device ID).
+    polynomial, else TC_A_ENABLE 0 (the calibration is of the raw sensor: PX4's thermal offset, left on, would
+    be subtracted before it), CAL_GYROn_*OFF from the gyro bias, with TC_G_ENABLE 0 and CAL_GYROn_ID (PX4
+    applies a gyro slot only to the device whose ID it holds): the gyro's own ID where known (a BMI088's gyro
+    is a die of its own), else the accelerometer's (PX4's drivers of a one-chip IMU register its accel and
+    gyro under one device ID).
     Refuses values outside PX4's accepted ranges."""
     _check_instance("px4", instance)
     out: list[Parameter] = []
@@ -129,7 +131,10 @@ def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int
         value = float(fitted.scale[axis])
         _check_range(f"{prefix}{name}SCALE", value, *PX4_SCALE_RANGE)
         out.append(Parameter(f"{prefix}{name}SCALE", value))
-    if fitted.has_drift:
+    if not fitted.has_drift:
+        # Ours is of the raw sensor: a thermal offset left on would be subtracted before it.
+        out.append(Parameter("TC_A_ENABLE", 0, integer=True))
+    else:
         if fitted.clamp_degc is None or fitted.drift_zero_degc is not None:
             raise ParameterFileError("PX4's thermal offset needs a clamp range and no zero temperature")
         tc = f"TC_A{instance}_"
@@ -146,6 +151,7 @@ def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int
             for axis in range(3):
                 out.append(Parameter(f"{tc}X{power}_{axis}", float(rows[power, axis])))
     if gyro_bias_radps is not None:
+        out.append(Parameter("TC_G_ENABLE", 0, integer=True))  # the gyro bias too is of the raw gyro
         gyro_device = device_id if gyro_device_id is None else gyro_device_id
         if gyro_device is not None:
             out.append(Parameter(f"CAL_GYRO{instance}_ID", gyro_device, integer=True))
@@ -223,7 +229,8 @@ def _ardupilot_names(instance: int) -> tuple[str, str, str, str]:
 def ardupilot_parameters(fitted: AxisWiseCalibration, instance: int, *, reference_degc: float | None,
                          gyro_bias_radps: np.ndarray | None = None) -> list[Parameter]:
     """INS_ACC*OFFS/SCAL of this instance, INS_ACCn_CALTEMP, INS_TCALn_* when the fit carries a drift
-    (its own polynomial: reference 35 degC, coefficients x 1e6, zero at CALTEMP), INS_GYR*OFFS. Refuses
+    (its own polynomial: reference 35 degC, coefficients x 1e6, zero at CALTEMP), else INS_TCALn_ENABLE 0
+    (the calibration is of the raw sensor), INS_GYR*OFFS. Refuses
     values outside ArduPilot's declared ranges."""
     _check_instance("ardupilot", instance)
     offset_prefix, scale_prefix, gyro_prefix, _ = _ardupilot_names(instance)
@@ -237,6 +244,8 @@ def ardupilot_parameters(fitted: AxisWiseCalibration, instance: int, *, referenc
         _check_range(scale_prefix + name, value, *ARDUPILOT_SCALE_RANGE)
         out.append(Parameter(scale_prefix + name, value))
     n = instance + 1
+    if not fitted.has_drift:  # ours is of the raw sensor: a temperature calibration left on would go before it
+        out.append(Parameter(f"INS_TCAL{n}_ENABLE", 0, integer=True))
     calibration_temperature = fitted.drift_zero_degc if fitted.has_drift else reference_degc
     if calibration_temperature is not None:
         _check_range(f"INS_ACC{n}_CALTEMP", calibration_temperature, *ARDUPILOT_TEMPERATURE_RANGE_DEGC)

@@ -16,7 +16,7 @@ from accel_calibration.cli.main import main
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import load_calibration
 from msg_tools.dataflash_writer import FORMATS_4X, imu_records, parameter_records, write_dataflash
-from msg_tools.ulog_writer import sensor_combined_array, sensor_selection_array, write_ulog
+from msg_tools.ulog_writer import sensor_combined_array, sensor_selection_array, sensor_triplet_array, write_ulog
 
 from helpers.autopilot_logs import (
     DEVICES,
@@ -185,3 +185,95 @@ def test_a_px4_thermal_offset_without_a_temperature_is_one_line(tmp_path, capsys
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "thermal compensation is enabled but the log gives no temperature" in err
     assert not out.exists()
+
+
+# --- the vehicle's own thermal compensation: the export switches it off --------------------------------------
+
+def px4_thermal_offset(params: dict[str, float], slot: int, temperature: np.ndarray) -> np.ndarray:
+    """TemperatureCompensation::calc_thermal_offsets_3D: X0 + X1 dT + X2 dT^2 + X3 dT^3,
+    dT = clamp(T, TMIN, TMAX) - TREF."""
+    tc = f"TC_A{slot}_"
+    d = (np.clip(temperature, params[tc + "TMIN"], params[tc + "TMAX"]) - params[tc + "TREF"])[:, None]
+    x = [np.array([params.get(f"{tc}X{p}_{i}", 0.0) for i in range(3)]) for p in range(4)]
+    return x[0] + (x[1] + (x[2] + x[3] * d) * d) * d
+
+
+def px4_vehicle(params: dict[str, float], instance: int, raw: np.ndarray, temperature: np.ndarray) -> np.ndarray:
+    """What PX4 makes of the raw samples with these parameters in force: the thermal offset of the TC_Aj slot
+    whose TC_Aj_ID is CAL_ACCn_ID where TC_A_ENABLE is 1, then (x - CAL_ACCn_OFF) .* CAL_ACCn_SCALE."""
+    if params.get("TC_A_ENABLE", 0) == 1:
+        for slot in range(4):
+            if f"TC_A{slot}_TREF" in params and params.get(f"TC_A{slot}_ID") == params[f"CAL_ACC{instance}_ID"]:
+                raw = raw - px4_thermal_offset(params, slot, temperature)
+                break
+    return px4_correct(params, instance, raw)
+
+
+def ardupilot_vehicle(params: dict[str, float], instance: int, raw: np.ndarray, temperature: np.ndarray
+                      ) -> np.ndarray:
+    """What ArduPilot makes of the raw samples with these parameters in force: TCal::correct_sensor where
+    INS_TCALn_ENABLE is 1, then the offsets and scales."""
+    if params.get(f"INS_TCAL{instance + 1}_ENABLE", 0) == 1:
+        raw = raw - ardupilot_tcal(params, instance, temperature)
+    return ardupilot_correct(params, instance, raw)
+
+
+def test_an_ardupilot_export_switches_off_the_temperature_calibration_it_undid(tmp_path, capsys):
+    """The vehicle's parameters (the log's) overlaid by the export, applied as ArduPilot applies them: the
+    truth within the stated loss; the vehicle's INS_TCAL1 left on cost 2.6 mg."""
+    board = simulate(13)
+    board.temperature = np.linspace(18.0, 47.0, len(board.t_us))
+    vehicle = {**ardupilot_parameters(board), "INS_TCAL1_ENABLE": 1.0, "INS_TCAL1_TMIN": 20.0,
+               "INS_TCAL1_TMAX": 45.0, "INS_ACC1_CALTEMP": 30.0}
+    for k, coefficient in enumerate((20000.0, -40.0, 2.0), start=1):
+        for a, sign in zip("XYZ", (1.0, -0.5, 0.8)):
+            vehicle[f"INS_TCAL1_ACC{k}_{a}"] = coefficient * sign
+    imu = board.imus[0]
+    accel, gyro = logged(imu)
+    accel = accel - (ardupilot_tcal(vehicle, 0, board.temperature) * imu.stale_scale) @ YAW_90.T
+    log = tmp_path / "warm.bin"
+    write_dataflash(log, FORMATS_4X, parameter_records(START_US - 1000, vehicle)
+                    + imu_records(board.t_us, accel, gyro, board.temperature))
+    exported, _, stated = replay_and_export(log, tmp_path, "ardupilot", 0, [], capsys)
+    assert exported["INS_TCAL1_ENABLE"] == 0
+    loaded = {**vehicle, **exported}
+    error = worst_error_mg(ardupilot_vehicle(loaded, 0, imu.raw, board.temperature), imu)
+    assert error < stated + 0.5, f"{error:.2f} mg, stated {stated:.2f} mg"
+
+
+def test_a_px4_export_switches_off_the_thermal_compensation_it_undid(tmp_path, capsys):
+    """As for ArduPilot: PX4's TC_A left on, the export loaded over it cost 5.5 mg; TC_A_ENABLE is one switch
+    for every accelerometer, and the export says so."""
+    board = simulate(14)
+    board.temperature = np.linspace(15.0, 50.0, len(board.t_us))
+    imu = board.imus[0]
+    vehicle = {"SENS_BOARD_ROT": 2, "TC_A_ENABLE": 1, "TC_G_ENABLE": 0, "TC_A0_ID": DEVICES[0], "TC_A0_TREF": 25.0,
+               "TC_A0_TMIN": 10.0, "TC_A0_TMAX": 55.0, "CAL_ACC0_ID": DEVICES[0], "CAL_GYRO0_ID": DEVICES[0]}
+    for i, (x1, x2) in enumerate(((4e-4, 2e-6), (-3e-4, -1e-6), (2e-4, 3e-6))):
+        vehicle[f"TC_A0_X0_{i}"], vehicle[f"TC_A0_X1_{i}"], vehicle[f"TC_A0_X2_{i}"] = 0.002, x1, x2
+    for axis, name in enumerate("XYZ"):
+        vehicle[f"CAL_ACC0_{name}OFF"] = float(imu.stale_offset[axis])
+        vehicle[f"CAL_ACC0_{name}SCALE"] = float(imu.stale_scale[axis])
+        vehicle[f"CAL_GYRO0_{name}OFF"] = float(imu.gyro_offset[axis])
+    thermal = px4_thermal_offset(vehicle, 0, board.temperature)
+    assert np.ptp(thermal, axis=0).max() / MG > 1
+    accel = ((imu.raw - thermal - imu.stale_offset) * imu.stale_scale) @ YAW_90.T
+    gyro = (imu.gyro_raw - imu.gyro_offset) @ YAW_90.T
+    log = tmp_path / "warm.ulg"
+    write_ulog(log, [("sensor_accel", 0, sensor_triplet_array(board.t_us, imu.raw, DEVICES[0], board.temperature)),
+                     ("sensor_combined", 0, sensor_combined_array(board.t_us, accel, gyro)),
+                     ("sensor_selection", 0, sensor_selection_array(board.t_us[::100], DEVICES[0], DEVICES[0]))],
+               parameters=vehicle)
+    calibration = tmp_path / "px4.yaml"
+    assert main(["replay", str(log), "-o", str(calibration)]) == 0
+    assert "TC_A" in capsys.readouterr().out
+    exported_path = tmp_path / "px4.params"
+    assert main(["export", str(calibration), "--to", "px4", "-o", str(exported_path)]) == 0
+    said = capsys.readouterr().out
+    stated = float(re.search(r"worst ([0-9.]+) mg", said).group(1))
+    exported = parse_parameter_text(exported_path.read_text(), str(exported_path)).values
+    assert exported["TC_A_ENABLE"] == 0 and exported["TC_G_ENABLE"] == 0
+    assert re.search(r"TC_A_ENABLE 0.*every accelerometer", said), said
+    loaded = {**vehicle, **exported}
+    error = worst_error_mg(px4_vehicle(loaded, 0, imu.raw, board.temperature), imu)
+    assert error < stated + 0.5, f"{error:.2f} mg, stated {stated:.2f} mg"
