@@ -12,6 +12,7 @@ In one process (tests, tools): `LiveCalibration(settings, path, log)` makes its 
 from __future__ import annotations
 
 import collections
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -98,6 +99,8 @@ class LiveCalibration:
         self._samples, self._readings = rings
         self._link: StreamLink | None = link or self.stream
         self.still = False  # the detector's state at the last feed
+        self._poses_taken = 0  # poses handed to the store since start
+        self._applied_at: int | None = None  # _poses_taken when a fit of the poses held was put in force
         self.stream_flowing = False  # the last feed took samples
         # What the work itself set aside, by name (the session's screening keeps its own counters).
         self.set_aside: collections.Counter[str] = collections.Counter()
@@ -198,9 +201,21 @@ class LiveCalibration:
         self.session.update_settings(settings)
 
     def refresh_progress(self) -> Progress:
-        self.progress = self.session.progress(self.in_force.calibration, self._calibrate_service)
+        progress = self.session.progress(self.in_force.calibration, self._calibrate_service)
+        if progress.ready and self._applied_at == self._poses_taken:
+            # What "ready" offered is done: the calibration in force is the fit of these very poses.
+            progress = dataclasses.replace(progress, advised_direction=None, advice=(
+                f"calibrated: applied from the {progress.poses} poses held (more orientations would refine it)"))
+        self.progress = progress
         self.pose_map = pose_map(self.session, self.in_force.calibration, self.progress)
         return self.progress
+
+    def _say_moved(self) -> None:
+        """The watch says the calibration in force moved: a warning in the log as well as on /diagnostics
+        (throttled: the poses that show it keep coming)."""
+        state = self.watch.state
+        if state.moved:
+            self._log.warning(f"calibration moved: {state.text}", throttle_duration_sec=LOG_THROTTLE_S)
 
     def feed(self) -> list[Pose]:
         """What the stream put in the rings into the live feed; new poses into the store, a refit."""
@@ -230,6 +245,7 @@ class LiveCalibration:
             log.debug(f"pose {event.index + 1}: mean {np.round(pose.accel_mps2, 5).tolist()} m/s^2 over "
                       f"{pose.samples} samples, {'merged' if event.merged else 'new'}"
                       + (" (disagreed with the pose it would merge into: kept apart)" if event.disagreed else ""))
+        self._poses_taken += len(poses)
         # The covariances follow the noise measured at the still poses.
         if self._link is not None:
             self._link.set_noise(self.session.accel_noise_var(), self.session.gyro_noise_var())
@@ -243,6 +259,7 @@ class LiveCalibration:
             applied, message = self._apply(self._keeping_gyro(verdict)[0], verdict.result, asked=False)
             (log.info if applied else log.warning)(("auto-calibrated: " if applied
                                                     else "auto-calibration not applied: ") + message)
+        self._say_moved()
 
     def _log_refit(self, result: FitResult | None, progress: Progress) -> None:
         calibration = None if result is None or not result.success else result.calibration
@@ -280,6 +297,8 @@ class LiveCalibration:
             self._put_in_force(calibration)
             self.watch.restart(calibration)
             self.status = (OK, "calibrated")
+            self._applied_at = self._poses_taken
+            self.refresh_progress()
         else:
             self._say_unsaved(message)
         return applied, message
@@ -299,8 +318,10 @@ class LiveCalibration:
         self._feed.drain()
         last = self._feed.take_poses()
         _, verdict = self.session.verdict_for(last, self._feed.holding())
+        self._poses_taken += len(last)
         self.watch.add(last)
         self.refresh_progress()
+        self._say_moved()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
             self._log.warning(f"{self._calibrate_service}: {message}")
@@ -318,6 +339,7 @@ class LiveCalibration:
     def reset(self) -> tuple[bool, str]:
         self.feed()
         dropped = self.session.reset()
+        self._applied_at = None
         self._take_prior()
         self.refresh_progress()
         message = f"dropped {dropped} poses; the calibration in force is unchanged"

@@ -224,3 +224,46 @@ def test_a_refused_gyro_part_keeps_the_gyro_calibration_in_force(tmp_path):
         np.testing.assert_array_equal(kept.gyro_bias_radps, first.gyro_bias_radps)
         assert rate_error(kept) < 1e-3, rate_error(kept)
     assert live.in_force.calibration.bias is not first.bias  # the accelerometer's part is the new fit
+
+
+def test_after_a_successful_calibrate_the_advice_is_no_longer_ready(tmp_path):
+    """Finding: "ready: call /calibrate" stayed on /diagnostics after /calibrate had applied the fit."""
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", LogLines())
+    live.start()
+    buffer(live, 0, len(SAMPLES.t_ns))
+    live.feed()
+    assert live.snapshot().progress.advice.startswith("ready: call /calibrate"), live.snapshot().progress.advice
+    assert live.calibrate()[0]
+    for snapshot in (live.snapshot(), (live.feed(), live.snapshot())[1]):
+        advice = snapshot.progress.advice
+        assert "ready" not in advice and advice.startswith("calibrated: applied"), advice
+        assert snapshot.pose_map.advice == advice
+    live.reset()
+    assert "ready" not in live.snapshot().progress.advice
+
+
+def test_a_moved_calibration_is_warned_in_the_log_too(tmp_path):
+    """Finding: a calibration that moved was said on /diagnostics only, never logged. The log says it as a
+    warning (throttled: one line per LOG_THROTTLE_S at most while it lasts)."""
+    import dataclasses
+
+    from accel_calibration.core.session import CalibrationSession
+    from accel_calibration.io.calibration_file import save_calibration
+    from msg_tools.synthetic_imu import SyntheticImu, spread_orientations
+
+    session = CalibrationSession()
+    for pose in session.add_recording(SAMPLES.t_ns, SAMPLES.accel_raw, SAMPLES.gyro_raw):
+        session.add_pose(pose)
+    save_calibration(session.calibrate().calibration, tmp_path / "cal.yaml")
+    moved = dataclasses.replace(ERRORS, bias_mps2=ERRORS.bias_mps2 + np.array([0.0, 5 * MG, 0.0]))
+    later = SyntheticImu(moved, spread_orientations(10, np.random.default_rng(101)), dwell_s=2.5, move_s=1.0,
+                         rate_hz=200.0, seed=101).samples()
+    log = LogLines()
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", log)
+    live.start()
+    buffer_messages(live, later)
+    live.feed()
+    live.calibrate()  # the pose still held counts too
+    assert live.watch.state.moved, live.watch.state.text
+    warned = [text for level, text in log.lines if level == "warning" and text.startswith("calibration moved: ")]
+    assert warned and "bias y +" in warned[-1], log.lines
