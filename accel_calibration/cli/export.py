@@ -147,6 +147,10 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
             notes.append("no device ID known (--device-id): PX4 applies CAL_ACCn_* and CAL_GYROn_* to the device "
                          "whose ID is in CAL_ACCn_ID / CAL_GYROn_ID and TC_An_* only where TC_An_ID matches; "
                          "check them on the vehicle")
+        elif calibration.gyro_bias_radps is not None and calibration.gyro_device_id is None:
+            notes.append(f"CAL_GYRO{args.instance}_ID = {device}, the accelerometer's: the file names no gyro "
+                         "device (right for a one-chip IMU; a BMI055/BMI088 gyro has an ID of its own: check it "
+                         "on the vehicle)")
         parameters = px4_parameters(fitted, args.instance, device_id=device,
                                     gyro_bias_radps=calibration.gyro_bias_radps,
                                     gyro_device_id=calibration.gyro_device_id)

@@ -153,3 +153,15 @@ def test_check_picks_the_dataflash_instance_of_the_files_device(tmp_path, capsys
     out = capsys.readouterr().out
     assert out.startswith("holds:") and f"IMU instance 1 (device {DEVICES[1]})" in out, out
     refused(capsys, ["check", imu1, log, "--instance", "0"], str(DEVICES[0]), "--instance 1")
+
+
+def test_export_says_when_the_gyro_id_is_the_accelerometers_by_assumption(two_imu_log, tmp_path, capsys):
+    _, imu1 = two_imu_log
+    older = tmp_path / "older.yaml"
+    older.write_text("".join(line for line in imu1.read_text().splitlines(keepends=True) if "device_id:" not in line))
+    capsys.readouterr()
+    assert main(["export", str(older), "--to", "px4", "--instance", "1", "-o", str(tmp_path / "p.params")]) == 0
+    out = capsys.readouterr().out
+    assert f"CAL_GYRO1_ID = {DEVICES[1]}, the accelerometer's" in out, out
+    assert main(["export", str(imu1), "--to", "px4", "--instance", "1", "-o", str(tmp_path / "q.params")]) == 0
+    assert "the accelerometer's" not in capsys.readouterr().out
