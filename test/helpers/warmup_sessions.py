@@ -1,0 +1,131 @@
+"""Simulated warm-ups with a known truth: an IMU sitting still while it warms (a fast rise, then a slow
+one), its biases following smooth curves no polynomial follows exactly (tanh and exponential shapes:
+tens of mg and a few mrad/s over 30 degC), MPU-6050-class noise at 200 Hz (400 ug/sqrt(Hz), 0.005
+deg/s/sqrt(Hz)), a temperature register quantised as the part's (1/340 degC), optionally lagging the die."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from accel_calibration.core.calibration import Calibration
+from accel_calibration.core.units import MG, STANDARD_GRAVITY
+from accel_calibration.core.warmup import WarmupRecording
+
+RATE_HZ = 200.0
+ACCEL_NOISE_MPS2 = 4.0 * MG  # 400 ug/sqrt(Hz) over ~100 Hz
+GYRO_NOISE_RADPS = 0.87e-3  # 0.005 deg/s/sqrt(Hz) over ~100 Hz
+REGISTER_DEGC = 1.0 / 340.0
+
+
+@dataclass(frozen=True)
+class WarmupTruth:
+    """One IMU's true drift shapes (amplitudes per axis, m/s^2 and rad/s) and its calibration in force:
+    raw = M^-1 a_true + b + drift(T), w_raw = G^-1 w_true + b_g + drift_g(T)."""
+
+    accel_amplitude: np.ndarray  # (3,)
+    accel_centre_degc: np.ndarray  # (3,)
+    gyro_amplitude: np.ndarray  # (3,)
+    gyro_centre_degc: np.ndarray  # (3,)
+    calibration: Calibration
+
+    def accel_drift(self, degc: np.ndarray) -> np.ndarray:
+        x = np.asarray(degc, dtype=float).reshape(-1, 1)
+        shape = np.tanh((x - self.accel_centre_degc) / 6.0)
+        shape[:, 1] = 1.0 - np.exp(-(x[:, 0] - 5.0) / 9.0)  # y: an exponential approach
+        result: np.ndarray = self.accel_amplitude * shape
+        return result
+
+    def gyro_drift(self, degc: np.ndarray) -> np.ndarray:
+        x = np.asarray(degc, dtype=float).reshape(-1, 1)
+        shape = np.tanh((x - self.gyro_centre_degc) / 5.0)
+        shape[:, 2] = np.exp(-(x[:, 0] - 5.0) / 12.0)
+        result: np.ndarray = self.gyro_amplitude * shape
+        return result
+
+
+def two_imus() -> tuple[WarmupTruth, WarmupTruth]:
+    first = WarmupTruth(np.array([12.0, -20.0, 15.0]) * MG, np.array([30.0, 0.0, 25.0]),
+                        np.array([2.0e-3, -1.5e-3, 2.5e-3]), np.array([28.0, 33.0, 0.0]),
+                        Calibration(bias=np.array([0.21, -0.34, 0.15]),
+                                    matrix=np.array([[1.012, 0.0, 0.0], [0.008, 0.991, 0.0], [-0.006, 0.011, 1.009]]),
+                                    gyro_bias_radps=np.array([0.01, -0.02, 0.005])))
+    second = WarmupTruth(np.array([-18.0, 10.0, -22.0]) * MG, np.array([34.0, 0.0, 29.0]),
+                         np.array([-1.2e-3, 3.0e-3, -2.0e-3]), np.array([24.0, 36.0, 0.0]),
+                         Calibration(bias=np.array([-0.12, 0.08, -0.3]),
+                                     matrix=np.array([[0.993, 0.0, 0.0], [-0.01, 1.015, 0.0], [0.004, -0.007, 0.988]]),
+                                     gyro_bias_radps=np.array([-0.004, 0.012, -0.03])))
+    return first, second
+
+
+@dataclass(frozen=True)
+class Heating:
+    """T(t) = end - (end - start) exp(-t / tau_s) for `minutes`; then, when cool_minutes, back towards
+    `start` with the same time constant. The register lags the die by `lag_s` (first order)."""
+
+    start_degc: float = 15.0
+    end_degc: float = 45.0
+    tau_s: float = 200.0
+    minutes: float = 15.0
+    cool_minutes: float = 0.0
+    lag_s: float = 0.0
+
+
+def die_temperature(t_s: np.ndarray, heating: Heating) -> np.ndarray:
+    h = heating
+    warm = h.end_degc - (h.end_degc - h.start_degc) * np.exp(-t_s / h.tau_s)
+    if not h.cool_minutes:
+        return warm
+    turn = h.minutes * 60.0
+    top = h.end_degc - (h.end_degc - h.start_degc) * np.exp(-turn / h.tau_s)
+    cool = h.start_degc + (top - h.start_degc) * np.exp(-(t_s - turn) / h.tau_s)
+    return np.where(t_s < turn, warm, cool)
+
+
+def warmup_recording(truth: WarmupTruth, rng: np.random.Generator, heating: Heating = Heating(),
+                     gravity_direction: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                     accel_turn_on: np.ndarray | None = None, gyro_turn_on: np.ndarray | None = None,
+                     step: tuple[float, np.ndarray, np.ndarray] | None = None,
+                     bump: tuple[float, float, np.ndarray] | None = None) -> WarmupRecording:
+    """A still warm-up's raw samples. `*_turn_on`: this power-on's constant offset; `step`: (time s, accel
+    jump, gyro jump) lasting from then on; `bump`: (start s, duration s, accel jump) that comes back."""
+    t = np.arange(0.0, (heating.minutes + heating.cool_minutes) * 60.0, 1.0 / RATE_HZ)
+    die = die_temperature(t, heating)
+    register = die
+    if heating.lag_s:
+        share = 1.0 / (RATE_HZ * heating.lag_s)
+        register = lfilter([share], [1.0, share - 1.0], die - die[0]) + die[0]
+    register = np.round(register / REGISTER_DEGC) * REGISTER_DEGC
+    calibration = truth.calibration
+    true_accel = STANDARD_GRAVITY * np.asarray(gravity_direction, dtype=float) / np.linalg.norm(gravity_direction)
+    accel = np.linalg.solve(calibration.matrix, true_accel) + calibration.bias + truth.accel_drift(die)
+    gyro = np.zeros((len(t), 3)) + (calibration.gyro_bias_radps if calibration.gyro_bias_radps is not None else 0.0)
+    gyro = gyro + truth.gyro_drift(die)
+    if accel_turn_on is not None:
+        accel = accel + accel_turn_on
+    if gyro_turn_on is not None:
+        gyro = gyro + gyro_turn_on
+    if step is not None:
+        after = t >= step[0]
+        accel[after] += step[1]
+        gyro[after] += step[2]
+    if bump is not None:
+        inside = (t >= bump[0]) & (t < bump[0] + bump[1])
+        accel[inside] += bump[2]
+    accel = accel + rng.normal(0.0, ACCEL_NOISE_MPS2, accel.shape)
+    gyro = gyro + rng.normal(0.0, GYRO_NOISE_RADPS, gyro.shape)
+    return WarmupRecording(np.round(t * 1e9).astype(np.int64), accel, gyro, register)
+
+
+def true_accel_curve(truth: WarmupTruth, degc: np.ndarray, reference_degc: float) -> np.ndarray:
+    """The accelerometer's drift in the corrected frame, zero at the reference: what a warm-up's curve
+    should be (M times the raw drift)."""
+    drift = truth.accel_drift(degc) - truth.accel_drift(np.array([reference_degc]))
+    result: np.ndarray = drift @ truth.calibration.matrix.T
+    return result
+
+
+def true_gyro_bias(truth: WarmupTruth, degc: np.ndarray) -> np.ndarray:
+    """The corrected gyro's bias at each temperature (the calibration in force has no gyro matrix)."""
+    return truth.gyro_drift(degc)
