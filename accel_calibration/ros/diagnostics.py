@@ -123,3 +123,12 @@ def namesake_problem(fully_qualified_name: str, names_and_namespaces: list[tuple
         return None
     return (f"{count} nodes are named {fully_qualified_name}: they share its services and parameters, and by "
             "default its calibration file; give each its own name or namespace (-r __node:=... or -r __ns:=...)")
+
+
+def service_twins_problem(service: str, offering: list[str]) -> str | None:
+    """One line when other nodes (`offering`: their fully qualified names) offer this node's calibrate service:
+    nodes of other names in one namespace each answer every call, and the caller takes one answer."""
+    if not offering:
+        return None
+    return (f"{len(offering) + 1} nodes offer {service}: this one and {', '.join(sorted(offering))}; each answers "
+            "every call and the caller takes one answer: give each its own namespace (-r __ns:=...)")

@@ -52,6 +52,7 @@ from .diagnostics import (
     StreamHealth,
     diagnostic_status,
     namesake_problem,
+    service_twins_problem,
     waiting_advice,
 )
 from .markers import pose_markers
@@ -86,7 +87,7 @@ class CalibrationNode(Node):
         self._imu_topic = self.resolve_topic_name("imu/data_raw")
         self._temperature_topic = self.resolve_topic_name("imu/temperature")
         path = self._calibration_path(node_values["calibration_file"])
-        calibrate_service = self.resolve_service_name("calibrate")
+        calibrate_service = self._calibrate_service = self.resolve_service_name("calibrate")
         context = multiprocessing.get_context("spawn")  # not fork: this process runs DDS threads
         self._stream = LiveStream(self._params.settings, path, self.get_logger(), imu_ring(context),
                                   temperature_ring(context), imu_topic=self._imu_topic)
@@ -279,17 +280,39 @@ class CalibrationNode(Node):
         return self._worker.snapshot or self._starting
 
     def _look_for_namesakes(self) -> None:
-        """At NAMESAKE_CHECKS_S after start: another node of this fully qualified name is a WARN (once)."""
+        """At NAMESAKE_CHECKS_S after start: another node of this fully qualified name, or another node
+        offering this one's calibrate service, is a WARN (each logged once)."""
         looks_due = sum(1 for at in NAMESAKE_CHECKS_S if time.monotonic() - self._started >= at)
         if looks_due <= self._namesake_looks:
             return
         self._namesake_looks = looks_due
         if looks_due == len(NAMESAKE_CHECKS_S):
             self._namesake_timer.cancel()
-        problem = namesake_problem(self.get_fully_qualified_name(), self.get_node_names_and_namespaces())
-        if problem is not None and self._namesake is None:
-            self.get_logger().warning(problem)
-        self._namesake = problem or self._namesake
+        own = self.get_fully_qualified_name()
+        graph = self.get_node_names_and_namespaces()
+        problems = [namesake_problem(own, graph), service_twins_problem(self._calibrate_service,
+                                                                         self._offering_calibrate(own, graph))]
+        said = self._namesake or ""
+        for problem in problems:
+            if problem is not None and problem not in said:
+                self.get_logger().warning(problem)
+        found = "; ".join(problem for problem in problems if problem is not None)
+        self._namesake = found or self._namesake
+
+    def _offering_calibrate(self, own: str, graph: list[tuple[str, str]]) -> list[str]:
+        """The other nodes (fully qualified names) that offer this node's calibrate service."""
+        offering = []
+        for name, namespace in graph:
+            fqn = f"{namespace.rstrip('/')}/{name}"
+            if fqn == own:
+                continue
+            try:
+                services = self.get_service_names_and_types_by_node(name, namespace)
+            except Exception:  # noqa: BLE001 - the node left the graph meanwhile
+                continue
+            if any(service == self._calibrate_service for service, _ in services):
+                offering.append(fqn)
+        return offering
 
     def _publish_diagnostics(self) -> None:
         self._stream.flush()
