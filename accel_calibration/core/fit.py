@@ -22,7 +22,7 @@ from .fit_solvers import fit_without_temperature, numerical_failure, uncertainty
 from .fit_temperature import fit_with_temperature
 from .models import MODELS, REFERENCE_MODELS, SPHERE_MODELS
 from .pose import Pose
-from .prior import Prior, fit_sphere_with_prior, prior_terms
+from .prior import Prior, fit_sphere_with_prior, prior_noise_floor, prior_terms
 from .temperature_models import (
     TEMPERATURE_MODELS,
     TemperatureOptions,
@@ -148,8 +148,10 @@ def fit(
         r = ref if ref is None or keep is None else ref[keep]
         s = pose_sigma if pose_sigma is None or keep is None else pose_sigma[keep]
         if prior_values is not None:
+            assert prior is not None  # prior_values come from it
             result = fit_sphere_with_prior(a, model, gravity, *prior_values,
-                                           None if t is None else float(t.mean()), frame_id)
+                                           None if t is None else float(t.mean()), frame_id,
+                                           prior_noise_floor(prior, s))
         elif options is not None:
             assert t is not None  # checked above: a temperature model needs temperature_degc
             # The room-temperature fit inside takes the caller's outlier test and pose noise, as this one does.

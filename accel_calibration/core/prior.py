@@ -103,6 +103,17 @@ def prior_terms(given: Prior | Calibration, model: str, gravity: float) -> tuple
     return values, sigma
 
 
+def prior_noise_floor(given: Prior | Calibration, pose_sigma: np.ndarray | None) -> float:
+    """One pose's noise the test of the prior never goes below (raw units; 0: none known): the larger of
+    the poses' own (rms of their means' sigma) and the prior's fit residual rms (how closely this sensor's
+    poses lie on a sphere, misfit included)."""
+    prior = given.calibration if isinstance(given, Prior) else given
+    own = float(np.sqrt(np.mean(np.square(pose_sigma)))) if pose_sigma is not None and len(pose_sigma) else 0.0
+    fitted = prior.quality.residual_rms_mg * MG if prior.quality is not None else 0.0
+    floor = max(own, fitted)
+    return floor if math.isfinite(floor) else 0.0
+
+
 def _solve(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_values: np.ndarray,
            prior_weight: np.ndarray, start: np.ndarray) -> LeastSquaresSolution:
     """Gauss-Newton on the poses' residuals with the prior's rows after them: prior_weight_k (p_k - p0_k),
@@ -166,9 +177,11 @@ def _settle(model: SphereModel, accel_t: np.ndarray, gravity: float, prior_value
 
 
 def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_values: np.ndarray,
-                          prior_sigma: np.ndarray, ref_temperature: float | None, frame_id: str) -> FitResult:
+                          prior_sigma: np.ndarray, ref_temperature: float | None, frame_id: str,
+                          noise_floor: float = 0.0) -> FitResult:
     """The sphere fit of `accel` with the prior (prior_terms) as pseudo-measurements; a failed result
-    says why. The poses' noise s is estimated with the fit (module docstring)."""
+    says why. The poses' noise s is estimated with the fit (module docstring); the test of the prior
+    against the poses (core/prior_evidence.py) never takes it below noise_floor (prior_noise_floor)."""
     model = SphereModel(name)
     n = len(accel)
     if n < 2:
@@ -181,10 +194,11 @@ def fit_sphere_with_prior(accel: np.ndarray, name: str, gravity: float, prior_va
     if settled.dof < 1.0:
         return no_degree_of_freedom(n, f"{model.size} parameters of model {name} and the prior", name,
                                     condition_number=settled.condition)
-    evidence = prior_evidence(model, accel, gravity, prior_values, prior_sigma, settled.variance)
+    evidence = prior_evidence(model, accel, gravity, prior_values, prior_sigma, settled.variance, noise_floor)
     result = _result(accel, model, gravity, settled, prior_sigma, ref_temperature, frame_id, evidence)
-    conflict = result.success and (evidence.refusal or
-                                   _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled))
+    # A moved bias first (its own test says by how much each axis moved), then the rest of what the poses see.
+    moved = result.success and _conflict(model, accel_t, gravity, prior_values, prior_sigma, typical, settled)
+    conflict = moved or evidence.refusal
     if conflict:
         return FitResult(False, conflict, name, condition_number=result.condition_number, poses=n,
                          residuals_mg=result.residuals_mg, missing_directions=result.missing_directions)

@@ -6,8 +6,11 @@ observe (effect units: m/s^2 at 1 g); that change y, k numbers, is the poses' ow
 prior is from the sensor there. Its covariance is the poses' (s^2 (V^T J^T J V)^-1, s^2 from the residuals
 of that fit over n - k) plus the prior's carried the same way (its file sigma, the bias's widened by the
 drift allowance). chi^2 = y^T C^-1 y against k times the F(k, n - k) quantile at CONFLICT_K_SIGMA (s^2 is
-estimated from few poses): beyond it the prior is refused, naming the parameters (or the combinations the
-poses cannot tell apart) furthest from it in sigmas, and by how much.
+estimated from few poses). A pose's noise is never taken below a floor known without the fit, the larger of
+the poses' own noise (their sample covariance) and the prior's own fit residual (how closely this sensor's
+poses lie on a sphere), which counts as FLOOR_DOF degrees of freedom beside the poses' n - k: with a few
+poses the limit is then not so wide as to pass anything. Beyond it the prior is refused, naming the
+parameters (or the combinations the poses cannot tell apart) furthest from it in sigmas, and by how much.
 
 What the poses do not observe stays at the prior, and is said: each parameter of a fit with a prior gets a
 note, "kept from the prior, not checked", or, for one the poses see only together with others, which ones
@@ -25,6 +28,8 @@ from .observability import Observability, observability
 from .units import AXES, MG
 
 CONFLICT_K_SIGMA = 4.0
+# A pose noise floor known without the fit counts as this many degrees of freedom beside the poses' own.
+FLOOR_DOF = 10
 # Named in a refusal: at most this many of the parameters furthest from the prior, those beyond this many sigmas.
 NAMED = 4
 NAMED_SIGMAS = 3.0
@@ -60,10 +65,10 @@ def display_names(model: SphereModel) -> list[str]:
 
 
 def prior_evidence(model: SphereModel, accel: np.ndarray, gravity: float, prior_values: np.ndarray,
-                   prior_sigma: np.ndarray, fallback_variance: float) -> PriorEvidence:
+                   prior_sigma: np.ndarray, fallback_variance: float, noise_floor: float = 0.0) -> PriorEvidence:
     """The poses' own estimate of what they observe, against the prior (module docstring).
-    fallback_variance: one pose's residual variance where the poses leave no degree of freedom of their own."""
-    from .fit_outliers import critical_ratio  # scipy.stats, imported only when a fit has a prior
+    fallback_variance: one pose's residual variance where the poses leave no degree of freedom of their own
+    and no noise_floor is known; noise_floor: one pose's noise never assumed smaller (raw units, 0: none)."""
 
     residual, jacobian = model.residual_and_jacobian(prior_values, accel, gravity)
     _, matrix = model.unpack(prior_values)
@@ -77,14 +82,13 @@ def prior_evidence(model: SphereModel, accel: np.ndarray, gravity: float, prior_
     change = -(seen.estimator(jacobian, np.ones(n)) @ residual)  # the prior moved to the poses, observed part
     after = residual + jacobian @ change
     dof = n - k
-    variance = float(after @ after) / dof if dof >= 1 else fallback_variance
+    variance, limit = _variance_and_limit(float(after @ after), dof, k, fallback_variance, noise_floor)
     scaled = (jacobian * unit) @ seen.basis
     poses_cov = variance * np.linalg.inv(scaled.T @ scaled)
     prior_cov = seen.basis.T @ (np.square(prior_sigma / unit)[:, None] * seen.basis)
     covariance = poses_cov + prior_cov  # (k, k), effect units
     y = seen.basis.T @ (change / unit)
     chi2 = float(y @ np.linalg.solve(covariance, y))
-    limit = k * critical_ratio(CONFLICT_K_SIGMA, k, max(1, dof))
     if not (math.isfinite(chi2) and chi2 > limit):
         return PriorEvidence(seen, names, None)
     full = seen.basis @ covariance @ seen.basis.T  # effect units, every parameter (0 off the observed)
@@ -93,6 +97,21 @@ def prior_evidence(model: SphereModel, accel: np.ndarray, gravity: float, prior_
         f"the poses disagree with the prior: what they observe of it is chi^2 = {chi2:.3g} away over {k} "
         f"directions ({CONFLICT_K_SIGMA:g}-sigma limit {limit:.3g}): {named}; the prior is not this sensor's, "
         "or it moved beyond the drift allowance (raise it)"))
+
+
+def _variance_and_limit(squares: float, dof: int, k: int, fallback: float, floor: float) -> tuple[float, float]:
+    """One pose's variance and the chi^2 limit at CONFLICT_K_SIGMA, k F(k, dof) (the variance estimated).
+    The residuals over n - k give it; a floor known without the fit (the poses' own noise, the prior's fit
+    residual) counts as FLOOR_DOF degrees of freedom pooled with them, and the variance never goes below it.
+    Without a degree of freedom or a floor: the fallback (the fit's own estimate)."""
+    from .fit_outliers import critical_ratio  # scipy.stats, imported only when a fit has a prior
+
+    if floor > 0:
+        pooled = (squares + FLOOR_DOF * floor**2) / (max(dof, 0) + FLOOR_DOF)
+        return max(pooled, floor**2), k * critical_ratio(CONFLICT_K_SIGMA, k, max(dof, 0) + FLOOR_DOF)
+    if dof >= 1:
+        return squares / dof, k * critical_ratio(CONFLICT_K_SIGMA, k, dof)
+    return fallback, k * critical_ratio(CONFLICT_K_SIGMA, k, 1)
 
 
 def _furthest(seen: Observability, moved: np.ndarray, covariance: np.ndarray, y: np.ndarray,
