@@ -9,6 +9,7 @@ from dataclasses import dataclass
 class Gate(enum.Enum):
     """The accelerometer's gates, in the order a verdict meets them, by the name a refusal says."""
 
+    MOVED = "moved"  # no pose held is from before a move the watch of the calibration in force saw
     UNITS = "units"  # the stream is in m/s^2
     POSES = "poses"  # enough poses for the model
     FIT = "fit"  # the fit converged and observes every parameter

@@ -34,6 +34,7 @@ from .stream.stream_side import StreamSide
 from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
 from .units import MG, units_text
+from .watch import CalibrationWatch
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,9 @@ class CalibrationSession:
         # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
         # rest at the prior; set it with `use_prior`.
         self.prior: Prior | None = None
+        # The calibration in force against the poses found since (the node drives it; replay has none in
+        # force): once it saw a move, calibrate() refuses to fit poses from before it with those after.
+        self.watch = CalibrationWatch()
 
     @property
     def model(self) -> str:
@@ -317,6 +321,9 @@ class CalibrationSession:
     def calibrate(self, holding: Pose | None = None) -> Verdict:
         """Fit the poses held (and the one being held) and judge the fit; the verdict names the gate."""
         extra = () if holding is None else (holding,)
+        mixed = self.moved_text()
+        if mixed is not None:
+            return Verdict.refused(Refusal(Gate.MOVED, mixed))
         if self.prior is not None:
             return self._calibrate_with_prior(self.store.poses + list(extra), self.prior)
         poses = self.store.poses + list(extra)
@@ -341,6 +348,19 @@ class CalibrationSession:
         if result is None or result.calibration is None or refusal is not None:
             return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
+
+    def moved_text(self) -> str | None:
+        """Why the poses held cannot be fitted together: the watch saw the calibration in force move and some
+        were found before it (a fit would average the sensor before and after the move, with a sigma that
+        knows nothing of it); None when none was."""
+        since = self.watch.moved_since_ns
+        before = 0 if since is None else sum(1 for pose in self.store.poses if pose.start_ns < since)
+        if not before:
+            return None
+        moved = self.watch.state.text.split(": recalibrate")[0]
+        return (f"the calibration in force moved ({moved}); {before} of the {len(self.store)} poses held are from "
+                "before the move: fitted with those after, they would mix the sensor before and after it; call "
+                "calibration/reset, hold each orientation again, then calibrate")
 
     def poses_needed(self) -> int:
         """The poses a fit without a prior needs: min_poses, and at least one more than the model has
@@ -472,7 +492,8 @@ class CalibrationSession:
             fitted_temperature = fit_.calibration.temperature
         need = self.poses_needed()
         refusal = None if self.last_fit is None else self.gates.check(self.last_fit)
-        ready = fit_ is not None and refusal is None and n >= need
+        moved = self.moved_text() is not None
+        ready = fit_ is not None and refusal is None and n >= need and not moved
         # Once there is a fit (one that failed for want of observability too), the orientation that would
         # pin the loosest parameter down most; before, the first face not yet seen.
         turn = None
@@ -493,6 +514,8 @@ class CalibrationSession:
         direction: ArrayLike | None = None
         if ready:
             advice = f"ready: call {calibrate_service}"
+        elif moved:
+            advice = "the calibration moved after poses held were found: call calibration/reset, then hold again"
         elif turn is not None:
             advice, direction = turn.text, turn.direction
         elif faces:

@@ -112,7 +112,7 @@ class LiveCalibration:
         self._feed = self.session.live_feed()
         self.progress = self.session.progress(None, calibrate_service)
         self.pose_map = pose_map(self.session, None, self.progress)  # the latest, replaced whole
-        self.watch = CalibrationWatch()  # the calibration in force against the poses found since
+        self.watch: CalibrationWatch = self.session.watch  # the calibration in force against the poses found since
 
     def start(self, open_file: bool = True) -> None:
         """Put the file's calibration in force. `open_file`: first clear what an interrupted save left and

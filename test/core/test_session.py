@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from accel_calibration import MG, Calibration, Pose, fit
 from accel_calibration.core.correction import Correction, rep145_covariance
 from accel_calibration.core.errors import SettingsError
+from accel_calibration.core.refusal import Gate
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import PARAMETERS, Settings
 from accel_calibration.core.stream.feed import RecordingFeed
@@ -369,3 +370,33 @@ def test_a_pose_within_its_standard_error_refines_one_5_mg_off_is_kept_apart(noi
                                          end_ns=3 * 10**9))
         assert event.merged is merged and event.disagreed is not merged, (offset / MG, standard_error / MG)
         assert session.counters.merge_disagreements == (0 if merged else 1)
+
+
+def test_calibrate_after_the_watch_saw_a_move_refuses_naming_reset_and_after_it_fits_the_new_bias():
+    """The session's watch (driven by the node) saw the calibration in force move while poses from before
+    it are held: calibrate refuses with the gate `moved`, naming calibration/reset, where it gave bias y 2.4 mg
+    off; after the reset the orientations held again give the new bias within 0.5 mg."""
+    errors, rng = sensor(4100)
+    orientations = spread_orientations(14, rng)
+    session = CalibrationSession()
+    for pose in poses_of(errors, orientations, rng):
+        session.add_pose(pose)
+    verdict = session.calibrate()
+    assert verdict.success, verdict.message
+    session.watch.restart(verdict.calibration)
+    moved = replace(errors, bias_mps2=errors.bias_mps2 + np.array([0.0, 5 * MG, 0.0]))
+    for first_ns, sensor_now in ((50 * 10**9, errors), (100 * 10**9, moved)):
+        for pose in poses_of(sensor_now, orientations, rng, first_ns=first_ns):
+            session.add_pose(pose)
+            session.watch.add([pose])
+    assert session.watch.state.moved and session.watch.moved_since_ns >= 100 * 10**9
+    verdict = session.calibrate()
+    assert not verdict.success and verdict.refusal.gate is Gate.MOVED and "calibration/reset" in verdict.message
+    assert not session.progress().ready and "calibration/reset" in session.progress().advice
+    session.reset()
+    for pose in poses_of(moved, orientations, rng, first_ns=150 * 10**9):
+        session.add_pose(pose)
+        session.watch.add([pose])
+    verdict = session.calibrate()
+    assert verdict.success, verdict.message
+    assert abs(verdict.calibration.bias[1] - moved.bias_mps2[1]) < 0.5 * MG

@@ -66,3 +66,34 @@ def test_a_calibration_put_in_force_restarts_the_poses_that_count():
     assert not watch.state.moved and watch.poses == []
     state = watch.add(poses_of(errors, spread_orientations(8, rng), rng))
     assert not state.moved and state.text.startswith("calibration holds (8 poses, ")
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_a_shift_while_the_watch_runs_is_reported_at_its_size(axis):
+    """The calibration holds for a session of poses, then the bias moves 5 mg and the same orientations are
+    held again: the figure is the shift's (within 1 mg), from the poses since it moved, not the shift
+    diluted by the poses from before (which read +0.4 mg, then +1.5 mg 20 poses later)."""
+    for seed in range(6):
+        errors, rng = sensor(3000 + seed)
+        watch = CalibrationWatch()
+        watch.restart(fitted(errors, rng))
+        orientations = spread_orientations(14, rng)
+        for pose in poses_of(errors, orientations, rng):
+            assert not watch.add([pose]).moved
+        moved = dataclasses.replace(errors, bias_mps2=errors.bias_mps2 + 5 * MG * np.eye(3)[axis])
+        after = poses_of(moved, orientations * 2, rng, first_ns=100 * 10**9)
+        for pose in after:
+            watch.add([pose])
+        assert watch.state.moved and watch.result is not None
+        changes = {c.name: c for c in watch.result.changes}
+        change = changes[f"bias {'xyz'[axis]}"]
+        assert abs(change.change - 5 * MG) < 1 * MG, (seed, change.change / MG)
+        assert [c.name for c in watch.result.moved] == [f"bias {'xyz'[axis]}"], watch.state.text
+        assert watch.state.text.startswith(f"bias {'xyz'[axis]} +{change.change / MG:.1f} mg")
+        # Judged on the poses since the move: the first of them an orientation that sees the axis moved.
+        watch_before = CalibrationWatch()
+        watch_before.restart(watch.calibration)
+        assert watch_before.add(poses_of(errors, orientations, rng)).moved is False
+        assert watch_before.moved_since_ns is None
+        assert after[0].start_ns <= watch.moved_since_ns <= after[len(orientations)].start_ns
+        assert len(watch.result.poses) >= 2 * len(orientations) - 6
