@@ -322,12 +322,21 @@ def instance_of_device(calibration: Any, what: str, recording: str, settings: An
 
 def calibration_in_force(path: str) -> Any:
     """A calibration file fit to be put in force (what the node checks at start-up): loaded safely and
-    plausible under the default gates, else one line naming the problem."""
-    from ..core.plausibility import plausibility_problem
+    plausible under the default gates, else one line naming the problem. A gyro matrix whose gains are
+    beyond the default gyro.scale_max (a file fitted with it raised) is left out, said in one line: these
+    commands take no parameters, and replay at the default keeps the gyro's bias only too."""
+    import sys
+
+    from ..core.plausibility import gyro_gain_outside, plausibility_problem
     from ..core.settings import Settings
     from ..io.calibration_file import load_calibration
 
     calibration = load_calibration(path)
+    outside = gyro_gain_outside(calibration)
+    if outside is not None:
+        calibration = calibration.replace(gyro_matrix=None, gyro_quality=None)
+        print(f"{PROG}: note: {path}: gyro matrix not used here ({outside}, the default gyro.scale_min.."
+              "gyro.scale_max; the node takes its own): the gyro's bias only", file=sys.stderr)
     defaults = Settings()
     problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
                                    scale_band=(defaults.scale_min, defaults.scale_max))

@@ -150,13 +150,10 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
         problem = _orientation_problem(calibration.gyro_matrix, "the gyro matrix")
         if problem is not None:
             return problem
-        lo, hi = gyro_scale_band
-        gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
-        outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
-        if outside:
-            return (f"gyro matrix: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} (gyro.scale_min.."
-                    "gyro.scale_max; a MEMS gyro's scale error is a few percent: a gyro in other units than rad/s, "
-                    "or a bad fit)")
+        outside = gyro_gain_outside(calibration, gyro_scale_band)
+        if outside is not None:
+            return (f"gyro matrix: {outside} (gyro.scale_min..gyro.scale_max; a MEMS gyro's scale error is a few "
+                    "percent: a gyro in other units than rad/s, or a bad fit)")
     if calibration.quadratic is not None:
         # q a^2 at 1 g beyond 10 % of g is not a quadratic error but another model (e.g. a file in g).
         worst = float(np.max(np.abs(calibration.quadratic))) * calibration.gravity
@@ -164,6 +161,16 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
             return f"quadratic term {worst * 100:.3g} % of g at 1 g: implausible for an accelerometer"
     return None
 
+
+
+def gyro_gain_outside(calibration: Calibration, gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
+    """The gyro matrix's axis gains outside gyro.scale_min..gyro.scale_max, said; None when within (or none)."""
+    if calibration.gyro_matrix is None:
+        return None
+    lo, hi = gyro_scale_band
+    gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
+    outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+    return f"correction gain {', '.join(outside)} outside {lo:g}..{hi:g}" if outside else None
 
 
 def without_gyro(calibration: Calibration) -> Calibration:

@@ -76,3 +76,22 @@ def test_the_distinct_poses_said_are_the_directions_held(tmp_path):
     found = re.search(r"found (\d+) static poses \((\d+) distinct directions?\)", err)
     assert found, err
     assert int(found.group(1)) >= 12 and int(found.group(2)) == 4, err
+
+
+def test_readers_at_the_default_limit_take_such_a_file_with_its_gyro_bias_only(xsens_csv, tmp_path, capsys):
+    """export (like apply and report) has no parameters: it reads the file at the default gyro.scale_max, as
+    replay at the default keeps the gyro's bias only, and says so in one line; the node, with the raised
+    parameter, takes the matrix too."""
+    from accel_calibration.cli.main import main
+    from accel_calibration.io.autopilot_params import parse_parameter_text
+
+    calibration = tmp_path / "xsens.yaml"
+    assert replay_xsens(xsens_csv, calibration, "-p", "gyro.scale_max:=1.4")[0] == 0
+    exported = tmp_path / "xsens.params"
+    assert main(["export", str(calibration), "--to", "px4", "--force", "-o", str(exported)]) == 0  # 12 mg misaligned
+    captured = capsys.readouterr()
+    assert "gyro matrix not used" in captured.err and "gyro.scale_max" in captured.err, captured.err
+    assert captured.err.count("\n") == 1
+    params = parse_parameter_text(exported.read_text(), str(exported)).values
+    bias = load_calibration(calibration).gyro_bias_radps
+    np.testing.assert_allclose([params[f"CAL_GYRO0_{a}OFF"] for a in "XYZ"], bias, atol=1e-6)
