@@ -235,11 +235,11 @@ class Calibration:
             set_(self, "quadratic", _frozen(self.quadratic, (3,), "quadratic"))
         if self.temperature is not None and not isinstance(self.temperature, TemperatureModel):
             raise CalibrationError("temperature must be a TemperatureModel or None")
-        if self.temperature is not None and self.temperature.kind == "polynomial" and self.quadratic is not None:
+        if self.temperature is not None and self.temperature.kind != "segmented" and self.quadratic is not None:
             # The segmented drift is added after the whole room-temperature correction, the polynomial
-            # one is folded into M and b, which the quadratic's inversion does not allow.
-            raise CalibrationError("a polynomial temperature model cannot be combined with the quadratic "
-                                   "(reference15) term")
+            # and spline ones are folded into M and b, which the quadratic's inversion does not allow.
+            raise CalibrationError(f"a {self.temperature.kind} temperature model cannot be combined with the "
+                                   "quadratic (reference15) term")
         if self.dividing_head is not None:
             if not isinstance(self.dividing_head, DividingHeadTerms):
                 raise CalibrationError("dividing_head must be a DividingHeadTerms or None")
@@ -337,18 +337,35 @@ class Calibration:
         corrected: np.ndarray = ((rows - self.bias - drift) / scale) @ self.matrix.T
         return corrected.reshape(array.shape)
 
-    def apply_gyro(self, raw_radps: ArrayLike) -> np.ndarray:
+    def apply_gyro(self, raw_radps: ArrayLike, temperature: ArrayLike | None = None) -> np.ndarray:
         """Correct raw angular rates, (3,) or (N, 3): w = gyro_matrix (w_raw - gyro_bias_radps), each term
-        left out when the calibration has none (the bias alone before a gyro fit)."""
+        left out when the calibration has none (the bias alone before a gyro fit). With a gyro temperature
+        model its drift at `temperature` (degC, scalar or (N,); None: the reference) is taken off too."""
         array = np.asarray(raw_radps, dtype=float)
         if array.shape[-1:] != (3,) or array.ndim > 2:
             raise CalibrationError(f"raw angular rates must have shape (3,) or (N, 3), got {array.shape}")
         if self.gyro_bias_radps is not None:
             array = array - self.gyro_bias_radps
+        if self.temperature is not None and self.temperature.has_gyro:
+            rows = np.atleast_2d(array)
+            at = self.temperature.reference_degc if temperature is None else temperature
+            temps = np.broadcast_to(np.asarray(at, dtype=float), (len(rows),))
+            if not np.all(np.isfinite(temps)):
+                raise CalibrationError("temperature must be finite")
+            array = (rows - self.temperature.gyro_drift(temps)).reshape(array.shape)
         if self.gyro_matrix is None:
             return array.copy() if self.gyro_bias_radps is None else array
         corrected: np.ndarray = array @ self.gyro_matrix.T
         return corrected
+
+    def gyro_bias_at(self, temperature_degc: float | None) -> np.ndarray | None:
+        """The gyro bias taken off at this temperature (the reference when None): gyro_bias_radps plus the
+        temperature model's gyro drift there; None when the calibration has neither."""
+        if self.temperature is None or not self.temperature.has_gyro:
+            return self.gyro_bias_radps
+        at = self.temperature.reference_degc if temperature_degc is None else float(temperature_degc)
+        drift: np.ndarray = self.temperature.gyro_drift(np.array([at]))[0]
+        return drift if self.gyro_bias_radps is None else self.gyro_bias_radps + drift
 
     def gyro_rate_covariance(self, raw_radps: ArrayLike, noise_radps: ArrayLike) -> np.ndarray:
         """(3, 3) covariance of one corrected angular rate (REP-145 angular_velocity_covariance): the raw
@@ -457,6 +474,7 @@ def _same_temperature(a: TemperatureModel | None, b: TemperatureModel | None) ->
         and all(
             np.array_equal(getattr(a, name), getattr(b, name))
             for name in ("bias_coefficients", "scale_coefficients", "segment_bounds_degc",
-                         "segment_temperatures_degc", "segment_coefficients")
+                         "segment_temperatures_degc", "segment_coefficients", "spline_knots_degc", "spline_bias",
+                         "spline_gyro_knots_degc", "spline_gyro_bias")
         )
     )

@@ -8,10 +8,11 @@ matmul round differently by CPU kernel and matrix size), so a sample's corrected
 for bit whether it is corrected alone, in a group of any size, or on any CPU.
 
 A Correction is built from a Calibration at one temperature (polynomial bias and scale drift folded
-into M and b; the segmented model's drift of the raw output as its (l, m, n) per axis at that
-temperature), with the reference15 quadratic term, the gyro bias and the REP-145 covariance; rebuilt
-when the calibration, the measured noise or the temperature (by TEMPERATURE_STEP_DEGC) changes and
-swapped whole, so a message is corrected by one consistent set.
+into M and b, a warm-up's spline drift into b and the gyro bias; the segmented model's drift of the
+raw output as its (l, m, n) per axis at that temperature), with the reference15 quadratic term, the
+gyro bias and the REP-145 covariance; rebuilt when the calibration, the measured noise or the
+temperature (by TEMPERATURE_STEP_DEGC) changes and swapped whole, so a message is corrected by one
+consistent set.
 """
 from __future__ import annotations
 
@@ -133,7 +134,7 @@ class Correction:
             matrix=_floats9(terms[:9]),
             bias=_floats3(terms[9:12]),
             quadratic=None if calibration.quadratic is None else _floats3(calibration.quadratic),
-            gyro_bias_radps=None if calibration.gyro_bias_radps is None else _floats3(calibration.gyro_bias_radps),
+            gyro_bias_radps=_floats3_or_none(calibration.gyro_bias_at(temperature_degc)),
             covariance=None if cov is None or noise_var_per_axis is None else _floats9(cov),
             temperature_degc=temperature_degc if calibration.temperature is not None else None,
             temperature_clamped=clamped,
@@ -345,6 +346,10 @@ def correct_rows(calibration: Calibration, accel_mps2: np.ndarray,
 def _floats3(values: object) -> Floats3:
     a, b, c = (float(v) for v in np.asarray(values, dtype=float).ravel())
     return a, b, c
+
+
+def _floats3_or_none(values: object) -> Floats3 | None:
+    return None if values is None else _floats3(values)
 
 
 def _floats9_or_none(values: object) -> Floats9 | None:

@@ -24,7 +24,11 @@ Two models, both carried by a Calibration and applied with the current temperatu
   the coefficients are interpolated linearly between the temperatures the neighbouring segments were
   learned at, so the output has no step at a segment edge and follows the drift between set points.
 
-Both store T_ref and the calibrated range; outside it the temperature is clamped to the edge and
+- ``spline`` (from a warm-up, core/warmup.py): the bias drift of the accelerometer and of the gyro, a
+  natural cubic spline through values at knots, zero at T_ref, flat outside the knots (never
+  extrapolated): a_true = M (a_raw - b - drift(T)), w_true = G (w_raw - b_g - gyro_drift(T)).
+
+All store T_ref and the calibrated range; outside it the temperature is clamped to the edge and
 the clamp is reported. A temperature fit is refused, with the reason, when the poses' temperature
 span is under `min_span_degc` (10 by default); a segment is refused only when its orientations cannot
 determine it, naming the axis and the orientation it needs.
@@ -41,11 +45,13 @@ from .coverage import CONDITION_LIMIT, scaled_condition_number
 from .errors import CalibrationError
 from .gauss_newton import LeastSquaresSolution, gauss_newton
 from .units import AXES
+from .warmup_curve import spline_basis
 
 if TYPE_CHECKING:
     from .models import SphereModel
 
-TEMPERATURE_MODELS = ("none", "polynomial", "segmented")
+TEMPERATURE_MODELS = ("none", "polynomial", "segmented")  # what a fit of poses may be asked for
+TEMPERATURE_KINDS = ("polynomial", "segmented", "spline")  # what a calibration may hold (spline: a warm-up's)
 # The orientations a segment's advice is phrased in, as the cosine between an axis and the measured
 # gravity reaction: "x pointing up" within ~32 deg of vertical, "x level" within ~17 deg of horizontal,
 # "x tilted about 45 deg" in between (what separates l from n on the sphere).
@@ -120,11 +126,19 @@ class TemperatureModel:
     segment_coefficients: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))  # (K, (l, m, n), axis)
     segment_poses: tuple[int, ...] = ()  # poses each segment was learned from
     segment_blend: bool = True  # interpolate between segments (False: pick the segment holding T)
+    # spline (from a warm-up): the raw output's bias drift at the knots, zero at the reference, a natural
+    # cubic spline between them, flat outside them (the range); the gyro's likewise, or no rows.
+    spline_knots_degc: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (K,) increasing
+    spline_bias: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) m/s^2
+    spline_gyro_knots_degc: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (J,) over the same range
+    spline_gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (J, 3) rad/s, or none
 
     def __post_init__(self) -> None:
-        if self.kind not in ("polynomial", "segmented"):
-            raise CalibrationError(f"temperature model kind must be polynomial or segmented, got {self.kind!r}")
+        if self.kind not in TEMPERATURE_KINDS:
+            raise CalibrationError(f"temperature model kind must be one of {', '.join(TEMPERATURE_KINDS)}, "
+                                   f"got {self.kind!r}")
         set_ = object.__setattr__
+        self._check_spline()
         for name in ("bias_coefficients", "scale_coefficients"):
             array = _frozen_array(getattr(self, name), (-1, 3), name)
             if len(array) > 3:
@@ -159,6 +173,45 @@ class TemperatureModel:
         set_(self, "range_degc", (lo, hi))
         set_(self, "reference_degc", float(self.reference_degc))
 
+    def _check_spline(self) -> None:
+        """The spline's arrays: K >= 2 increasing knots spanning the range, K rows of bias (and of gyro
+        bias, or none); empty for the other kinds."""
+        set_ = object.__setattr__
+        knots = _frozen_array(self.spline_knots_degc, (-1,), "spline knots")
+        bias = _frozen_array(self.spline_bias, (-1, 3), "spline bias")
+        gyro_knots = _frozen_array(self.spline_gyro_knots_degc, (-1,), "spline gyro knots")
+        gyro = _frozen_array(self.spline_gyro_bias, (-1, 3), "spline gyro bias")
+        if self.kind != "spline":
+            if len(knots) or len(bias) or len(gyro_knots) or len(gyro):
+                raise CalibrationError(f"spline knots and biases belong to the spline model, not {self.kind}")
+        else:
+            ends = tuple(float(v) for v in self.range_degc)
+            for name, where, values in (("", knots, bias), ("gyro ", gyro_knots, gyro)):
+                if name and not len(where) and not len(values):
+                    continue  # no gyro part
+                if len(where) < 2 or np.any(np.diff(where) <= 0) or len(values) != len(where):
+                    raise CalibrationError(f"spline temperature model: {name}knots must be at least 2, increasing, "
+                                           f"with a {name}bias row each (got {len(where)} knots, {len(values)} rows)")
+                if (float(where[0]), float(where[-1])) != ends:
+                    raise CalibrationError(f"spline temperature model: its range is its first and last {name}knot")
+        set_(self, "spline_knots_degc", knots)
+        set_(self, "spline_bias", bias)
+        set_(self, "spline_gyro_knots_degc", gyro_knots)
+        set_(self, "spline_gyro_bias", gyro)
+
+    def gyro_drift(self, temperature_degc: ArrayLike) -> np.ndarray:
+        """(N, 3) drift of the raw gyro's bias at each temperature, rad/s, w_true = G (w_raw - b_g - drift);
+        zeros for a model without a gyro part. Flat outside the range."""
+        t = np.atleast_1d(np.asarray(temperature_degc, dtype=float))
+        if not len(self.spline_gyro_bias):
+            return np.zeros((len(t), 3))
+        drift: np.ndarray = spline_basis(self.spline_gyro_knots_degc, t) @ self.spline_gyro_bias
+        return drift
+
+    @property
+    def has_gyro(self) -> bool:
+        return bool(len(self.spline_gyro_bias))
+
     def clamp(self, temperature_degc: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(temperature clamped to the calibrated range, mask of the values that were clamped)."""
         t = np.asarray(temperature_degc, dtype=float)
@@ -170,6 +223,9 @@ class TemperatureModel:
         a_true = M ((a_raw - b - drift) / scale). Exact for the polynomial model; for the segmented one
         its bias and scale part (n, m) as if M were the identity, for plots (apply() is exact)."""
         t, _ = self.clamp(np.atleast_1d(temperature_degc))
+        if self.kind == "spline":
+            spline: np.ndarray = spline_basis(self.spline_knots_degc, t) @ self.spline_bias
+            return spline, np.ones((len(t), 3))
         if self.kind == "segmented":
             terms = self.segment_terms(t)
             gain = 1.0 + terms[:, 1]

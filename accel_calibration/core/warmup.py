@@ -33,6 +33,7 @@ import numpy as np
 from .calibration import Calibration
 from .errors import CalibrationError
 from .settings import Settings
+from .temperature_models import TemperatureModel
 from .units import AXES, MG
 from .warmup_curve import BiasCurve, CurveFit, fit_bias_curve, misfit
 from .warmup_steps import Step, bumps_and_breaks, find_steps
@@ -482,3 +483,24 @@ def fit_warmup(recordings: list[WarmupRecording], calibration: Calibration | Non
         bins=len(bins.degc), accel_residual_mg=accel.residual_rms / MG,
         gyro_residual_mradps=None if gyro is None else gyro.residual_rms * 1e3)
     return WarmupResult(fit, None, tuple(fit.describe()))
+
+
+def warmup_calibration(fit: WarmupFit, calibration: Calibration | None = None) -> Calibration:
+    """The calibration in force (identity when none) with the warm-up's curves as its temperature model
+    (a `spline`): the curves, fitted in its corrected frame, taken back to raw units (a_true = M (a_raw -
+    b - drift(T)), so M drift = curve), the gyro bias moved to the one measured at the reference. A
+    temperature model the calibration had is replaced (the warm-up was fitted with it left out)."""
+    base = calibration if calibration is not None else Calibration.identity()
+    accel_raw = np.linalg.solve(base.matrix, fit.accel.values.T).T
+    gyro_bias = base.gyro_bias_radps
+    gyro_knots, gyro_raw = np.zeros(0), np.zeros((0, 3))
+    if fit.gyro is not None and fit.gyro_bias_radps is not None:
+        gyro_matrix = np.eye(3) if base.gyro_matrix is None else base.gyro_matrix
+        gyro_knots = fit.gyro.knots_degc
+        gyro_raw = np.linalg.solve(gyro_matrix, fit.gyro.values.T).T
+        moved = np.linalg.solve(gyro_matrix, fit.gyro_bias_radps)
+        gyro_bias = moved if gyro_bias is None else gyro_bias + moved
+    model = TemperatureModel("spline", fit.reference_degc, fit.range_degc, spline_knots_degc=fit.accel.knots_degc,
+                             spline_bias=accel_raw, spline_gyro_knots_degc=gyro_knots, spline_gyro_bias=gyro_raw)
+    return base.replace(temperature=model, gyro_bias_radps=gyro_bias,
+                        reference_temperature_degc=fit.reference_degc)

@@ -3,7 +3,7 @@
 Layout (keys other tools read are the first six; the rest is ours):
 
     accel_calibration:
-      format_version: 1
+      format_version: 1         # 2 when it holds a warm-up's spline temperature model
       model: sphere9
       gravity: 9.80665          # m/s^2
       bias: [bx, by, bz]        # m/s^2, a_true = M (a_raw - b)
@@ -50,7 +50,10 @@ from .output_paths import stale_temp_files, write_bytes_atomically
 class CalibrationFileError(CalibrationError):
     """io: a calibration file that cannot be read, parsed, trusted or written (the message names the path)."""
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # the newest this version reads
+# What a file is written as: 1 unless it holds what a format-1 reader would misread (a warm-up's spline
+# temperature model, which also corrects the gyro), so older installations keep reading the others.
+SPLINE_FORMAT_VERSION = 2
 ROOT_KEY = "accel_calibration"
 MAX_CALIBRATION_BYTES = 1 << 20  # a calibration file is ~2 KB; a bigger one is something else
 MAX_YAML_DEPTH = 32  # a calibration file nests 4 deep, a rosbag2 metadata.yaml 6
@@ -91,7 +94,7 @@ def _first_absurd_number(value: object, where: str = "") -> str | None:
 def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     c = calibration
     body = {
-        "format_version": FORMAT_VERSION,
+        "format_version": SPLINE_FORMAT_VERSION if c.temperature is not None and c.temperature.kind == "spline" else 1,
         "model": c.model,
         "gravity": c.gravity,
         **({"gravity_source": c.gravity_source} if c.gravity_source else {}),
@@ -135,6 +138,8 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
         if t.kind == "polynomial":
             block["bias_coefficients"] = t.bias_coefficients.tolist()  # row k: m/s^2 per degC^(k+1)
             block["scale_coefficients"] = t.scale_coefficients.tolist()  # row k: 1 per degC^(k+1)
+        elif t.kind == "spline":
+            block.update(_spline_block(t))
         else:
             block["segment_bounds_degc"] = t.segment_bounds_degc.tolist()  # per segment: low, high
             block["segment_temperatures_degc"] = t.segment_temperatures_degc.tolist()  # each learned at
@@ -198,6 +203,37 @@ OLD_SEGMENTED = ("holds the earlier segmented temperature model (segment_edges_d
                  "quadratic in temperature), whose format changed to the seed paper's model (segment_bounds_degc: a "
                  "per-axis quadratic in the measured acceleration per segment) and is no longer read: refit it with "
                  "accel-calib fit --temperature-model segmented")
+
+
+# The spline block (a warm-up's bias curves): a natural cubic spline through the values at the knots, zero at
+# reference_degc, flat outside range_degc (its first and last knot); the gyro's on its own knots.
+SPLINE_UNITS = {
+    "knots_degc": "degC", "bias_mps2": "m/s^2 per knot, columns x, y, z; a_true = M (a_raw - b - drift(T))",
+    "gyro_knots_degc": "degC", "gyro_bias_radps": "rad/s per knot, columns x, y, z; "
+                                                  "w_true = gyro_matrix (w_raw - gyro_bias_radps - drift(T))",
+}
+SPLINE_KEYS = ("knots_degc", "bias_mps2", "gyro_knots_degc", "gyro_bias_radps")
+
+
+def _spline_block(t: TemperatureModel) -> dict[str, Any]:
+    block: dict[str, Any] = {"knots_degc": t.spline_knots_degc.tolist(), "bias_mps2": t.spline_bias.tolist()}
+    if t.has_gyro:
+        block["gyro_knots_degc"] = t.spline_gyro_knots_degc.tolist()
+        block["gyro_bias_radps"] = t.spline_gyro_bias.tolist()
+    block["units"] = dict(SPLINE_UNITS)
+    return block
+
+
+def _check_spline_block(block: dict[str, Any], version: object) -> None:
+    """A spline block needs format 2 (a format-1 file never held one) and this reader's units."""
+    if block.get("model") != "spline":
+        return
+    if isinstance(version, int) and version < SPLINE_FORMAT_VERSION:
+        raise CalibrationFileError(f"temperature model spline needs format_version {SPLINE_FORMAT_VERSION}, "
+                                   f"the file says {version}: a damaged or hand-edited file; refit the warm-up")
+    units = block.get("units")
+    if units is not None and units != SPLINE_UNITS:
+        raise CalibrationFileError(f"temperature.units must be {SPLINE_UNITS} for the spline model, got {units!r:.120}")
 
 
 def _check_segment_block(block: dict[str, Any]) -> None:
@@ -290,6 +326,8 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
         model = body["model"]
         if not isinstance(model, str):
             raise CalibrationFileError(f"model must be a name, got {model!r:.40}")
+        if isinstance(body.get("temperature"), dict):
+            _check_spline_block(body["temperature"], body.get("format_version", 1))
         temperature = None if body.get("temperature") is None else _temperature(body["temperature"])
         dividing_head = None if body.get("dividing_head") is None else _dividing_head_terms(body["dividing_head"])
         return Calibration(
@@ -364,7 +402,7 @@ def _require_block_numbers(body: dict[str, Any], source: str) -> None:
             (f"noise.{key}", noise_block.get(key)) for key in ("rate_hz", *NOISE_KEYS.values())] + [
             (f"temperature.{key}", temperature_block.get(key)) for key in (
                 "range_degc", "bias_coefficients", "scale_coefficients", "segment_bounds_degc",
-                "segment_temperatures_degc", "segment_coefficients", "segment_poses")]:
+                "segment_temperatures_degc", "segment_coefficients", "segment_poses", *SPLINE_KEYS)]:
         _require_numbers(value, name, source)
 
 
@@ -407,6 +445,10 @@ def _temperature(t: object) -> TemperatureModel:
             segment_coefficients=t.get("segment_coefficients") or np.zeros((0, 3, 3)),
             segment_poses=tuple(_list(t.get("segment_poses"), "temperature.segment_poses")),
             segment_blend=t.get("segment_blend", True),
+            spline_knots_degc=t.get("knots_degc") or np.zeros(0),
+            spline_bias=t.get("bias_mps2") or np.zeros((0, 3)),
+            spline_gyro_knots_degc=t.get("gyro_knots_degc") or np.zeros(0),
+            spline_gyro_bias=t.get("gyro_bias_radps") or np.zeros((0, 3)),
         )
     except (TypeError, ValueError) as error:
         raise CalibrationFileError(f"temperature block: {error}") from None
