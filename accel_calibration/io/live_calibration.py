@@ -24,7 +24,7 @@ from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
 from ..core.fit_outliers import nearest_face
 from ..core.pose import Pose
-from ..core.pose_map import PoseMap, pose_map
+from ..core.pose_map import PoseMap, PoseStatus, holes, pose_map
 from ..core.session import CalibrationSession, Progress, Verdict
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
@@ -101,6 +101,9 @@ class LiveCalibration:
         self.still = False  # the detector's state at the last feed
         self._poses_taken = 0  # poses handed to the store since start
         self._applied_at: int | None = None  # _poses_taken when a fit of the poses held was put in force
+        self._applied_with_held = False  # that fit counted the pose being held then (it is handed on later)
+        self._held: Pose | None = None  # the still interval in progress, as the pose /calibrate would count
+        self._dropped_hold_ns: int | None = None  # start of the hold in progress at calibration/reset: dropped too
         self.stream_flowing = False  # the last feed took samples
         # What the work itself set aside, by name (the session's screening keeps its own counters).
         self.set_aside: collections.Counter[str] = collections.Counter()
@@ -173,6 +176,9 @@ class LiveCalibration:
             "detector_state": "still" if self.still else "moving",
             "calibration_file": str(self.in_force.path),
             "calibration_watch": self.watch.state.text,
+            "pose_being_held": "" if self._held is None else (
+                f"counted: {nearest_face(self._held.accel_mps2)}, {self._held.duration_s:.1f} s still (/calibrate fits "
+                "it; a pose of its own once the sensor moves)"),
             **self._noise_values(),
         }
 
@@ -181,7 +187,17 @@ class LiveCalibration:
         return diagnostic_values({} if self.stream is None else self.stream.values(), self.values())
 
     def snapshot(self) -> WorkSnapshot:
-        return WorkSnapshot(self.reported_status(), self.progress, self.pose_map, self.values(), self.all_counts())
+        progress, shown = self.progress, self.pose_map
+        if self._held is not None:  # counted and drawn as /calibrate would fit it
+            store = self.session.store.copy()
+            if not store.add(self._held).merged:
+                accel = self._held.accel_mps2 if self.in_force.calibration is None else \
+                    self.in_force.calibration.apply(self._held.accel_mps2)
+                directions = np.vstack([shown.directions.reshape(-1, 3), accel / np.linalg.norm(accel)])
+                shown = dataclasses.replace(shown, directions=directions, statuses=(*shown.statuses, PoseStatus.USED),
+                                            holes=holes(directions))
+            progress = dataclasses.replace(progress, poses=len(store))
+        return WorkSnapshot(self.reported_status(), progress, shown, self.values(), self.all_counts())
 
     def _noise_values(self) -> dict[str, str]:
         """The white noise measured at this session's poses, else the one the calibration in force was
@@ -202,10 +218,11 @@ class LiveCalibration:
 
     def refresh_progress(self) -> Progress:
         progress = self.session.progress(self.in_force.calibration, self._calibrate_service)
-        if progress.ready and self._applied_at == self._poses_taken:
+        since = None if self._applied_at is None else self._poses_taken - self._applied_at
+        if progress.ready and since in ((0, 1) if self._applied_with_held else (0,)):
             # What "ready" offered is done: the calibration in force is the fit of these very poses.
             progress = dataclasses.replace(progress, advised_direction=None, advice=(
-                f"calibrated: applied from the {progress.poses} poses held (more orientations would refine it)"))
+                "calibrated: the fit of the poses held is applied (more orientations would refine it)"))
         self.progress = progress
         self.pose_map = pose_map(self.session, self.in_force.calibration, self.progress)
         return self.progress
@@ -231,10 +248,18 @@ class LiveCalibration:
         else:  # the stream is idle: no later reading will come for what waits on one
             self._feed.drain()
         self.still = self.session.detector.holding_still
-        poses = self._feed.take_poses()
+        poses = [pose for pose in self._feed.take_poses() if pose.start_ns != self._dropped_hold_ns]
         if poses:
             self._absorb(poses)
+        # A stream that stops during a hold leaves it open (only later samples could end it): it is shown
+        # with the poses, as /calibrate counts it.
+        self._held = self._holding() if self.still else None
         return poses
+
+    def _holding(self) -> Pose | None:
+        """The hold in progress as the pose it would end as now; not one a calibration/reset dropped."""
+        held = self._feed.holding()
+        return None if held is None or held.start_ns == self._dropped_hold_ns else held
 
     def _absorb(self, poses: list[Pose]) -> None:
         log = self._log
@@ -297,7 +322,7 @@ class LiveCalibration:
             self._put_in_force(calibration)
             self.watch.restart(calibration)
             self.status = (OK, "calibrated")
-            self._applied_at = self._poses_taken
+            self._applied_at, self._applied_with_held = self._poses_taken, False
             self.refresh_progress()
         else:
             self._say_unsaved(message)
@@ -316,8 +341,9 @@ class LiveCalibration:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
         self.feed()
         self._feed.drain()
-        last = self._feed.take_poses()
-        _, verdict = self.session.verdict_for(last, self._feed.holding())
+        last = [pose for pose in self._feed.take_poses() if pose.start_ns != self._dropped_hold_ns]
+        self._held = self._holding()
+        _, verdict = self.session.verdict_for(last, self._held)
         self._poses_taken += len(last)
         self.watch.add(last)
         self.refresh_progress()
@@ -331,6 +357,8 @@ class LiveCalibration:
         if not applied:
             self._log.warning(f"{self._calibrate_service}: {saved}")
             return False, saved
+        self._applied_with_held = self._held is not None
+        self.refresh_progress()
         self._log.info(f"{self._calibrate_service}: calibrated, {saved}")
         if verdict.result.unchecked_line():  # with a prior: what the poses could not check, said
             self._log.warning(f"{self._calibrate_service}: {verdict.result.unchecked_line()}")
@@ -338,8 +366,11 @@ class LiveCalibration:
 
     def reset(self) -> tuple[bool, str]:
         self.feed()
-        dropped = self.session.reset()
-        self._applied_at = None
+        held = self._holding()
+        dropped = self.session.reset() + (held is not None)
+        # The hold in progress goes too: held before the reset, it is never counted after it.
+        self._dropped_hold_ns = None if held is None else held.start_ns
+        self._applied_at, self._held = None, None
         self._take_prior()
         self.refresh_progress()
         message = f"dropped {dropped} poses; the calibration in force is unchanged"

@@ -236,7 +236,7 @@ def test_after_a_successful_calibrate_the_advice_is_no_longer_ready(tmp_path):
     assert live.calibrate()[0]
     for snapshot in (live.snapshot(), (live.feed(), live.snapshot())[1]):
         advice = snapshot.progress.advice
-        assert "ready" not in advice and advice.startswith("calibrated: applied"), advice
+        assert "ready" not in advice and advice.startswith("calibrated: the fit of the poses held is applied"), advice
         assert snapshot.pose_map.advice == advice
     live.reset()
     assert "ready" not in live.snapshot().progress.advice
@@ -267,3 +267,31 @@ def test_a_moved_calibration_is_warned_in_the_log_too(tmp_path):
     assert live.watch.state.moved, live.watch.state.text
     warned = [text for level, text in log.lines if level == "warning" and text.startswith("calibration moved: ")]
     assert warned and "bias y +" in warned[-1], log.lines
+
+
+def test_diagnostics_count_the_pose_being_held_as_calibrate_does(tmp_path):
+    """Finding: a stream that stopped while the sensor was held still (a bag's end, a paused publisher) left
+    that still interval open: /diagnostics said 15 poses while /calibrate, which fits the pose being held
+    too, and its file said 16. The count shown is what /calibrate would fit, and the map draws it."""
+    import yaml
+
+    live = LiveCalibration(Settings(), tmp_path / "cal.yaml", LogLines())
+    live.start()
+    buffer(live, 0, len(SAMPLES.t_ns))  # the session ends in its 16th hold
+    live.feed()
+    live.feed()  # the stream is idle: nothing ends the interval
+    assert live._feed.holding() is not None and len(live.session.store) == 15
+    shown = live.snapshot()
+    assert shown.progress.poses == 16 and len(shown.pose_map.directions) == 16
+    assert shown.values["pose_being_held"].startswith("counted"), shown.values["pose_being_held"]
+    success, message = live.calibrate()
+    assert success, message
+    assert yaml.safe_load(message)["poses"] == 16 == live.in_force.calibration.quality.poses
+    assert load_calibration(tmp_path / "cal.yaml").quality.poses == 16
+    after = live.snapshot()
+    assert after.progress.poses == 16 and after.progress.advice.startswith("calibrated: the fit"), after.progress
+    # A reset drops the hold in progress too: it is neither shown nor fitted after it.
+    assert live.reset() == (True, "dropped 16 poses; the calibration in force is unchanged")
+    assert live.snapshot().progress.poses == 0 and live.snapshot().values["pose_being_held"] == ""
+    success, message = live.calibrate()
+    assert not success and "have 0 poses" in message, message

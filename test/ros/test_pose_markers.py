@@ -33,13 +33,13 @@ def test_the_markers_show_the_poses_held_and_where_to_turn_next(tmp_path, tester
     tester.play(imu.samples(), start_ns=START_NS)
 
     def drawn_as_held():
-        """The latest map has one point per pose /diagnostics says is held (the last orientation is still
-        being held when the stream stops: it becomes a pose at /calibrate, not before)."""
+        """The latest map has one point per pose /diagnostics says is held, every orientation played (the last
+        one is still being held when the stream stops: counted and drawn as /calibrate would fit it)."""
         if not received or not tester.diagnostics:
             return False
         poses = markers_of(received[-1], POSES_ID)
         held = int(tester.diagnostics[-1]["poses"])
-        return poses is not None and len(poses.points) == held >= len(faces) - 1
+        return poses is not None and len(poses.points) == held == len(faces)
 
     assert tester.spin_until(drawn_as_held, 20.0), [len(a.markers) for a in received[-3:]]
     latest = received[-1]
