@@ -76,6 +76,10 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                              "poses observe is fitted, the rest stays at the prior (poses near level suffice; the "
                              "pose count is then no gate); the file written says which came from where")
     add_settings_options(parser, detector=True)
+    parser.add_argument("--warmup", action="store_true",
+                        help="the recordings are warm-ups (still while the temperature changes): fit the "
+                             "accelerometer's and gyro's bias against temperature, pooled into one curve, on top "
+                             "of --prior, the poses' fit or the log's calibration in force, and write it with -o")
     parser.add_argument("--jobs", "-j", type=int, default=1,
                         help="bags processed in parallel, on a local Dask cluster of N worker processes")
 
@@ -218,6 +222,10 @@ def run(args: argparse.Namespace) -> int:
                                    f"--temperature-model {args.temperature_model}")
         settings = dataclasses.replace(settings, prior=replay_prior(args.prior, settings.session),
                                        prior_path=args.prior)
+    if args.warmup:
+        from .warmup import run_warmup
+
+        return run_warmup(args, settings)
     if args.all_imus:
         from .all_imus import run_all_imus
 

@@ -87,14 +87,14 @@ def warmup_recording(truth: WarmupTruth, rng: np.random.Generator, heating: Heat
                      gravity_direction: tuple[float, float, float] = (0.0, 0.0, 1.0),
                      accel_turn_on: np.ndarray | None = None, gyro_turn_on: np.ndarray | None = None,
                      step: tuple[float, np.ndarray, np.ndarray] | None = None,
-                     bump: tuple[float, float, np.ndarray] | None = None) -> WarmupRecording:
+                     bump: tuple[float, float, np.ndarray] | None = None, rate_hz: float = RATE_HZ) -> WarmupRecording:
     """A still warm-up's raw samples. `*_turn_on`: this power-on's constant offset; `step`: (time s, accel
     jump, gyro jump) lasting from then on; `bump`: (start s, duration s, accel jump) that comes back."""
-    t = np.arange(0.0, (heating.minutes + heating.cool_minutes) * 60.0, 1.0 / RATE_HZ)
+    t = np.arange(0.0, (heating.minutes + heating.cool_minutes) * 60.0, 1.0 / rate_hz)
     die = die_temperature(t, heating)
     register = die
     if heating.lag_s:
-        share = 1.0 / (RATE_HZ * heating.lag_s)
+        share = 1.0 / (rate_hz * heating.lag_s)
         register = lfilter([share], [1.0, share - 1.0], die - die[0]) + die[0]
     register = np.round(register / REGISTER_DEGC) * REGISTER_DEGC
     calibration = truth.calibration
@@ -129,3 +129,18 @@ def true_accel_curve(truth: WarmupTruth, degc: np.ndarray, reference_degc: float
 def true_gyro_bias(truth: WarmupTruth, degc: np.ndarray) -> np.ndarray:
     """The corrected gyro's bias at each temperature (the calibration in force has no gyro matrix)."""
     return truth.gyro_drift(degc)
+
+
+def temperature_errors(calibration: Calibration, truth: WarmupTruth, degc: np.ndarray,
+                       gravity_direction: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> tuple[float, float]:
+    """Worst temperature error of `calibration` over `degc` on noise-free samples of `truth` at rest: the
+    accelerometer's change from its output at the calibration's reference (one orientation does not see
+    the constant), mg; the gyro's whole output (at rest it reads zero), mrad/s."""
+    assert calibration.temperature is not None
+    direction = np.asarray(gravity_direction, dtype=float) / np.linalg.norm(gravity_direction)
+    still = np.linalg.solve(truth.calibration.matrix, STANDARD_GRAVITY * direction) + truth.calibration.bias
+    temps = np.append(np.asarray(degc, dtype=float), calibration.temperature.reference_degc)
+    accel = calibration.apply(still + truth.accel_drift(temps), temps)
+    gyro_bias = truth.calibration.gyro_bias_radps if truth.calibration.gyro_bias_radps is not None else 0.0
+    gyro = calibration.apply_gyro(gyro_bias + truth.gyro_drift(temps), temps)
+    return float(np.abs(accel[:-1] - accel[-1]).max() / MG), float(np.abs(gyro).max() * 1e3)

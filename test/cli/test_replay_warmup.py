@@ -1,0 +1,74 @@
+"""accel-calib replay --warmup: a recording of a sensor sitting still while it warms is a calibration of its
+biases against temperature, accelerometer and gyro, written with -o; several warm-ups pooled."""
+from __future__ import annotations
+
+import numpy as np
+
+from accel_calibration import load_calibration
+from accel_calibration.bag.csv_stream import samples_csv_text
+from accel_calibration.cli.main import main
+
+from helpers.one_line import assert_one_error_line, run_main
+from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_recording
+
+
+def write_csv(path, recording, every: int = 10) -> None:
+    """The warm-up as a CSV stream, the temperature in every `every`-th row (a logger's slower register)."""
+    temperature = np.full(len(recording.t_ns), np.nan)
+    temperature[::every] = recording.temperature_degc[::every]
+    path.write_text(samples_csv_text(recording.t_ns, recording.accel_mps2, recording.gyro_radps, temperature))
+
+
+def test_replay_warmup_of_a_csv_writes_both_curves_within_1_mg_and_half_a_mrad(tmp_path, capsys):
+    truth = two_imus()[0]
+    write_csv(tmp_path / "warm.csv", warmup_recording(truth, np.random.default_rng(30), rate_hz=100.0))
+    out = tmp_path / "warm.yaml"
+    code = main(["replay", str(tmp_path / "warm.csv"), "--warmup", "-o", str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    calibration = load_calibration(out)
+    assert calibration.temperature is not None and calibration.temperature.kind == "spline"
+    low, high = calibration.temperature.range_degc
+    assert low < 15.5 and high > 44.0
+    accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
+    assert accel_mg <= 1.0 and gyro_mradps <= 0.5
+    assert f"{low:.1f}..{high:.1f} degC" in printed and "held flat outside the range" in printed
+    assert "z: along gravity, its curve is bias + scale drift x g together" in printed
+    assert "on the raw output (no calibration fitted or in force)" in printed
+    assert f"written {out}" in printed
+
+
+def test_replay_warmup_pools_a_cold_morning_and_a_warm_afternoon(tmp_path, capsys):
+    truth = two_imus()[1]
+    rng = np.random.default_rng(31)
+    write_csv(tmp_path / "morning.csv", warmup_recording(truth, rng, Heating(start_degc=3.0, end_degc=27.0),
+                                                         gyro_turn_on=np.array([0.4, -0.3, 0.2]) * 1e-3,
+                                                         rate_hz=100.0))
+    write_csv(tmp_path / "afternoon.csv", warmup_recording(truth, rng, Heating(start_degc=21.0, end_degc=46.0),
+                                                           gyro_turn_on=np.array([-0.4, 0.3, -0.2]) * 1e-3,
+                                                           rate_hz=100.0))
+    out = tmp_path / "pooled.yaml"
+    code = main(["replay", str(tmp_path / "morning.csv"), str(tmp_path / "afternoon.csv"), "--warmup", "-o", str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    calibration = load_calibration(out)
+    low, high = calibration.temperature.range_degc
+    assert low < 4.0 and high > 44.5 and "in 2 run(s)" in printed
+    accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
+    assert accel_mg <= 1.0 and gyro_mradps <= 0.5
+
+
+def test_replay_warmup_refuses_in_one_line_without_a_temperature_or_with_outputs_it_does_not_make(tmp_path):
+    recording = warmup_recording(two_imus()[0], np.random.default_rng(32),
+                                 Heating(start_degc=30.0, end_degc=33.0, minutes=2.0), rate_hz=100.0)
+    (tmp_path / "cold.csv").write_text(samples_csv_text(recording.t_ns, recording.accel_mps2, recording.gyro_radps,
+                                                        None))
+    code, err = run_main(["replay", tmp_path / "cold.csv", "--warmup", "-o", tmp_path / "out.yaml"])
+    assert_one_error_line(code, err, "no temperature stream", "temperature")
+    assert not (tmp_path / "out.yaml").exists()
+    code, err = run_main(["replay", tmp_path / "cold.csv", "--warmup", "--report", tmp_path / "r.png"])
+    assert_one_error_line(code, err, "--warmup", "--report")
+    write_csv(tmp_path / "short.csv", recording)
+    code, err = run_main(["replay", tmp_path / "short.csv", "--warmup", "-o", tmp_path / "out.yaml"])
+    assert_one_error_line(code, err, "span", "a temperature curve needs 5 degC")
+    assert not (tmp_path / "out.yaml").exists()
