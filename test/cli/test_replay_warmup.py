@@ -8,8 +8,9 @@ from accel_calibration import load_calibration
 from accel_calibration.bag.csv_stream import samples_csv_text
 from accel_calibration.cli.main import main
 
+from helpers.autopilot_logs import write_ardupilot_log, write_px4_log
 from helpers.one_line import assert_one_error_line, run_main
-from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_recording
+from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_board, warmup_recording
 
 
 def write_csv(path, recording, every: int = 10) -> None:
@@ -72,3 +73,36 @@ def test_replay_warmup_refuses_in_one_line_without_a_temperature_or_with_outputs
     code, err = run_main(["replay", tmp_path / "short.csv", "--warmup", "-o", tmp_path / "out.yaml"])
     assert_one_error_line(code, err, "span", "a temperature curve needs 5 degC")
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_replay_warmup_of_an_ardupilot_log_of_two_imus_on_top_of_the_calibration_in_force(tmp_path, capsys):
+    """A DataFlash log in the real format: two IMUs still and level for 15 minutes while the board warms
+    from 15 to 45 degC, a stale calibration in force (undone by replay), the board turned 90 deg in yaw."""
+    board, truths = warmup_board(33)
+    write_ardupilot_log(tmp_path / "warm.bin", board)
+    for instance, truth in enumerate(truths):
+        out = tmp_path / f"imu{instance}.yaml"
+        code = main(["replay", str(tmp_path / "warm.bin"), "--warmup", "--instance", str(instance), "-o", str(out)])
+        printed, err = capsys.readouterr()
+        assert code == 0, err
+        assert "on top of the log's calibration in force" in printed
+        calibration = load_calibration(out)
+        low, high = calibration.temperature.range_degc
+        assert low < 15.5 and high > 44.0
+        accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
+        assert accel_mg <= 1.0 and gyro_mradps <= 0.5
+
+
+def test_replay_warmup_of_a_px4_log_reads_each_imu_with_its_temperature(tmp_path, capsys):
+    board, truths = warmup_board(34)
+    write_px4_log(tmp_path / "warm.ulg", board)
+    for instance, truth in enumerate(truths):
+        out = tmp_path / f"imu{instance}.yaml"
+        code = main(["replay", str(tmp_path / "warm.ulg"), "--warmup", "--instance", str(instance), "-o", str(out)])
+        printed, err = capsys.readouterr()
+        assert code == 0, err
+        calibration = load_calibration(out)
+        low, high = calibration.temperature.range_degc
+        assert low < 15.5 and high > 44.0
+        accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
+        assert accel_mg <= 1.0 and gyro_mradps <= 0.5

@@ -144,3 +144,23 @@ def temperature_errors(calibration: Calibration, truth: WarmupTruth, degc: np.nd
     gyro_bias = truth.calibration.gyro_bias_radps if truth.calibration.gyro_bias_radps is not None else 0.0
     gyro = calibration.apply_gyro(gyro_bias + truth.gyro_drift(temps), temps)
     return float(np.abs(accel[:-1] - accel[-1]).max() / MG), float(np.abs(gyro).max() * 1e3)
+
+
+def warmup_board(seed: int, heating: Heating = Heating(), rate_hz: float = 50.0):
+    """Both IMUs of `two_imus` on one board warming up still and level, as test/helpers/autopilot_logs writes
+    a log of it (a stale calibration in force, the board turned 90 deg in yaw): its Board and the truths."""
+    from msg_tools.synthetic_imu import SensorErrors
+
+    from helpers.autopilot_logs import START_US, Board, Imu
+
+    rng = np.random.default_rng(seed)
+    imus, recordings = [], []
+    for truth in two_imus():
+        recording = warmup_recording(truth, rng, heating, rate_hz=rate_hz)
+        recordings.append(recording)
+        imus.append(Imu(SensorErrors(), recording.accel_mps2, recording.gyro_radps,
+                        stale_offset=rng.uniform(-0.3, 0.3, 3), stale_scale=1.0 + rng.uniform(-0.03, 0.03, 3),
+                        gyro_offset=rng.normal(0.0, 0.01, 3), gyro_bias=np.zeros(3)))
+    t_us = START_US + recordings[0].t_ns // 1000
+    up = np.tile([0.0, 0.0, STANDARD_GRAVITY], (len(t_us), 1))
+    return Board(t_us, recordings[0].temperature_degc, imus, up), two_imus()
