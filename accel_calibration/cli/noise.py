@@ -4,6 +4,7 @@ Kalibr fields (--kalibr imu.yaml) and a log-log figure (--plot)."""
 from __future__ import annotations
 
 import argparse
+import math
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,9 +27,11 @@ WALK_UNITS = {"accelerometer": "m/s^3/sqrt(Hz)", "gyroscope": "rad/s^2/sqrt(Hz)"
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
     parser = commands.add_parser(
         "noise", help="noise density, random walk and bias instability from a still recording (Allan deviation)",
-        description="Overlapping Allan deviation per axis of the longest still stretch of the recording; white "
-                    "noise density (-1/2 line at tau = 1 s), random walk (+1/2 line at tau = 3 s) and bias "
-                    "instability (the minimum / 0.664), each with its 95 % interval.")
+        description="Overlapping Allan deviation per axis of the longest still stretch of the recording, fitted "
+                    "whole (quantization, white noise, bias instability, random walk, rate ramp): white noise "
+                    "density (sigma at tau = 1 s of its -1/2 line), random walk (sigma at tau = 3 s of its +1/2 "
+                    "line) and bias instability (its flat floor / 0.664), each with its 95 % interval, or its "
+                    "95 % upper bound when the recording does not resolve it.")
     parser.add_argument("recording", metavar="RECORDING",
                         help="a rosbag2 directory, a .mcap or .db3 file, a PX4 .ulg log, an ArduPilot .bin log, "
                              "or a CSV of raw samples")
@@ -106,13 +109,17 @@ def unbroken_stretch(t_ns: np.ndarray) -> tuple[int, int, float, int]:
 
 
 def _figure_text(figure: Figure, scale: float = 1.0, absent: str = "not present") -> str:
-    if not figure.present:
+    """The figure with its 95 % interval, or its 95 % upper bound when the curve does not resolve it."""
+    bounded = 0.0 < figure.high < math.inf
+    if not figure.present and not bounded:
         return absent
-    if not figure.resolved and figure.needs_s is not None:
-        needs = (f"{figure.needs_s / 3600:.1f} h" if figure.needs_s >= 3600 else f"{figure.needs_s / 60:.0f} min")
-        return f"< {figure.high * scale:.3g} (not resolved: needs {needs} still)"
-    text = f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
-    return text + ("" if figure.resolved else " (curve still falling: a bound)")
+    if not figure.resolved:
+        if not bounded:
+            return absent
+        needs = "" if figure.needs_s is None else ": needs " + (
+            f"{figure.needs_s / 3600:.1f} h" if figure.needs_s >= 3600 else f"{figure.needs_s / 60:.0f} min") + " still"
+        return f"< {figure.high * scale:.3g} (not resolved{needs})"
+    return f"{figure.value * scale:.3g} [{figure.low * scale:.3g}, {figure.high * scale:.3g}]"
 
 
 def noise_table(fits: dict[str, list[NoiseFit] | None]) -> str:
@@ -126,7 +133,7 @@ def noise_table(fits: dict[str, list[NoiseFit] | None]) -> str:
         for axis, fit in zip("xyz", axes):
             n = fit.noise
             bias = _figure_text(n.bias_instability, absent="not present (no flat floor)")
-            if n.bias_instability.present:
+            if n.bias_instability.resolved:
                 bias += f" at {n.bias_instability.at_tau_s:.3g} s"
             white = _figure_text(n.white_density, absent="not resolved (no -1/2 slope)")
             rows.append(f"  {sensor[0]}{axis:6s} {white:>34s} "
@@ -219,7 +226,10 @@ def _write_kalibr(args: argparse.Namespace, fits: dict[str, list[NoiseFit] | Non
     comment = (f"accel-calib noise {Path(args.recording).name}: the largest axis of each figure; "
                f"{duration_s / 60:.1f} min still at {rate:.1f} Hz")
     unresolved = [s for s, axes in measured.items() if not all(f.noise.random_walk.resolved for f in axes)]
-    if unresolved:
-        comment += f"\nrandom walk of {', '.join(unresolved)} not resolved: an upper bound (record longer)"
+    said = ""
+    if unresolved:  # the bound holds 95 % of the time: an estimator trusting the bias too long is the harm
+        said = (f"random walk of the {' and '.join(unresolved)} not resolved: *_random_walk is its 95 % upper bound, "
+                "not an estimate (record longer still to resolve it)")
+        comment += "\n" + said
     write_text_atomically(args.kalibr, kalibr_imu_yaml(figures, args.rostopic, comment))
-    print(f"written {args.kalibr}")
+    print(f"written {args.kalibr}" + (f" ({said})" if said else ""))

@@ -4,23 +4,17 @@ sigma^2(tau) = 1 / (2 tau^2 (N - 2m)) sum_k (theta_{k+2m} - 2 theta_{k+m} + thet
 theta the running integral of the samples (IEEE Std 952, the overlapping estimator): one cumulative sum,
 then the second differences per tau, a cache-sized block at a time.
 
-The figures, per axis, from the three regions of the log-log curve (IEEE Std 952 annex C):
-- white noise density N (the -1/2 slope, sigma = N / sqrt(tau)): the -1/2 line read at tau = 1 s.
-  Units: m/s^2/sqrt(Hz) (accelerometer), rad/s/sqrt(Hz) (gyroscope) -- Kalibr's *_noise_density.
-- random walk K (the +1/2 slope, sigma = K sqrt(tau / 3)): the +1/2 line read at tau = 3 s.
-  Units: m/s^3/sqrt(Hz), rad/s^2/sqrt(Hz) -- Kalibr's *_random_walk.
-- bias instability B: the curve's minimum / sqrt(2 ln 2 / pi) (= 0.664), at the tau of the minimum; "not
-  present" unless the fitted flat floor carries half of sigma^2 somewhere and exceeds what white noise +
-  random walk alone fit as a floor (99th percentile of the bootstrap below).
-The lines are fitted together with a flat floor (sigma^2 = N^2 / tau + C + K^2 tau / 3, non-negative least
-squares on sigma^2 weighted by the model's relative errors 1 / sqrt(2 (N / m - 1))) from where the curve
-first has the -1/2 slope (white_region_start): every real IMU low-pass filters (a DLPF, an autopilot's
-integrator), which pulls the short-tau points below the white line, and those points carry most weight.
-Intervals (95 %): a parametric bootstrap of the whole fit (white noise + random walk simulated from the
-fitted lines at the same cluster sizes), so the overlapping points' correlation and the few degrees of
-freedom at long tau are in them; bias instability's from chi^2 with the overlapping estimator's
-equivalent degrees of freedom. A figure the recording cannot resolve (its line never dominates) is
-reported as an upper bound with the recording length its +-25 % would need.
+The figures, per axis: the whole curve fitted at once (core/allan_model.py), sigma^2 = 3 Q^2 / tau^2 +
+N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2 (IEEE Std 952 annex C), from where the curve first
+has the -1/2 slope (white_region_start): every real IMU low-pass filters (a DLPF, an autopilot's
+integrator), which pulls the short-tau points below the white line.
+- white noise density N, read as sigma at tau = 1 s of its -1/2 line. Units: m/s^2/sqrt(Hz), rad/s/sqrt(Hz)
+  -- Kalibr's *_noise_density.
+- random walk K, sigma at tau = 3 s of its +1/2 line. Units: m/s^3/sqrt(Hz), rad/s^2/sqrt(Hz) -- Kalibr's
+  *_random_walk.
+- bias instability B: the flat floor / sqrt(2 ln 2 / pi) (= 0.664).
+Intervals (95 %) by simulation of the fit itself (test inversion, allan_model.py); a term the record does
+not resolve is reported with its 95 % upper bound (`resolved` False, `value` the bound, `estimate` the fit).
 """
 from __future__ import annotations
 
@@ -163,9 +157,10 @@ def white_region_start(tau_s: np.ndarray, adev: np.ndarray) -> tuple[int | None,
 
 @dataclass(frozen=True)
 class Figure:
-    """One noise figure with its 95 % interval; `resolved` False: the recording does not show its region
-    and `value` is an upper bound (`needs_s`: the still recording a +-25 % figure would need, when known);
-    `present` False: the curve has no such region at all (no -1/2 slope, no flat floor), nothing to read."""
+    """One noise figure with its 95 % interval; `resolved` False: the recording does not resolve it and
+    `value` (= `high`) is an upper bound that holds 95 % of the time (`needs_s`: the still recording a
+    +-25 % figure would need, when known; `estimate`: the fitted value, below the bound); `present` False:
+    the curve shows no such term (no -1/2 slope; no bias instability beyond what chance gives)."""
 
     value: float
     low: float
@@ -174,134 +169,43 @@ class Figure:
     at_tau_s: float | None = None
     needs_s: float | None = None
     present: bool = True
+    estimate: float | None = None
 
 
 @dataclass(frozen=True)
 class AxisNoise:
-    white_density: Figure  # sigma at tau = 1 s on the -1/2 line
-    random_walk: Figure  # K of the +1/2 line sigma = K sqrt(tau / 3), i.e. its value at tau = 3 s
-    bias_instability: Figure  # min sigma / 0.664, at_tau_s the minimum's tau
+    white_density: Figure  # N: sigma^2 = N^2 / tau, read as sigma at tau = 1 s
+    random_walk: Figure  # K: sigma^2 = K^2 tau / 3, i.e. sigma at tau = 3 s
+    bias_instability: Figure  # B: the flat sigma^2 = (2 ln 2 / pi) B^2, at_tau_s where it carries most
+    quantization: float = 0.0  # Q (sigma^2 = 3 Q^2 / tau^2), 0 unless the curve asks for it
+    rate_ramp: float = 0.0  # R (sigma^2 = R^2 tau^2 / 2), 0 unless the curve asks for it
 
 
 @dataclass(frozen=True)
 class NoiseFit:
-    """The Allan curve of one channel and the lines fitted to it."""
+    """The Allan curve of one channel and the model fitted to it."""
 
     tau_s: np.ndarray
     adev: np.ndarray
     relative_error: np.ndarray
     noise: AxisNoise
     floor: float  # C: the flat part of sigma^2
-    white_from_tau_s: float | None = None  # where the white line was read from (None: no -1/2 region)
+    white_from_tau_s: float | None = None  # where the fit starts (None: no -1/2 region)
+    coefficients: np.ndarray | None = None  # (Q^2, N^2, C, K^2, R^2) of the fitted sigma^2
+    terms: tuple[str, ...] = ()  # the terms the fit carries
 
 
-def _fit_lines(tau: np.ndarray, variance: np.ndarray,
-               relative_error: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N^2, C, K^2), their covariance and the model of sigma^2 = N^2 / tau + C + K^2 tau / 3 by weighted
-    non-negative least squares, each equation weighted by 1 / its standard error: first as measured, then
-    as the first fit's model says (a point's own value in its weight favours the points that fell low)."""
-    design = np.column_stack([1.0 / tau, np.ones_like(tau), tau / 3.0])
-    level = variance
-    for _ in range(2):
-        weight = 1.0 / (2.0 * relative_error * level)  # sigma^2's relative error is twice sigma's
-        weighted = design * weight[:, None]
-        solution = nonnegative_least_squares(weighted, variance * weight)
-        model = design @ solution
-        level = np.where(model > 0, model, variance)
-    # Scaled by the fit's own scatter when worse than the stated errors (chi^2 per degree of freedom > 1).
-    chi2 = float(np.sum(((variance - model) * weight) ** 2)) / max(len(tau) - 3, 1)
-    return solution, np.linalg.pinv(weighted.T @ weighted) * max(chi2, 1.0), model
-
-
-BOOTSTRAP_REPLICATES = 100
-BOOTSTRAP_MAX_SAMPLES = 1 << 13  # longer records are simulated decimated (taus of >= the decimation only)
-FLOOR_QUANTILE = 0.99  # a flat floor is present when C exceeds this quantile of C fitted to no-floor noise
-
-
-def nonnegative_least_squares_many(matrix: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """nonnegative_least_squares for many right-hand sides (T, R) at once: (columns, R)."""
-    a, b = np.asarray(matrix, dtype=float), np.asarray(rhs, dtype=float)
-    scale = _column_scale(a)
-    a = a / scale
-    columns = a.shape[1]
-    best, best_cost = np.zeros((columns, b.shape[1])), np.einsum("tr,tr->r", b, b)
-    for mask in range(1, 1 << columns):
-        chosen = [j for j in range(columns) if mask >> j & 1]
-        x = np.linalg.pinv(a[:, chosen]) @ b
-        full = np.zeros_like(best)
-        full[chosen] = x
-        residual = a @ full - b
-        cost = np.einsum("tr,tr->r", residual, residual)
-        better = np.all(x >= 0, axis=0) & (cost < best_cost)
-        best[:, better], best_cost[better] = full[:, better], cost[better]
-    unscaled: np.ndarray = best / scale[:, None]
-    return unscaled
-
-
-def bootstrap_lines(white2: float, walk2: float, clusters: np.ndarray, tau0_s: float, samples: int,
-                    replicates: int = BOOTSTRAP_REPLICATES, seed: int = 0) -> np.ndarray | None:
-    """(replicates, 3): (N^2, C, K^2) fitted to white noise + random walk simulated from the fitted lines
-    (no floor), at the same cluster sizes and record length: the spread of the fit itself, with the
-    overlapping points' correlation and their few degrees of freedom at long tau included (treating the
-    points as independent gave random-walk intervals that held the truth in 23 of 32 cases).
-    A long record is simulated at a decimated rate (cluster sizes below the decimation left out: they
-    carry nothing of the random walk). The replicates are weighted by the simulated model's errors (one
-    solve for all). None when fewer than 3 cluster sizes remain."""
-    decimation = 1
-    while samples // decimation > BOOTSTRAP_MAX_SAMPLES:
-        decimation *= 2
-    kept = clusters[(clusters >= decimation) & (clusters % decimation == 0)] // decimation
-    length = samples // decimation
-    kept = kept[2 * kept < length]
-    if len(kept) < 3:
-        return None
-    dt = decimation * tau0_s
-    rng = np.random.default_rng(seed)
-    simulated = np.sqrt(white2 / dt) * rng.standard_normal((length, replicates))
-    simulated += np.cumsum(np.sqrt(walk2 * dt) * rng.standard_normal((length, replicates)), axis=0)
-    tau, adev, relative = overlapping_adev(simulated, 1.0 / dt, clusters=kept)
-    design = np.column_stack([1.0 / tau, np.ones_like(tau), tau / 3.0])
-    weight = 1.0 / (2.0 * relative * (design @ np.array([white2, 0.0, walk2])))
-    return nonnegative_least_squares_many(design * weight[:, None], adev**2 * weight[:, None]).T
-
-
-def _scale_interval(value: float, ratios: np.ndarray) -> tuple[float, float]:
-    """95 % interval of a scale figure from bootstrap ratios (estimate / truth), the ratio as pivot."""
-    upper, lower = (float(q) for q in np.quantile(ratios, [0.975, 0.025]))
-    return value / upper if upper > 0 else 0.0, value / lower if lower > 0 else math.inf
-
-
-def _chi2_quantile(probability: float, dof: float) -> float:
-    """Wilson-Hilferty's chi^2 quantile (within ~1 % for dof >= 3; scipy.stats costs a second to import)."""
-    z = {0.025: -Z95, 0.975: Z95}[probability]
-    return dof * (1.0 - 2.0 / (9.0 * dof) + z * math.sqrt(2.0 / (9.0 * dof))) ** 3
-
-
-def _bias_instability(tau: np.ndarray, sigma: np.ndarray, floor: float, model: np.ndarray, samples: int,
-                      tau0_s: float, null_floors: np.ndarray | None) -> Figure:
-    """min sigma / 0.664 with a chi^2 interval (flicker-noise equivalent degrees of freedom of the
-    overlapping estimator, 5 N^2 / (4 m (N + 3 m))); not present unless the fitted flat floor carries at
-    least half of sigma^2 somewhere and exceeds what white noise + random walk alone fit as a floor."""
-    lowest = int(np.argmin(sigma))
-    instability = float(sigma[lowest]) / BIAS_INSTABILITY_FACTOR
-    m = max(float(tau[lowest]) / tau0_s, 1.0)
-    dof = max(5.0 * samples**2 / (4.0 * m * (samples + 3.0 * m)), 1.0)
-    low = instability * math.sqrt(dof / _chi2_quantile(0.975, dof))
-    high = instability * math.sqrt(dof / max(_chi2_quantile(0.025, dof), 1e-12))
-    dominant = bool(np.any(floor >= 0.5 * model))
-    beyond_null = null_floors is None or floor > float(np.quantile(null_floors, FLOOR_QUANTILE))
-    inner = lowest not in (0, len(sigma) - 1)
-    present = dominant and beyond_null
-    return Figure(value=instability, low=low, high=high, resolved=inner and present,
-                  at_tau_s=float(tau[lowest]), present=present)
+REPLICATES = 400
 
 
 def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, duration_s: float,
               target_relative: float = 0.25, tau0_s: float | None = None,
-              replicates: int = BOOTSTRAP_REPLICATES) -> NoiseFit:
-    """The figures of one channel's Allan curve (see the module text); `tau0_s` the sample period
-    (default: the first tau, as octave_taus starts at one sample); `replicates` 0: the intervals from the
-    fit's covariance alone (the points taken as independent), no bootstrap."""
+              replicates: int = REPLICATES) -> NoiseFit:
+    """The figures of one channel's Allan curve, the whole model fitted at once (core/allan_model.py);
+    `tau0_s` the sample period (default: the first tau, as octave_taus starts at one sample); `replicates`
+    0: intervals from the fit's covariance (the points taken as independent), no simulation."""
+    from .allan_model import TERMS, design_columns, equivalent_dof, select_terms, simulation_for
+
     tau = np.asarray(tau_s, dtype=float)
     sigma = np.asarray(adev, dtype=float)
     relative = np.asarray(relative_error, dtype=float)
@@ -316,63 +220,119 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
     samples = int(round(duration_s / period)) + 1
     start, filtered = white_region_start(tau, sigma)
     used = slice(0 if start is None else start, None)
+    variance = sigma[used] ** 2
+    clusters = np.maximum(np.rint(tau[used] / period).astype(np.int64), 1)
+    columns, dof = design_columns(tau[used]), equivalent_dof(clusters, samples)
+    if not np.all(np.isfinite(columns * variance.max())):
+        raise CalibrationError("the Allan curve has values out of floating-point range: no fit")
     try:
-        solution, covariance, model = _fit_lines(tau[used], sigma[used] ** 2, relative[used])
+        chosen, coefficients = select_terms(variance, columns, dof)
     except np.linalg.LinAlgError as error:
         raise CalibrationError(f"the Allan curve could not be fitted ({error}): is the stretch still?") from None
-    white2, floor, walk2 = (float(v) for v in solution)
-    clusters = np.rint(tau[used] / period).astype(np.int64)
-    boot = (bootstrap_lines(white2, walk2, clusters, period, samples, replicates)
-            if white2 > 0 and replicates > 0 else None)
-    white = _white_figure(white2, covariance, boot, present=start is not None, filtered=filtered)
-    walk = _walk_figure(walk2, floor, white2, tau[used], model, covariance, boot, duration_s, target_relative)
-    bias = _bias_instability(tau[used], sigma[used], floor, model, samples, period,
-                             None if boot is None else boot[:, 1])
-    return NoiseFit(tau_s=tau, adev=sigma, relative_error=relative,
-                    noise=AxisNoise(white_density=white, random_walk=walk, bias_instability=bias), floor=floor,
-                    white_from_tau_s=None if start is None else float(tau[start]))
+    simulation = (simulation_for(clusters, period, samples, replicates)
+                  if replicates > 0 and coefficients[1] > 0 else None)
+    intervals = (_simulated_intervals(simulation, variance, coefficients, chosen) if simulation is not None
+                 else _covariance_intervals(variance, coefficients, chosen, columns, dof))
+    model = columns @ coefficients
+    white = _white_figure(coefficients[1], intervals[1], present=start is not None, filtered=filtered)
+    walk = _walk_figure(coefficients, intervals[3], tau[used], duration_s, target_relative)
+    bias = _bias_figure(coefficients[2], intervals[2], tau[used], model)
+    noise = AxisNoise(white_density=white, random_walk=walk, bias_instability=bias,
+                      quantization=math.sqrt(coefficients[0]), rate_ramp=math.sqrt(coefficients[4]))
+    return NoiseFit(tau_s=tau, adev=sigma, relative_error=relative, noise=noise, floor=float(coefficients[2]),
+                    white_from_tau_s=None if start is None else float(tau[start]), coefficients=coefficients,
+                    terms=tuple(TERMS[j] for j in chosen))
 
 
-def _analytic_interval(value2: float, variance: float) -> tuple[float, float]:
-    spread = Z95 * math.sqrt(max(variance, 0.0))
-    return math.sqrt(max(value2 - spread, 0.0)), math.sqrt(value2 + spread)
+Interval = tuple[float, float, bool]  # (low, high, resolved) of a variance coefficient; unresolved: high one-sided
 
 
-def _white_figure(white2: float, covariance: np.ndarray, boot: np.ndarray | None, present: bool,
-                  filtered: bool) -> Figure:
+def _simulated_intervals(simulation: object, variance: np.ndarray, coefficients: np.ndarray,
+                         chosen: list[int]) -> dict[int, Interval]:
+    """White noise's interval from the simulated fits' ratio to the truth (a scale pivot: white noise is
+    always resolved where the curve has its slope); bias instability's and random walk's by test inversion."""
+    from .allan_model import Simulation, fit_batch, term_interval
+
+    assert isinstance(simulation, Simulation)
+    simulated_terms = [j for j in chosen if j != 0]  # quantization: below the simulation's shortest tau
+    part = fit_batch(variance[simulation.kept][None, :], simulation.columns[:, simulated_terms],
+                     simulation.dof[:, simulated_terms])[0]
+    statistic = np.zeros(len(coefficients))
+    statistic[simulated_terms] = part
+    intervals: dict[int, Interval] = {}
+    white = float(coefficients[1])
+    if statistic[1] > 0:
+        ratios = simulation.fitted(statistic, simulated_terms)[:, 1] / statistic[1]
+        upper, lower = (float(q) for q in np.quantile(ratios, [0.975, 0.025]))
+        intervals[1] = (white / upper if upper > 0 else 0.0, white / lower if lower > 0 else math.inf, True)
+    else:
+        intervals[1] = (0.0, math.inf, False)
+    for term in (2, 3):
+        found = term_interval(simulation, variance[simulation.kept], statistic, simulated_terms, term,
+                              float(coefficients[term]))
+        intervals[term] = (found.low, found.high, found.resolved)
+    return intervals
+
+
+def _covariance_intervals(variance: np.ndarray, coefficients: np.ndarray, chosen: list[int], columns: np.ndarray,
+                          dof: np.ndarray) -> dict[int, Interval]:
+    """Intervals from the weighted fit's covariance (points independent, scaled by the misfit when worse
+    than the stated errors): for short records and replicates=0."""
+    from .allan_model import variance_sd, weighted_misfit
+
+    sd = variance_sd(coefficients[None, :], columns, dof)[0]
+    weighted = columns[:, chosen] / np.maximum(sd, 1e-300)[:, None]
+    chi2 = weighted_misfit(variance, coefficients, columns, dof) / max(len(variance) - len(chosen), 1)
+    covariance = np.linalg.pinv(weighted.T @ weighted) * max(chi2, 1.0)
+    intervals: dict[int, Interval] = {}
+    for term in (1, 2, 3):
+        spread = Z95 * math.sqrt(max(float(covariance[chosen.index(term), chosen.index(term)]), 0.0))
+        value = float(coefficients[term])
+        resolved = value - spread > 0
+        intervals[term] = ((value - spread, value + spread, True) if resolved
+                           else (0.0, value + 0.8 * spread, False))  # one-sided 95 %: 1.645 / 1.96
+    return intervals
+
+
+def _white_figure(white2: float, interval: Interval, present: bool, filtered: bool) -> Figure:
     value = math.sqrt(max(white2, 0.0))
     if not present or value == 0.0:
         return Figure(value=value, low=0.0, high=math.inf, resolved=False, at_tau_s=1.0, present=False)
-    if boot is None:
-        low, high = _analytic_interval(white2, float(covariance[0, 0]))
-    else:
-        low, high = _scale_interval(value, np.sqrt(np.maximum(boot[:, 0], 0.0)) / value)
-    if filtered:  # the bootstrap knows nothing of the filter's remaining deficit, which only lowers the value
+    low, high = math.sqrt(max(interval[0], 0.0)), math.sqrt(interval[1])
+    if filtered:  # the simulation knows nothing of the filter's remaining deficit, which only lowers the value
         high /= 1.0 - FILTER_DEFICIT
     return Figure(value=value, low=low, high=high, resolved=low > 0, at_tau_s=1.0)
 
 
-def _walk_figure(walk2: float, floor: float, white2: float, tau: np.ndarray, model: np.ndarray,
-                 covariance: np.ndarray, boot: np.ndarray | None, duration_s: float,
+def _walk_figure(coefficients: np.ndarray, interval: Interval, tau: np.ndarray, duration_s: float,
                  target_relative: float) -> Figure:
-    """K with its interval; resolved where the +1/2 line carries at least half of sigma^2 at some tau,
-    else an upper bound with the still recording a +-target figure would need."""
-    value = math.sqrt(max(walk2, 0.0))
-    dominant = bool(np.any(walk2 * tau / 3.0 >= 0.5 * model)) and value > 0
-    if dominant and boot is not None:
-        low, high = _scale_interval(value, np.sqrt(np.maximum(boot[:, 2], 0.0)) / value)
-    else:
-        low, high = _analytic_interval(walk2, float(covariance[2, 2]))
-    if dominant and low > 0 and math.isfinite(high):
-        return Figure(value=value, low=low, high=high, at_tau_s=3.0)
-    # The +1/2 line would need to dominate: where it would cross the rest, from its upper bound, and
-    # N / m clusters there for the target error: 1 / sqrt(2 (T / tau - 1)) <= target.
-    bound = _analytic_interval(walk2, float(covariance[2, 2]))[1]
+    """K with its interval; not resolved: its 95 % upper bound, with the still recording a +-target figure
+    would need (where the bound's +1/2 line would cross the rest of the model, and N / m clusters there:
+    1 / sqrt(2 (T / tau - 1)) <= target)."""
+    value = math.sqrt(max(float(coefficients[3]), 0.0))
+    low, high, resolved = interval
+    if resolved:
+        return Figure(value=value, low=math.sqrt(low), high=math.sqrt(high), at_tau_s=3.0)
+    bound = math.sqrt(max(high, 0.0))
+    white2, floor = float(coefficients[1]), float(coefficients[2])
     rest = white2 / tau + floor
     crossing = float(3.0 * max(float(np.min(rest)), 1e-300) / max(bound**2, 1e-300))
     needs = crossing * (1.0 + 1.0 / (2.0 * target_relative**2))
     return Figure(value=bound, low=0.0, high=bound, resolved=False, at_tau_s=3.0,
-                  needs_s=max(needs, duration_s * 2.0))
+                  needs_s=max(needs, duration_s * 2.0), estimate=value)
+
+
+def _bias_figure(floor: float, interval: Interval, tau: np.ndarray, model: np.ndarray) -> Figure:
+    """B = sqrt(C) / 0.664 with its interval, at the tau where the floor carries most of sigma^2; not
+    resolved: not present, with its 95 % upper bound."""
+    value = math.sqrt(max(floor, 0.0)) / BIAS_INSTABILITY_FACTOR
+    low, high, resolved = interval
+    at_tau = float(tau[int(np.argmax(floor / np.maximum(model, 1e-300)))])
+    scale = 1.0 / BIAS_INSTABILITY_FACTOR
+    if resolved:
+        return Figure(value=value, low=math.sqrt(low) * scale, high=math.sqrt(high) * scale, at_tau_s=at_tau)
+    bound = math.sqrt(max(high, 0.0)) * scale
+    return Figure(value=bound, low=0.0, high=bound, resolved=False, at_tau_s=at_tau, present=False, estimate=value)
 
 
 def required_duration_s(tau_s: float, target_relative: float = 0.25) -> float:
