@@ -28,12 +28,11 @@ class WarmupInput:
 
 
 def in_force_calibration(logged: LoggedCorrection) -> Calibration:
-    """The log's own correction as ours, its thermal part left out: y = R ((x - offset) scale) is
-    M (x - b) with b = offset, M = R diag(scale); w = R (x - gyro_offset)."""
+    """The log's own correction as ours, in the sensor's axes as replay's fits are (the board rotation
+    stays the vehicle's), its thermal part left out: (x - offset) scale is M (x - b) with b = offset,
+    M = diag(scale); the gyro's x - gyro_offset."""
     wise = logged.axis_wise
-    return Calibration(bias=wise.offset_mps2, matrix=logged.rotation @ np.diag(wise.scale),
-                       gyro_bias_radps=logged.gyro_offset_radps,
-                       gyro_matrix=None if logged.gyro_offset_radps is None else logged.rotation)
+    return Calibration(bias=wise.offset_mps2, matrix=np.diag(wise.scale), gyro_bias_radps=logged.gyro_offset_radps)
 
 
 def _base(replay: ReplayResult, settings: ReplaySettings) -> tuple[Calibration | None, str]:

@@ -89,12 +89,14 @@ def fit_for(target: str, calibration: Calibration) -> AxisWiseCalibration:
     from ..io.autopilot_params import ARDUPILOT_TCAL_REFERENCE_DEGC
 
     order = 3 if calibration.temperature is not None else 0
+    # A warm-up's spline is no cubic: the cubic closest at the worst temperature, not on average.
+    worst_case = calibration.temperature is not None and calibration.temperature.kind == "spline"
     if target == "px4":
         reference = calibration.temperature.reference_degc if calibration.temperature is not None else 0.0
-        return fit_axis_wise(calibration, drift_order=order, drift_origin_degc=reference)
+        return fit_axis_wise(calibration, drift_order=order, drift_origin_degc=reference, worst_case=worst_case)
     zero = calibration.temperature.reference_degc if calibration.temperature is not None else None
     return fit_axis_wise(calibration, drift_order=order, drift_origin_degc=ARDUPILOT_TCAL_REFERENCE_DEGC,
-                         drift_zero_degc=zero)
+                         drift_zero_degc=zero, worst_case=worst_case)
 
 
 def _matrix_correction(calibration: Calibration, with_bias: bool) -> Correction:
@@ -125,10 +127,17 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
     from ..core.axis_calibration import (
         cost_after_best_rotation,
         cost_against,
+        fit_gyro_drift,
         gyro_matrix_loss_mrad_per_radps,
         rotation_angle_mrad,
     )
-    from ..io.autopilot_params import ardupilot_param_text, ardupilot_parameters, px4_parameters, px4_params_text
+    from ..io.autopilot_params import (
+        ARDUPILOT_TCAL_REFERENCE_DEGC,
+        ardupilot_param_text,
+        ardupilot_parameters,
+        px4_parameters,
+        px4_params_text,
+    )
 
     fitted = fit_for(args.to, calibration)
     cost = cost_against(calibration, fitted)
@@ -155,8 +164,24 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
                                     gyro_bias_radps=calibration.gyro_bias_radps,
                                     gyro_device_id=calibration.gyro_device_id)
         return px4_params_text(parameters, f"Onboard parameters {source}"), notes + _thermal_notes(parameters)
+    gyro_drift, gyro_bias = None, calibration.gyro_bias_radps
+    if fitted.has_drift and fitted.drift_zero_degc is not None:
+        gyro_drift = fit_gyro_drift(calibration, drift_origin_degc=ARDUPILOT_TCAL_REFERENCE_DEGC,
+                                    drift_zero_degc=fitted.drift_zero_degc, clamp_degc=fitted.clamp_degc)
+        notes.append("ardupilot holds the gyro drift as a cubic (INS_TCALn_GYR1..3, zero at INS_GYRn_CALTEMP): "
+                     + ("none in this calibration, zeros written" if gyro_drift is None else
+                        f"worst {gyro_drift[2] * 1e3:.3f} mrad/s from ours over the range"))
+        if gyro_drift is not None and gyro_bias is not None:
+            gyro_bias = gyro_bias + gyro_drift[1]  # the cubic's constant: the offset's
+        if calibration.temperature is not None and fitted.clamp_degc != calibration.temperature.range_degc:
+            low, high = fitted.clamp_degc or calibration.temperature.range_degc
+            notes.append(f"TMIN {low:.1f}, TMAX {high:.1f} degC, inside the range calibrated "
+                         f"({calibration.temperature.range_degc[0]:.1f}..{calibration.temperature.range_degc[1]:.1f} "
+                         "degC): ArduPilot holds the correction flat beyond them, which follows our curve's levelling "
+                         "off better than its cubic does")
     parameters = ardupilot_parameters(fitted, args.instance, reference_degc=calibration.reference_temperature_degc,
-                                      gyro_bias_radps=calibration.gyro_bias_radps)
+                                      gyro_bias_radps=gyro_bias,
+                                      gyro_drift_coefficients=None if gyro_drift is None else gyro_drift[0])
     notes += _thermal_notes(parameters)
     if calibration.gyro_bias_radps is not None:
         notes.append("ArduPilot recomputes INS_GYR*OFFS at every boot unless INS_GYR_CAL = 0")

@@ -217,11 +217,13 @@ def gyro_matrix_loss_mrad_per_radps(gyro_matrix: np.ndarray) -> float:
 
 
 def fit_axis_wise(calibration: Calibration, *, drift_order: int, drift_origin_degc: float,
-                  drift_zero_degc: float | None = None) -> AxisWiseCalibration:
+                  drift_zero_degc: float | None = None, worst_case: bool = False) -> AxisWiseCalibration:
     """The axis-wise calibration closest to ours (least squares over orientations x temperatures), with a
     bias drift polynomial of `drift_order` (0..3) in T - drift_origin_degc, zero at drift_zero_degc when given
     (ArduPilot's form), or with its constant folded into the offset (PX4's form). No drift is fitted when
-    the calibration has no temperature model or a single temperature."""
+    the calibration has no temperature model or a single temperature. `worst_case`: closest at the worst
+    orientation and temperature instead (minimax_fit), for a drift a cubic cannot follow exactly (a
+    warm-up's spline), where least squares leaves the range's ends worse than they need be."""
     if not (isinstance(drift_order, int) and 0 <= drift_order <= 3):
         raise CalibrationError(f"drift_order must be 0..3, got {drift_order!r}")
     true, raw, temperature = _samples(calibration, FIT_DIRECTIONS)
@@ -229,14 +231,20 @@ def fit_axis_wise(calibration: Calibration, *, drift_order: int, drift_origin_de
     order = drift_order if len(temps) > 1 else 0
     # Regressor columns scaled to ~1 so that the cubic's column does not dominate the conditioning.
     span = max(float(np.max(np.abs(temps - drift_origin_degc))), 1.0)
-    dt = (temperature - drift_origin_degc) / span
+    clamp = (float(temps[0]), float(temps[-1]))
+    if worst_case and order:
+        clamp = worst_case_clamp(calibration, drift_origin_degc)
+    dt = (np.clip(temperature, *clamp) - drift_origin_degc) / span
     offset = np.zeros(3)
     scale = np.ones(3)
     coefficients = np.zeros((order, 3))
     for axis in range(3):
         columns = [raw[:, axis], np.ones(len(raw))] + [dt**k for k in range(1, order + 1)]
         design = np.column_stack(columns)
-        solution, *_ = np.linalg.lstsq(design, true[:, axis], rcond=None)
+        if worst_case and order:
+            solution = minimax_fit(design, true[:, axis])
+        else:
+            solution, *_ = np.linalg.lstsq(design, true[:, axis], rcond=None)
         s = float(solution[0])
         if not s > 0:
             raise CalibrationError(f"axis {'xyz'[axis]}: the best scale is {s:g}, not positive")
@@ -245,7 +253,7 @@ def fit_axis_wise(calibration: Calibration, *, drift_order: int, drift_origin_de
         offset[axis] = -solution[1] / s
     fitted = AxisWiseCalibration(offset_mps2=offset, scale=scale, drift_coefficients=coefficients,
                                  drift_origin_degc=drift_origin_degc,
-                                 clamp_degc=(float(temps[0]), float(temps[-1])) if order else None)
+                                 clamp_degc=clamp if order else None)
     if drift_zero_degc is not None and order:
         # raw - o - P(T) = raw - (o + P(T_zero)) - (P(T) - P(T_zero)): the offset takes P(T_zero).
         offset = offset + fitted.drift(np.array([drift_zero_degc]))[0]
@@ -272,3 +280,91 @@ def lower_triangular_with_rotation(matrix: np.ndarray) -> tuple[np.ndarray, np.n
     rotation = rotation * signs  # flip columns of R and rows of L together: R L unchanged
     lower = signs[:, None] * lower
     return rotation, lower
+
+
+CLAMP_SHARE = 0.3  # TMIN / TMAX are looked for this far into the range from each end
+CLAMP_STEPS = 7
+
+
+def _cubic_worst(temps: np.ndarray, drift: np.ndarray, clamp: tuple[float, float], origin: float) -> float:
+    """The worst error of the minimax cubic (constant free) in clamp(T) - origin through `drift` (N, 3)."""
+    scaled = (np.clip(temps, *clamp) - origin) / max(float(np.max(np.abs(temps - origin))), 1.0)
+    design = np.column_stack([scaled**k for k in range(4)])
+    return max(float(np.max(np.abs(design @ minimax_fit(design, drift[:, axis], 60) - drift[:, axis])))
+               for axis in range(3))
+
+
+def worst_case_clamp(calibration: Calibration, drift_origin_degc: float) -> tuple[float, float]:
+    """TMIN, TMAX for the autopilots' cubic of a drift it cannot follow exactly: both autopilots hold the
+    correction flat beyond them (they clamp T), which follows a drift that levels off at the range's ends
+    (a warm-up's tanh-like curve) better than the cubic does; chosen within CLAMP_SHARE of each end so that
+    the accelerometer's and the gyro's worst errors fall most (each against its own with the whole range)."""
+    model = calibration.temperature
+    assert model is not None
+    low, high = model.range_degc
+    temps = np.linspace(low, high, MINIMAX_STEPS // 2 + 1)
+    drifts = [model.bias_and_scale(temps)[0]] + ([model.gyro_drift(temps)] if model.has_gyro else [])
+    whole = [max(_cubic_worst(temps, drift, (low, high), drift_origin_degc), 1e-12) for drift in drifts]
+    best = (1.0, (low, high))
+    reach = CLAMP_SHARE * (high - low)
+    for tmin in np.linspace(low, low + reach, CLAMP_STEPS):
+        for tmax in np.linspace(high - reach, high, CLAMP_STEPS):
+            clamp = (float(tmin), float(tmax))
+            ratio = max(_cubic_worst(temps, drift, clamp, drift_origin_degc) / full
+                        for drift, full in zip(drifts, whole))
+            if ratio < best[0]:
+                best = (ratio, clamp)
+    return best[1]
+
+
+def fit_gyro_drift(calibration: Calibration, *, drift_origin_degc: float, drift_zero_degc: float,
+                   clamp_degc: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The gyro bias drift as ArduPilot's cubic holds it: rows k = 1..3 (rad/s per degC^k) of P(d), d = T -
+    drift_origin_degc, and the change of the gyro offset that goes with it (rad/s; ArduPilot takes
+    P(T - origin) - P(zero - origin) off before the offset), so that together they are closest to our gyro
+    bias at its worst temperature over the calibrated range (Lawson's reweighted least squares, the constant
+    free: the vehicle sees the worst temperature, not the average), and that worst loss (rad/s). None when
+    the calibration has no gyro temperature model."""
+    model = calibration.temperature
+    if model is None or not model.has_gyro:
+        return None
+    low, high = model.range_degc
+    temps = np.linspace(low, high, MINIMAX_STEPS) if high > low else np.array([low])
+    clamp = (low, high) if clamp_degc is None else clamp_degc  # the TMIN, TMAX the accelerometer's fit chose
+    span = max(float(np.max(np.abs(temps - drift_origin_degc))), 1.0)
+    zero = (float(np.clip(drift_zero_degc, *clamp)) - drift_origin_degc) / span
+    scaled = (np.clip(temps, *clamp) - drift_origin_degc) / span
+    design = np.column_stack([np.ones(len(temps))] + [scaled**k - zero**k for k in range(1, 4)])
+    target = model.gyro_drift(temps)
+    solution = np.zeros((4, 3))
+    for axis in range(3):
+        solution[:, axis] = minimax_fit(design, target[:, axis])
+    loss = float(np.max(np.abs(design @ solution - target)))
+    rows: np.ndarray = solution[1:] / (span ** np.arange(1, 4))[:, None]
+    return rows, solution[0].copy(), loss
+
+
+MINIMAX_STEPS = 201
+LAWSON_ITERATIONS = 200
+
+
+def minimax_fit(design: np.ndarray, target: np.ndarray, iterations: int = LAWSON_ITERATIONS) -> np.ndarray:
+    """x minimising max |design x - target| (Lawson's algorithm: least squares reweighted by each point's
+    error, which converges to the minimax fit; stopped where the worst error stops falling)."""
+    weights = np.full(len(target), 1.0 / len(target))
+    best: np.ndarray | None = None
+    best_worst = np.inf
+    for _ in range(iterations):
+        root = np.sqrt(weights)
+        solution, *_ = np.linalg.lstsq(design * root[:, None], target * root, rcond=None)
+        error = np.abs(design @ solution - target)
+        worst = float(error.max())
+        if worst < best_worst:
+            best, best_worst = solution, worst
+        weights = weights * error
+        total = float(weights.sum())
+        if not total > 0:
+            break
+        weights = weights / total
+    assert best is not None
+    return best

@@ -227,11 +227,14 @@ def _ardupilot_names(instance: int) -> tuple[str, str, str, str]:
 
 
 def ardupilot_parameters(fitted: AxisWiseCalibration, instance: int, *, reference_degc: float | None,
-                         gyro_bias_radps: np.ndarray | None = None) -> list[Parameter]:
+                         gyro_bias_radps: np.ndarray | None = None,
+                         gyro_drift_coefficients: np.ndarray | None = None) -> list[Parameter]:
     """INS_ACC*OFFS/SCAL of this instance, INS_ACCn_CALTEMP, INS_TCALn_* when the fit carries a drift
     (its own polynomial: reference 35 degC, coefficients x 1e6, zero at CALTEMP), else INS_TCALn_ENABLE 0
-    (the calibration is of the raw sensor), INS_GYR*OFFS. Refuses
-    values outside ArduPilot's declared ranges."""
+    (the calibration is of the raw sensor), INS_GYR*OFFS. With a drift, INS_TCALn_GYR1..3 too (ArduPilot's
+    one switch applies both): `gyro_drift_coefficients` (rows k = 1..3, rad/s per degC^k, zero at the same
+    CALTEMP, written as INS_GYRn_CALTEMP), else zeros (no gyro drift of ours: none of the vehicle's left
+    on). Refuses values outside ArduPilot's declared ranges."""
     _check_instance("ardupilot", instance)
     offset_prefix, scale_prefix, gyro_prefix, _ = _ardupilot_names(instance)
     out: list[Parameter] = []
@@ -265,9 +268,22 @@ def ardupilot_parameters(fitted: AxisWiseCalibration, instance: int, *, referenc
         for power in range(3):
             for axis, name in enumerate(AXES):
                 out.append(Parameter(f"{tcal}ACC{power + 1}_{name}", float(rows[power, axis]) * ARDUPILOT_TCAL_SCALE))
+        out += _ardupilot_gyro_tcal(n, gyro_drift_coefficients, fitted.drift_zero_degc)
     if gyro_bias_radps is not None:
         for axis, name in enumerate(AXES):
             out.append(Parameter(gyro_prefix + name, float(gyro_bias_radps[axis])))
+    return out
+
+
+def _ardupilot_gyro_tcal(n: int, coefficients: np.ndarray | None, calibration_temperature: float) -> list[Parameter]:
+    """INS_TCALn_GYR1..3_X/Y/Z (x 1e6) and INS_GYRn_CALTEMP, where TCal::correct_gyro takes the gyro's zero."""
+    rows = np.zeros((3, 3)) if coefficients is None else np.asarray(coefficients, dtype=float).reshape(3, 3)
+    out = [Parameter(f"INS_GYR{n}_CALTEMP", float(calibration_temperature))]
+    for power in range(3):
+        for axis, name in enumerate(AXES):
+            value = float(rows[power, axis]) * ARDUPILOT_TCAL_SCALE
+            _check_float32(f"INS_TCAL{n}_GYR{power + 1}_{name}", value)
+            out.append(Parameter(f"INS_TCAL{n}_GYR{power + 1}_{name}", value))
     return out
 
 

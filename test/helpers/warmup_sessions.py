@@ -5,6 +5,7 @@ deg/s/sqrt(Hz)), a temperature register quantised as the part's (1/340 degC), op
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.signal import lfilter
@@ -164,3 +165,41 @@ def warmup_board(seed: int, heating: Heating = Heating(), rate_hz: float = 50.0)
     t_us = START_US + recordings[0].t_ns // 1000
     up = np.tile([0.0, 0.0, STANDARD_GRAVITY], (len(t_us), 1))
     return Board(t_us, recordings[0].temperature_degc, imus, up), two_imus()
+
+
+ARDUPILOT_REFERENCE_DEGC = 35.0  # TCal's fixed reference (AP_InertialSensor_tempcal.cpp)
+ARDUPILOT_SCALE = 1e6  # INS_TCALn_* coefficients are stored x 1e6
+
+
+def read_params(path: Path) -> dict[str, float]:
+    """NAME VALUE (the peer's .parm) or NAME,VALUE (Mission Planner's .param, ours) per line."""
+    values = {}
+    for line in path.read_text().splitlines():
+        parts = line.replace(",", " ").split()
+        if len(parts) == 2 and not line.startswith("#"):
+            values[parts[0]] = float(parts[1])
+    return values
+
+
+def ardupilot_applied(params: dict[str, float], instance: int, raw: np.ndarray, gyro_raw: np.ndarray,
+                      degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What ArduPilot publishes for these raw samples: TCal::correct_sensor, then offsets (and scales), then
+    the board rotation (AHRS_ORIENTATION 2: yaw 90)."""
+    n = instance + 1
+    suffix = "" if instance == 0 else str(n)
+    tcal = f"INS_TCAL{n}_"
+    accel, gyro = raw.copy(), gyro_raw.copy()
+    if params.get(tcal + "ENABLE", 0) == 1:
+        low, high = params.get(tcal + "TMIN", 0.0), params.get(tcal + "TMAX", 70.0)
+        at = np.clip(degc, low, high)[:, None] - ARDUPILOT_REFERENCE_DEGC
+        for kind, values, caltemp in (("ACC", accel, f"INS_ACC{n}_CALTEMP"), ("GYR", gyro, f"INS_GYR{n}_CALTEMP")):
+            rows = np.array([[params.get(f"{tcal}{kind}{k}_{a}", 0.0) for a in "XYZ"] for k in (1, 2, 3)])
+            rows = rows / ARDUPILOT_SCALE
+            zero = np.clip(params.get(caltemp, -300.0), low, high) - ARDUPILOT_REFERENCE_DEGC
+            values -= sum(rows[k] * at ** (k + 1) for k in range(3)) - sum(rows[k] * zero ** (k + 1) for k in range(3))
+    offset = np.array([params[f"INS_ACC{suffix}OFFS_{a}"] for a in "XYZ"])
+    scale = np.array([params[f"INS_ACC{suffix}SCAL_{a}"] for a in "XYZ"])
+    gyro_offset = np.array([params[f"INS_GYR{suffix}OFFS_{a}"] for a in "XYZ"])
+    from helpers.autopilot_logs import YAW_90
+
+    return ((accel - offset) * scale) @ YAW_90.T, (gyro - gyro_offset) @ YAW_90.T
