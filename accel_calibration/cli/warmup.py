@@ -43,7 +43,10 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
     lines = [_source_line(bag, each) for bag, each in zip(args.bags, read)]
     if result.fit is None:
         print("\n".join(lines + [f"left out: {why}" for why in result.said]))
-        raise CalibrationError(f"{_names(args.bags)}: {result.refusal}")
+        # No still stretch at all: the detector's own reason (noise, too short) is the one to give.
+        found_none = [each.replay.problem for each in read if not each.replay.poses and each.replay.problem]
+        said = f" (the detector: {found_none[0]})" if len(found_none) == len(read) else ""
+        raise CalibrationError(f"{_names(args.bags)}: {result.refusal}{said}")
     calibration = warmup_calibration(result.fit, first.base)
     source = first.replay.source
     calibration = dataclasses.replace(

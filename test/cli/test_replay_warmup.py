@@ -3,6 +3,8 @@ biases against temperature, accelerometer and gyro, written with -o; several war
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from conftest import shared_path
 
 from accel_calibration import load_calibration
 from accel_calibration.bag.csv_stream import samples_csv_text
@@ -106,3 +108,16 @@ def test_replay_warmup_of_a_px4_log_reads_each_imu_with_its_temperature(tmp_path
         assert low < 15.5 and high > 44.0
         accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
         assert accel_mg <= 1.0 and gyro_mradps <= 0.5
+
+
+@pytest.mark.parametrize("recording, reason", [
+    ("real/bags/sunsided_full_sphere_imu_temp_mcap_zstd", "static.max_noise_mg"),  # hand-held, 24.7-24.9 degC
+    ("real/ardupilot/test.BIN", "45 samples"),  # 1 s of IMU records
+    ("real/px4_ulog/sample.ulg", "no temperature stream"),
+    ("real/px4_ulog/sample_logging_tagged_and_default_params.ulg", "span 0.0 degC"),  # its register reads 0
+])
+def test_the_real_logs_with_a_temperature_say_why_they_give_no_warm_up(recording, reason, tmp_path):
+    """None of the real recordings is a warm-up: each says why in one line, nothing written."""
+    code, err = run_main(["replay", shared_path(recording), "--warmup", "-o", tmp_path / "out.yaml"])
+    assert_one_error_line(code, err, reason)
+    assert not (tmp_path / "out.yaml").exists()
