@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from accel_calibration.core.calibration import Calibration
 from accel_calibration.core.correction import Correction, correct_rows, correct_samples
@@ -101,3 +103,23 @@ def test_a_spline_model_checks_its_knots_and_rows():
         TemperatureModel("spline", 20.0, (10.0, 40.0), spline_knots_degc=[10.0, 30.0], spline_bias=np.zeros((2, 3)))
     with pytest.raises(CalibrationError, match="belong to the spline model"):
         TemperatureModel("polynomial", 20.0, (10.0, 30.0), spline_knots_degc=[10.0, 30.0])
+
+
+@settings(max_examples=40, deadline=None)
+@given(low=st.floats(-40.0, 40.0), width=st.floats(2.0, 60.0), knots=st.integers(2, 12),
+       seed=st.integers(0, 2**32 - 1), gyro=st.booleans())
+def test_any_spline_model_round_trips_and_holds_flat_outside_its_knots(low, width, knots, seed, gyro):
+    rng = np.random.default_rng(seed)
+    where = np.linspace(low, low + width, knots)
+    gyro_knots = np.linspace(low, low + width, max(2, knots - 1)) if gyro else np.zeros(0)
+    model = TemperatureModel("spline", float(where[knots // 2]), (float(where[0]), float(where[-1])),
+                             spline_knots_degc=where, spline_bias=rng.normal(0, 0.05, (knots, 3)),
+                             spline_gyro_knots_degc=gyro_knots,
+                             spline_gyro_bias=rng.normal(0, 2e-3, (len(gyro_knots), 3)))
+    calibration = Calibration(bias=rng.normal(0, 0.1, 3), matrix=np.eye(3) + np.tril(rng.normal(0, 0.01, (3, 3))),
+                              gyro_bias_radps=rng.normal(0, 0.01, 3), temperature=model)
+    assert calibration_from_yaml(calibration_to_yaml(calibration)) == calibration
+    raw = np.array([0.2, -0.1, 9.9])
+    lo, hi = model.range_degc
+    assert np.array_equal(calibration.apply(raw, lo - 50.0), calibration.apply(raw, lo))
+    assert np.array_equal(calibration.apply_gyro(raw * 1e-3, hi + 50.0), calibration.apply_gyro(raw * 1e-3, hi))
