@@ -3,7 +3,6 @@ The one conftest: the layer folders (core, io, bag, ros, cli, package) have none
 not fixtures live in test/helpers/."""
 from __future__ import annotations
 
-import itertools
 import os
 from pathlib import Path
 
@@ -119,10 +118,7 @@ def postgres():
         yield server
 
 
-_database_names = itertools.count()
-
-
 @pytest.fixture
 def pg_url(postgres):
     """A fresh database of its own for a test."""
-    return postgres.create_database(f"history{next(_database_names)}")
+    return postgres.create_database("history")

@@ -7,6 +7,7 @@ execs in place, so the process we hold is the postmaster itself) and its directo
 from __future__ import annotations
 
 import glob
+import itertools
 import os
 import pwd
 import shutil
@@ -59,6 +60,7 @@ class PostgresServer:
         self.socket_dir = self.base / "socket"
         self.log = self.base / "server.log"
         self.process: subprocess.Popen[bytes] | None = None
+        self._numbers = itertools.count()
 
     def _run(self, *args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([*self._as_user, *args], capture_output=True, text=True, check=False,
@@ -118,12 +120,15 @@ class PostgresServer:
         return f"postgresql+psycopg://{SUPERUSER}@/{database}?host={self.socket_dir}"
 
     def create_database(self, name: str, icu_locale: str | None = "en-US", **settings: str) -> str:
-        """A new database; its URL. ICU en-US collation by default, as on a typical shared server (whose
-        string order is not the code point order of this server's C locale); `settings` become its
-        defaults (ALTER DATABASE .. SET name = value), e.g. default_transaction_isolation."""
+        """A new database, named `name` and a number of its own; its URL. ICU en-US collation by default, as on
+        a typical shared server (whose string order is not the code point order of this server's C locale);
+        `settings` become its defaults (ALTER DATABASE .. SET name = value), e.g. default_transaction_isolation.
+        The number: the server lives for the session, and a module's fixture that makes a database is set up
+        again whenever tests of other modules run in between (a shuffled order)."""
         import psycopg
         from psycopg import sql
 
+        name = f"{name}_{next(self._numbers)}"
         collation = sql.SQL("")
         if icu_locale:
             collation = sql.SQL(" TEMPLATE template0 LOCALE_PROVIDER icu ICU_LOCALE {}").format(icu_locale)
