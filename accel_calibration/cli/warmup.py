@@ -7,20 +7,26 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import CalibrationError
 from ..core.warmup import WarmupOptions, fit_warmup, warmup_calibration
 
+if TYPE_CHECKING:
+    from ..bag.replay import ReplaySettings
+    from ..bag.warmup_replay import WarmupInput
+    from ..core.calibration import Calibration
+
 # The replay outputs a warm-up does not make (a corrected copy, a report and a pose table of a warm-up
 # are replay's without --warmup).
-NOT_WITH_WARMUP = (("--all-imus", "all_imus"), ("--corrected", "corrected_bag"), ("--report", "report"),
-                   ("--poses-out", "poses_out"))
+NOT_WITH_WARMUP = (("--corrected", "corrected_bag"), ("--report", "report"), ("--poses-out", "poses_out"))
 
 
 def _refused_options(args: argparse.Namespace) -> None:
     given = [flag for flag, name in NOT_WITH_WARMUP if getattr(args, name, None)]
     if given:
-        raise CalibrationError(f"--warmup fits the temperature curves of one IMU and writes them with -o; it does "
+        raise CalibrationError(f"--warmup fits the temperature curves and writes them with -o; it does "
                                f"not take {', '.join(given)} (replay without --warmup does)")
 
 
@@ -33,6 +39,8 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
 
     assert isinstance(settings, ReplaySettings)
     _refused_options(args)
+    if args.all_imus:
+        return _every_imu(args, settings)
     inputs = [*args.bags, args.params_file, args.prior]
     check_outputs([("--output", args.output)], inputs)
     check_output_places([("--output", args.output)])
@@ -42,16 +50,12 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
                         WarmupOptions(), settings.session)
     lines = [_source_line(bag, each) for bag, each in zip(args.bags, read)]
     if result.fit is None:
-        print("\n".join(lines + [f"left out: {why}" for why in result.said]))
+        print("\n".join(lines + list(result.said)))
         # No still stretch at all: the detector's own reason (noise, too short) is the one to give.
         found_none = [each.replay.problem for each in read if not each.replay.poses and each.replay.problem]
         said = f" (the detector: {found_none[0]})" if len(found_none) == len(read) else ""
         raise CalibrationError(f"{_names(args.bags)}: {result.refusal}{said}")
-    calibration = warmup_calibration(result.fit, first.base)
-    source = first.replay.source
-    calibration = dataclasses.replace(
-        calibration, frame_id=calibration.frame_id or source.frame_id, sensor_id=calibration.sensor_id
-        or source.sensor_id, fitted_to=calibration.fitted_to or getattr(source.recording, "fitted_to", ""))
+    calibration = _named(warmup_calibration(result.fit, first.base), first)
     lines += [f"warm-up {first.base_said}", *result.said]
     if args.output:
         text = checked_calibration_text(calibration, args.output)
@@ -59,6 +63,54 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
         lines.append(f"written {args.output}")
     print("\n".join(lines))
     return 0
+
+
+def _named(calibration: Calibration, each: WarmupInput) -> Calibration:
+    """The recording's frame, sensor and what the samples were, where the calibration gone on top of says none."""
+    source = each.replay.source
+    recording = source.recording
+    return dataclasses.replace(
+        calibration, frame_id=calibration.frame_id or source.frame_id, sensor_id=calibration.sensor_id
+        or source.sensor_id, fitted_to=calibration.fitted_to or getattr(recording, "fitted_to", ""),
+        accel_device_id=calibration.accel_device_id or getattr(recording, "accel_device_id", None),
+        gyro_device_id=calibration.gyro_device_id or getattr(recording, "gyro_device_id", None))
+
+
+def _every_imu(args: argparse.Namespace, settings: ReplaySettings) -> int:
+    """--warmup --all-imus LOG -o DIR: each IMU of an autopilot log its own warm-up, on top of its own
+    calibration in force, one file each (named as replay --all-imus names them, written as one set)."""
+    import sys
+
+    from ..bag.recording import log_accel_devices
+    from ..bag.warmup_replay import read_warmup
+    from ..io.calibration_file import checked_calibration_text
+    from ..io.output_paths import check_outputs
+    from .all_imus import _check_arguments, _write_set, file_name
+    from .options import PROG
+
+    bag = _check_arguments(args)
+    if settings.prior is not None:
+        raise CalibrationError("--warmup --all-imus puts each IMU's curves on top of its own calibration; "
+                               "--prior is one IMU's: give it with --instance")
+    check_outputs([("--output", args.output)], [bag, args.params_file], directories=("--output",))
+    texts: dict[Path, str] = {}
+    lines, errors = [], []
+    for instance in sorted(log_accel_devices(bag, settings.format)) or [0]:
+        each = read_warmup(bag, dataclasses.replace(settings, instance=instance))
+        result = fit_warmup([each.recording], each.base, WarmupOptions(), settings.session)
+        if result.fit is None:
+            errors.append(f"{bag}: IMU {instance}: {result.refusal}")
+            continue
+        sensor = each.replay.source.sensor_id
+        target = Path(args.output) / file_name(instance, sensor)
+        texts[target] = checked_calibration_text(_named(warmup_calibration(result.fit, each.base), each), target)
+        lines += [f"IMU {instance} ({sensor or 'no device ID'}): warm-up {each.base_said}", *result.said]
+    if texts:
+        lines += _write_set(Path(args.output), texts)
+    print("\n".join(lines))
+    for message in errors:
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 1 if errors else 0
 
 
 def _source_line(bag: str, each: object) -> str:

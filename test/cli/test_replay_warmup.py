@@ -121,3 +121,21 @@ def test_the_real_logs_with_a_temperature_say_why_they_give_no_warm_up(recording
     code, err = run_main(["replay", shared_path(recording), "--warmup", "-o", tmp_path / "out.yaml"])
     assert_one_error_line(code, err, reason)
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_replay_warmup_all_imus_writes_each_imus_curves_on_top_of_its_own_calibration(tmp_path, capsys):
+    """The first thing seen: a two-IMU log still and level while it warms gave 'too few static poses'."""
+    board, truths = warmup_board(36)
+    write_ardupilot_log(tmp_path / "warm.bin", board, devices=(1310988, 1442060))
+    code = main(["replay", str(tmp_path / "warm.bin"), "--warmup", "--all-imus", "-o", str(tmp_path / "cal")])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    for instance, (truth, device) in enumerate(zip(truths, (1310988, 1442060))):
+        calibration = load_calibration(tmp_path / "cal" / f"imu{instance}_dev{device}.yaml")
+        assert calibration.accel_device_id == device
+        low, high = calibration.temperature.range_degc
+        accel_mg, gyro_mradps = temperature_errors(calibration, truth, np.linspace(low, high, 200))
+        assert accel_mg <= 1.0 and gyro_mradps <= 0.5
+        assert f"IMU {instance} (" in printed
+    code, err = run_main(["replay", tmp_path / "warm.bin", "--warmup", "--all-imus"])
+    assert_one_error_line(code, err, "--all-imus needs --output DIR")
