@@ -110,6 +110,7 @@ class LiveCalibration:
         self.status: tuple[Level, str] = (OK, "")  # the level and first words of the diagnostics
         self._changed_underneath: tuple[Level, str] | None = None  # the status a save refused for it set
         self.noise: MeasuredNoise | None = None  # measured at this session's poses
+        self.prior_unchecked = ""  # what the calibration this session applied took from its prior unchecked
         self._log = log
         self._calibrate_service = calibrate_service
         self._feed = self.session.live_feed()
@@ -176,6 +177,7 @@ class LiveCalibration:
             "detector_state": "still" if self.still else "moving",
             "calibration_file": str(self.in_force.path),
             "calibration_watch": self.watch.state.text,
+            "prior_unchecked": self.prior_unchecked,
             "pose_being_held": "" if self._held is None else (
                 f"counted: {nearest_face(self._held.accel_mps2)}, {self._held.duration_s:.1f} s still (/calibrate fits "
                 "it; a pose of its own once the sensor moves)"),
@@ -319,6 +321,7 @@ class LiveCalibration:
         prior = f"the calibration in force before ({self.in_force.path})" if sources else None
         applied, message = self.in_force.save_then_apply(calibration, asked, sources, prior)
         if applied:
+            self.prior_unchecked = "" if result is None else result.unchecked_line()
             self._put_in_force(calibration)
             self.watch.restart(calibration)
             self.status = (OK, "calibrated")

@@ -46,6 +46,10 @@ def test_its_own_calibration_serves_and_what_was_not_checked_is_said_in_answer_l
     assert success, answer
     assert "kept from the prior, not checked" in yaml.safe_load(answer)["prior"], answer
     assert any(level == "warning" and "kept from the prior, not checked" in text for level, text in log.lines)
+    # /diagnostics says it while that calibration is in force
+    assert live.snapshot().values["prior_unchecked"].startswith("kept from the prior, not checked"), live.values()
+    live.reset()
+    assert live.values()["prior_unchecked"].startswith("kept from the prior, not checked")
     parameters = yaml.safe_load((tmp_path / "cal.yaml").read_text())["accel_calibration"]["parameter_sources"][
         "parameters"]
     assert parameters["M_zx"]["note"].startswith("kept from the prior, not checked"), parameters["M_zx"]
