@@ -160,9 +160,17 @@ def _autopilot_text(args: argparse.Namespace, calibration: Calibration, source: 
             notes.append(f"CAL_GYRO{args.instance}_ID = {device}, the accelerometer's: the file names no gyro "
                          "device (right for a one-chip IMU; a BMI055/BMI088 gyro has an ID of its own: check it "
                          "on the vehicle)")
+        gyro_rows = None
+        if fitted.has_drift and fitted.clamp_degc is not None:
+            gyro_drift = fit_gyro_drift(calibration, drift_origin_degc=fitted.drift_origin_degc,
+                                        drift_zero_degc=fitted.drift_origin_degc, clamp_degc=fitted.clamp_degc)
+            if gyro_drift is not None:
+                gyro_rows = np.vstack([gyro_drift[1], gyro_drift[0]])  # X0 (the constant), X1..X3
+                notes.append(f"px4 holds the gyro drift as a cubic (TC_G{args.instance}_X0..X3, TC_G_ENABLE 1): "
+                             f"worst {gyro_drift[2] * 1e3:.3f} mrad/s from ours over the range")
         parameters = px4_parameters(fitted, args.instance, device_id=device,
                                     gyro_bias_radps=calibration.gyro_bias_radps,
-                                    gyro_device_id=calibration.gyro_device_id)
+                                    gyro_device_id=calibration.gyro_device_id, gyro_drift_rows=gyro_rows)
         return px4_params_text(parameters, f"Onboard parameters {source}"), notes + _thermal_notes(parameters)
     gyro_drift, gyro_bias = None, calibration.gyro_bias_radps
     if fitted.has_drift and fitted.drift_zero_degc is not None:

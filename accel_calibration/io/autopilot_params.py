@@ -112,13 +112,15 @@ def _check_instance(autopilot: str, instance: int) -> None:
 # ---------------------------------------------------------------------------------------------- PX4
 
 def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int | None = None,
-                   gyro_bias_radps: np.ndarray | None = None, gyro_device_id: int | None = None) -> list[Parameter]:
+                   gyro_bias_radps: np.ndarray | None = None, gyro_device_id: int | None = None,
+                   gyro_drift_rows: np.ndarray | None = None) -> list[Parameter]:
     """CAL_ACCn_* (and CAL_ACCn_ID when the device ID is known), TC_A* when the fit carries a drift
     polynomial, else TC_A_ENABLE 0 (the calibration is of the raw sensor: PX4's thermal offset, left on, would
     be subtracted before it), CAL_GYROn_*OFF from the gyro bias, with TC_G_ENABLE 0 and CAL_GYROn_ID (PX4
     applies a gyro slot only to the device whose ID it holds): the gyro's own ID where known (a BMI088's gyro
     is a die of its own), else the accelerometer's (PX4's drivers of a one-chip IMU register its accel and
-    gyro under one device ID).
+    gyro under one device ID). With `gyro_drift_rows` (X0..X3 per axis, rad/s per degC^k, in the accelerometer
+    drift's TREF, TMIN, TMAX) the gyro's thermal offset instead: TC_G_ENABLE 1 and TC_Gn_*.
     Refuses values outside PX4's accepted ranges."""
     _check_instance("px4", instance)
     out: list[Parameter] = []
@@ -151,12 +153,34 @@ def px4_parameters(fitted: AxisWiseCalibration, instance: int, *, device_id: int
             for axis in range(3):
                 out.append(Parameter(f"{tc}X{power}_{axis}", float(rows[power, axis])))
     if gyro_bias_radps is not None:
-        out.append(Parameter("TC_G_ENABLE", 0, integer=True))  # the gyro bias too is of the raw gyro
         gyro_device = device_id if gyro_device_id is None else gyro_device_id
+        if gyro_drift_rows is None or fitted.clamp_degc is None:
+            out.append(Parameter("TC_G_ENABLE", 0, integer=True))  # the gyro bias too is of the raw gyro
+        else:
+            out += _px4_gyro_thermal(instance, gyro_drift_rows, gyro_device, fitted)
         if gyro_device is not None:
             out.append(Parameter(f"CAL_GYRO{instance}_ID", gyro_device, integer=True))
         for axis, name in enumerate(AXES):
             out.append(Parameter(f"CAL_GYRO{instance}_{name}OFF", float(gyro_bias_radps[axis])))
+    return out
+
+
+def _px4_gyro_thermal(instance: int, rows: np.ndarray, device: int | None,
+                      fitted: AxisWiseCalibration) -> list[Parameter]:
+    """TC_G_ENABLE 1 and TC_Gn_*: calc_thermal_offsets_3D's X0 + X1 dT + X2 dT^2 + X3 dT^3, dT = clamp(T, TMIN,
+    TMAX) - TREF, taken off the raw gyro before CAL_GYROn_OFF (Gyroscope::Correct)."""
+    assert fitted.clamp_degc is not None
+    tc = f"TC_G{instance}_"
+    out = [Parameter("TC_G_ENABLE", 1, integer=True)]
+    if device is not None:
+        out.append(Parameter(tc + "ID", device, integer=True))
+    out += [Parameter(tc + "TREF", fitted.drift_origin_degc), Parameter(tc + "TMIN", fitted.clamp_degc[0]),
+            Parameter(tc + "TMAX", fitted.clamp_degc[1])]
+    values = np.asarray(rows, dtype=float).reshape(4, 3)
+    for power in range(4):
+        for axis in range(3):
+            _check_float32(f"{tc}X{power}_{axis}", float(values[power, axis]))
+            out.append(Parameter(f"{tc}X{power}_{axis}", float(values[power, axis])))
     return out
 
 

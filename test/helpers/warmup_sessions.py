@@ -203,3 +203,35 @@ def ardupilot_applied(params: dict[str, float], instance: int, raw: np.ndarray, 
     from helpers.autopilot_logs import YAW_90
 
     return ((accel - offset) * scale) @ YAW_90.T, (gyro - gyro_offset) @ YAW_90.T
+
+
+def read_px4_params(path: Path) -> dict[str, float]:
+    """QGroundControl's tab-separated parameter file: vehicle, component, name, value, type."""
+    values = {}
+    for line in path.read_text().splitlines():
+        parts = line.split("\t")
+        if len(parts) == 5 and not line.startswith("#"):
+            values[parts[2]] = float(parts[3])
+    return values
+
+
+def px4_applied(params: dict[str, float], slot: int, raw: np.ndarray, gyro_raw: np.ndarray,
+                degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What PX4 publishes for these raw samples in the sensor's axes (the board rotation left out): the
+    thermal offset X0 + X1 dT + X2 dT^2 + X3 dT^3, dT = clamp(T, TMIN, TMAX) - TREF, where its switch is on,
+    then Accelerometer::Correct's (raw - offset) * scale, Gyroscope::Correct's raw - offset."""
+    out = []
+    for kind, values, offset_names, scale_names in (
+            ("A", raw, [f"CAL_ACC{slot}_{a}OFF" for a in "XYZ"], [f"CAL_ACC{slot}_{a}SCALE" for a in "XYZ"]),
+            ("G", gyro_raw, [f"CAL_GYRO{slot}_{a}OFF" for a in "XYZ"], None)):
+        values = values.copy()
+        tc = f"TC_{kind}{slot}_"
+        if params.get(f"TC_{kind}_ENABLE", 0) == 1:
+            dt = np.clip(degc, params[tc + "TMIN"], params[tc + "TMAX"])[:, None] - params[tc + "TREF"]
+            rows = np.array([[params[f"{tc}X{k}_{axis}"] for axis in range(3)] for k in range(4)])
+            values -= sum(rows[k] * dt**k for k in range(4))
+        values -= np.array([params[name] for name in offset_names])
+        if scale_names is not None:
+            values *= np.array([params[name] for name in scale_names])
+        out.append(values)
+    return out[0], out[1]
