@@ -44,6 +44,10 @@ MIN_OVERLAP_DEGC = 1.0  # runs are tied together by their bins over at least thi
 ALONG_GRAVITY_COSINE = 0.9
 LEVEL_COSINE = 0.3
 PASS_RATE = 0.005  # degC/s: slower is no pass of its own (a plateau's noise)
+# Two heating rates at one temperature (within RATE_BIN_DEGC) differing by this much can show a lag of
+# ~10 s as ~0.2 degC: beyond a bin's noise on a drift of ~1 mg/degC.
+RATE_BIN_DEGC = 1.0
+RATE_DIFFERENCE = 0.02  # degC/s
 LAG_GRID_S = (0.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0, 50.0, 60.0, 80.0, 100.0, 120.0)
 
 
@@ -373,7 +377,7 @@ def _two_heating_rates(runs: list[_RunSamples]) -> bool:
     only then does a lag show (one history's lag only relabels its temperatures)."""
     passes = []
     for run in runs:
-        key = np.floor(run.degc / 1.0).astype(np.int64)
+        key = np.floor(run.degc / RATE_BIN_DEGC).astype(np.int64)
         for value in np.unique(key):
             rates = run.rate[key == value]
             passes.append((int(value), float(np.median(rates)), float(np.ptp(rates))))
@@ -382,7 +386,7 @@ def _two_heating_rates(runs: list[_RunSamples]) -> bool:
         by_degree.setdefault(value, []).append((rate, spread))
     for each in by_degree.values():
         rates = [rate for rate, _ in each]
-        if max(rates) - min(rates) > 0.02 or max(spread for _, spread in each) > 0.02:
+        if max(rates) - min(rates) > RATE_DIFFERENCE or max(spread for _, spread in each) > RATE_DIFFERENCE:
             return True
     return False
 
