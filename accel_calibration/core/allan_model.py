@@ -46,9 +46,13 @@ BRACKET = math.log(1e4)
 BISECTIONS = 13
 
 
-def design_columns(tau: np.ndarray) -> np.ndarray:
-    """(T, 5): the Allan variance of each term per unit coefficient (Q^2, N^2, C, K^2, R^2), C = 0.664^2 B^2."""
-    return np.column_stack([3.0 / tau**2, 1.0 / tau, np.ones_like(tau), tau / 3.0, tau**2 / 2.0])
+def design_columns(tau: np.ndarray, filtered: bool = False) -> np.ndarray:
+    """(T, 5): the Allan variance of each term per unit coefficient (Q^2, N^2, C, K^2, R^2), C = 0.664^2 B^2.
+    `filtered`: the first column is a low-pass filter's deficit instead, -3 / tau^2: filtered white noise
+    sits below N^2 / tau by a term in 1 / tau^2 at taus of a few filter time constants, and left out, the
+    fit lowered N by ~2 % there and put what was missing into the floor (bias instability 8-10 % off)."""
+    first = -3.0 / tau**2 if filtered else 3.0 / tau**2
+    return np.column_stack([first, 1.0 / tau, np.ones_like(tau), tau / 3.0, tau**2 / 2.0])
 
 
 def equivalent_dof(clusters: np.ndarray, samples: int) -> np.ndarray:
@@ -131,7 +135,7 @@ def _nnls_batch(design: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 def variance_sd(coefficients: np.ndarray, columns: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """(R, T): the standard deviation of the overlapping Allan variance under each model (R, P): each term's
     sqrt(2 / edf) sigma_k^2 added (the terms' estimates are positively correlated: their sum bounds it)."""
-    sd: np.ndarray = np.sqrt(2.0) * np.einsum("rp,tp->rt", coefficients, columns / np.sqrt(dof))
+    sd: np.ndarray = np.sqrt(2.0) * np.einsum("rp,tp->rt", coefficients, np.abs(columns) / np.sqrt(dof))
     return sd
 
 
@@ -158,19 +162,21 @@ def weighted_misfit(variance: np.ndarray, coefficients: np.ndarray, columns: np.
     return float(residual @ residual)
 
 
-def select_terms(variance: np.ndarray, columns: np.ndarray, dof: np.ndarray) -> tuple[list[int], np.ndarray]:
-    """(the columns used, their coefficients as (5,)): white, bias instability and random walk always;
-    quantization and rate ramp each when it lowers the weighted misfit by more than TERM_CHI2."""
+def select_terms(variance: np.ndarray, columns: np.ndarray, dof: np.ndarray,
+                 filtered: bool = False) -> tuple[list[int], np.ndarray]:
+    """(the columns used, their coefficients as (5,)): white, bias instability and random walk always, and
+    the filter's deficit when `filtered` (columns from design_columns(tau, filtered=True)); quantization
+    (unfiltered) and rate ramp each when it lowers the weighted misfit by more than TERM_CHI2."""
     def fitted(chosen: list[int]) -> tuple[np.ndarray, float]:
         part = fit_batch(variance[None, :], columns[:, chosen], dof[:, chosen])[0]
         full = np.zeros(columns.shape[1])
         full[chosen] = part
         return full, weighted_misfit(variance, full, columns, dof)
 
-    chosen = list(SIMULATED)
+    chosen = [0, *SIMULATED] if filtered else list(SIMULATED)
     best, misfit = fitted(chosen)
     if len(variance) > len(chosen) + 1:
-        for extra in (0, 4):
+        for extra in ((4,) if filtered else (0, 4)):
             trial = sorted([*chosen, extra])
             candidate, candidate_misfit = fitted(trial)
             if candidate[extra] > 0 and misfit - candidate_misfit > TERM_CHI2:
@@ -248,8 +254,8 @@ class Simulation:
         return full
 
 
-def simulation_for(clusters: np.ndarray, period_s: float, samples: int,
-                   replicates: int = REPLICATES) -> Simulation | None:
+def simulation_for(clusters: np.ndarray, period_s: float, samples: int, replicates: int = REPLICATES,
+                   filtered: bool = False) -> Simulation | None:
     """The simulation matching a record of `samples` at `period_s` fitted at `clusters` (sample counts); a
     long record decimated to <= MAX_SIMULATED_SAMPLES (cluster sizes below the decimation left out: they
     carry little of the bias instability and random walk). None when fewer than 4 cluster sizes remain."""
@@ -265,7 +271,7 @@ def simulation_for(clusters: np.ndarray, period_s: float, samples: int,
     period = decimation * period_s
     tau = reduced * period
     return Simulation(cross=cross_allan(length, tuple(reduced.tolist()), replicates), tau=tau, period=period,
-                      columns=design_columns(tau), dof=equivalent_dof(reduced, length), kept=kept)
+                      columns=design_columns(tau, filtered), dof=equivalent_dof(reduced, length), kept=kept)
 
 
 def profile(simulation: Simulation, observed: np.ndarray, chosen: list[int], term: int, value: float) -> np.ndarray:
