@@ -87,26 +87,29 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
         raise CalibrationError(f"Allan deviation needs at least 3 samples per channel, got shape {values.shape}")
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise CalibrationError(f"rate must be a positive number of Hz, got {rate_hz!r}")
-    if not np.all(np.isfinite(values)):
-        raise CalibrationError("samples must be finite")
     n = len(values)
     tau0 = 1.0 / rate_hz
     m = octave_taus(n, tau0) if clusters is None else np.asarray(clusters, dtype=np.int64)
     m = m[(m >= 1) & (2 * m < n)]
-    # The running integral (phase), of the samples less their mean: keeps theta small, so the second
-    # differences lose no digits to a 9.8 m/s^2 offset. One channel at a time in one row reused (a fresh
-    # (C, N) array cost more in page faults than all the arithmetic on it), and the second differences a
-    # block of columns at a time in one scratch buffer that stays in cache (no full-length temporaries).
+    # The running integral (phase, in sample periods: tau0 enters at the end), of the samples less their
+    # mean: keeps theta small, so the second differences lose no digits to a 9.8 m/s^2 offset. One channel
+    # at a time in one row reused (a fresh (C, N) array cost more in page faults than all the arithmetic on
+    # it), its mean from that row (numpy's mean down the columns of (N, 6) cost a tenth of the whole), a
+    # non-finite sample found by that mean; the second differences a block of columns at a time in one
+    # scratch buffer that stays in cache (no full-length temporaries).
     channels = values.shape[1]
-    mean = values.mean(axis=0)
     theta = np.zeros(n + 1)
+    column = theta[1:]
     scratch, firsts = np.empty(_BLOCK), np.empty(2 * _BLOCK)
     sums = np.zeros((len(m), channels))
     sizes = m.tolist()
     for channel in range(channels):
-        np.subtract(values[:, channel], mean[channel], out=theta[1:])
-        np.cumsum(theta[1:], out=theta[1:])
-        theta *= tau0
+        np.copyto(column, values[:, channel])
+        mean = float(column.sum()) / n
+        if not math.isfinite(mean):
+            raise CalibrationError("samples must be finite")
+        column -= mean
+        np.cumsum(column, out=column)
         for row, size in enumerate(sizes):
             length = n + 1 - 2 * size
             total = 0.0
@@ -125,8 +128,7 @@ def overlapping_adev(samples: ArrayLike, rate_hz: float,
                     piece = second[part:part + _DOT]
                     total += float(np.dot(piece, piece))
             sums[row, channel] = total
-    tau = m * tau0
-    adev = np.sqrt(sums / (2.0 * (tau * tau * (n + 1 - 2 * m)))[:, None])
+    adev = np.sqrt(sums / (2.0 * (m.astype(float) ** 2 * (n + 1 - 2 * m)))[:, None])
     relative = 1.0 / np.sqrt(2.0 * np.maximum(n / m - 1.0, 1.0))
     return m * tau0, adev, relative
 
@@ -191,8 +193,8 @@ class NoiseFit:
     noise: AxisNoise
     floor: float  # C: the flat part of sigma^2
     white_from_tau_s: float | None = None  # where the fit starts (None: no -1/2 region)
-    coefficients: np.ndarray | None = None  # (Q^2, N^2, C, K^2, R^2) of the fitted sigma^2
-    terms: tuple[str, ...] = ()  # the terms the fit carries
+    coefficients: np.ndarray | None = None  # (Q^2 or the filter's deficit, N^2, C, K^2, R^2) of sigma^2
+    terms: tuple[str, ...] = ()  # the terms the fit carries ("quantization" is a filter's deficit when filtered)
 
 
 REPLICATES = 400
@@ -222,23 +224,24 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
     used = slice(0 if start is None else start, None)
     variance = sigma[used] ** 2
     clusters = np.maximum(np.rint(tau[used] / period).astype(np.int64), 1)
-    columns, dof = design_columns(tau[used]), equivalent_dof(clusters, samples)
+    columns, dof = design_columns(tau[used], filtered), equivalent_dof(clusters, samples)
     if not np.all(np.isfinite(columns * variance.max())):
         raise CalibrationError("the Allan curve has values out of floating-point range: no fit")
     try:
-        chosen, coefficients = select_terms(variance, columns, dof)
+        chosen, coefficients = select_terms(variance, columns, dof, filtered)
     except np.linalg.LinAlgError as error:
         raise CalibrationError(f"the Allan curve could not be fitted ({error}): is the stretch still?") from None
-    simulation = (simulation_for(clusters, period, samples, replicates)
+    simulation = (simulation_for(clusters, period, samples, replicates, filtered)
                   if replicates > 0 and coefficients[1] > 0 else None)
-    intervals = (_simulated_intervals(simulation, variance, coefficients, chosen) if simulation is not None
+    intervals = (_simulated_intervals(simulation, variance, coefficients, chosen, filtered) if simulation is not None
                  else _covariance_intervals(variance, coefficients, chosen, columns, dof))
     model = columns @ coefficients
     white = _white_figure(coefficients[1], intervals[1], present=start is not None, filtered=filtered)
     walk = _walk_figure(coefficients, intervals[3], tau[used], duration_s, target_relative)
     bias = _bias_figure(coefficients[2], intervals[2], tau[used], model)
     noise = AxisNoise(white_density=white, random_walk=walk, bias_instability=bias,
-                      quantization=math.sqrt(coefficients[0]), rate_ramp=math.sqrt(coefficients[4]))
+                      quantization=0.0 if filtered else math.sqrt(coefficients[0]),
+                      rate_ramp=math.sqrt(coefficients[4]))
     return NoiseFit(tau_s=tau, adev=sigma, relative_error=relative, noise=noise, floor=float(coefficients[2]),
                     white_from_tau_s=None if start is None else float(tau[start]), coefficients=coefficients,
                     terms=tuple(TERMS[j] for j in chosen))
@@ -248,13 +251,14 @@ Interval = tuple[float, float, bool]  # (low, high, resolved) of a variance coef
 
 
 def _simulated_intervals(simulation: object, variance: np.ndarray, coefficients: np.ndarray,
-                         chosen: list[int]) -> dict[int, Interval]:
+                         chosen: list[int], filtered: bool) -> dict[int, Interval]:
     """White noise's interval from the simulated fits' ratio to the truth (a scale pivot: white noise is
     always resolved where the curve has its slope); bias instability's and random walk's by test inversion."""
     from .allan_model import Simulation, fit_batch, term_interval
 
     assert isinstance(simulation, Simulation)
-    simulated_terms = [j for j in chosen if j != 0]  # quantization: below the simulation's shortest tau
+    # quantization: below the simulation's shortest tau; a filter's deficit: fitted there as in the data
+    simulated_terms = chosen if filtered else [j for j in chosen if j != 0]
     part = fit_batch(variance[simulation.kept][None, :], simulation.columns[:, simulated_terms],
                      simulation.dof[:, simulated_terms])[0]
     statistic = np.zeros(len(coefficients))
