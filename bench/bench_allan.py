@@ -20,8 +20,8 @@ from accel_calibration.core.allan import fit_noise, octave_taus, overlapping_ade
 RATE, HOURS = 200.0, 3.0
 
 
-RUNS = 5
-TARGET = 3.0
+RUNS = 9
+TARGET = 3.0  # in every run, not the median
 
 
 def main() -> int:
@@ -67,8 +67,9 @@ def main() -> int:
               f"{ratios[-1]:.2f}x; largest relative difference {difference:.1e}")
     if ratios:
         median = statistics.median(ratios)
-        print(f"  median {median:.2f}x (min {min(ratios):.2f}, max {max(ratios):.2f}; target >= {TARGET:g}x): "
-              f"{'meets' if median >= TARGET else 'misses'}; load {Path('/proc/loadavg').read_text().split()[:3]}")
+        print(f"  per run: {' '.join(f'{r:.2f}x' for r in ratios)}; median {median:.2f}x, min {min(ratios):.2f}x "
+              f"(target >= {TARGET:g}x in every run): {'meets' if min(ratios) >= TARGET else 'misses'}; "
+              f"load {Path('/proc/loadavg').read_text().split()[:3]}")
     if "--no-seeds" in sys.argv:
         return 0
     worst = np.zeros(2)
