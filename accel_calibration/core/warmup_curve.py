@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.interpolate import CubicSpline
 
 from .errors import CalibrationError
 
@@ -27,6 +26,8 @@ def spline_basis(knots_degc: np.ndarray, degc: ArrayLike) -> np.ndarray:
     if len(knots) == 2:  # a line: CubicSpline's natural ends need three knots
         share = (at - knots[0]) / (knots[1] - knots[0])
         return np.column_stack([1.0 - share, share])
+    from scipy.interpolate import CubicSpline  # here: scipy.interpolate brings scipy.linalg, which start-up avoids
+
     basis: np.ndarray = CubicSpline(knots, np.eye(len(knots)), bc_type="natural")(at)
     return basis
 
