@@ -245,6 +245,10 @@ def _estimator_text(args: argparse.Namespace, calibration: Calibration, source: 
 
     checked_topic(args.rostopic)
     noise = _noise_figures(args, calibration)
+    if args.noise is not None:  # which figures the noise file carries (static or in operation), carried on
+        from ..io.estimator_yaml import noise_statements
+
+        source = "\n".join([source, *noise_statements(args.noise)])
     if args.to == "kalibr":
         return kalibr_imu_yaml(noise, args.rostopic, source), \
             ["kalibr: imu.yaml holds the noise figures only; Kalibr estimates the intrinsics itself"]

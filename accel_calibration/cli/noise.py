@@ -15,7 +15,9 @@ from ..bag.recording import FORMATS
 from ..core.errors import CalibrationError
 
 if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
+    from ..bag.recording import Recording
     from ..core.allan import Figure, NoiseFit
+    from ..core.band_noise import OperatingNoise
 from ..io.output_paths import check_output_places, check_outputs, write_bytes_atomically
 
 MIN_STILL_S = 20.0  # tau up to ~2 s with 9 clusters: the white-noise density at tau = 1 s, and no more
@@ -48,6 +50,13 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     parser.add_argument("--kalibr", default=None, metavar="IMU.yaml", help="write Kalibr's imu.yaml")
     parser.add_argument("--rostopic", default="/imu0", help="--kalibr: the IMU topic (default /imu0)")
     parser.add_argument("--plot", default=None, metavar="FIG.png", help="write the log-log figure")
+    parser.add_argument("--operating", action="store_true",
+                        help="also the noise in operation: the longest stretch beside the still one (the vehicle "
+                             "running), its density over 5 Hz..0.4 x the rate (the vehicle's motion, below, left out) "
+                             "beside the static figure, and their ratio")
+    parser.add_argument("--noise", choices=("static", "operating"), default="static",
+                        help="--kalibr: the white-noise densities to write, the still stretch's (default) or those "
+                             "in operation (with --operating)")
     return parser
 
 
@@ -145,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     from ..bag.recording import open_recording
     from ..core.allan import required_duration_s
 
+    if args.noise == "operating" and not args.operating:
+        raise CalibrationError("--noise operating needs --operating (the noise in operation is measured with it)")
     outputs = [("--kalibr", args.kalibr), ("--plot", args.plot)]
     check_outputs(outputs, [args.recording])
     check_output_places(outputs)
@@ -173,8 +184,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {recording.stream}, still {t_ns[first] * 1e-9:.1f}..{t_ns[last - 1] * 1e-9:.1f} s "
           f"({duration_s / 60:.1f} min, {len(t)} samples at {rate:.1f} Hz)")
     print(noise_table(fits))
+    operating = _operating(args, recording, (first, last), rate, fits) if args.operating else None
     if args.kalibr:
-        _write_kalibr(args, fits, rate, duration_s)
+        _write_kalibr(args, fits, rate, duration_s, operating)
     if args.plot:
         from ..io.noise_figure import write_noise_figure
 
@@ -198,8 +210,47 @@ def channel_fits(values: np.ndarray, rate_hz: float, duration_s: float) -> list[
     return [fit_noise(tau, adev[:, axis], relative, duration_s, tau0_s=1.0 / rate_hz) for axis in range(3)]
 
 
+MIN_RUNNING_S = 5.0  # the band average over 5 Hz..0.4 x the rate needs ~4 s (band_noise.MIN_SEGMENTS)
+
+
+def _operating(args: argparse.Namespace, recording: Recording, still: tuple[int, int], rate: float,
+               fits: dict[str, list[NoiseFit] | None]) -> dict[str, OperatingNoise]:
+    """The noise in operation per sensor (core/band_noise.py) from the longest stretch before or after the
+    still one, printed beside the static figures with their ratio."""
+    from ..core.band_noise import operating_noise
+
+    t_ns = recording.t_ns
+    start, stop = max((0, still[0]), (still[1], len(t_ns)), key=lambda span: span[1] - span[0])
+    if args.whole or stop - start < 3:
+        raise CalibrationError(f"{args.recording}: --operating needs the vehicle running beside a still stretch; "
+                               "there is none (without --whole, the still stretch is the detector's)")
+    within, beyond, running_rate, _ = unbroken_stretch(t_ns[start:stop])
+    start, stop = start + within, start + beyond
+    seconds = float(t_ns[stop - 1] - t_ns[start]) * 1e-9
+    if seconds < MIN_RUNNING_S or abs(running_rate / rate - 1.0) > 0.01:
+        raise CalibrationError(f"{args.recording}: the running stretch lasts {seconds:.1f} s at {running_rate:.1f} Hz: "
+                               f"--operating needs {MIN_RUNNING_S:g} s at the still stretch's rate ({rate:.1f} Hz)")
+    sources = {"accelerometer": recording.accel_mps2, "gyroscope": recording.gyro_radps}
+    found: dict[str, OperatingNoise] = {}
+    for sensor, axes in fits.items():
+        values = sources[sensor]
+        if axes is None or values is None:
+            continue
+        static = np.array([f.noise.white_density.value for f in axes])
+        found[sensor] = operating_noise(values[still[0]:still[1]], values[start:stop], rate, static)
+    low, high = next(iter(found.values())).band_hz if found else (0.0, 0.0)
+    print(f"in operation {t_ns[start] * 1e-9:.1f}..{t_ns[stop - 1] * 1e-9:.1f} s ({seconds / 60:.1f} min): "
+          f"density over {low:g}..{high:g} Hz (the vehicle's motion, below, left out), as the static density "
+          "scaled by the band's ratio running / still")
+    for sensor, noise in found.items():
+        for axis, fit, running, ratio in zip("xyz", fits[sensor] or [], noise.operating_density, noise.ratio):
+            print(f"  {sensor[0]}{axis:6s} static {fit.noise.white_density.value:.3g}  operating {running:.3g} "
+                  f"{DENSITY_UNITS[sensor]}  ratio {ratio:.2f}")
+    return found
+
+
 def _write_kalibr(args: argparse.Namespace, fits: dict[str, list[NoiseFit] | None], rate: float,
-                  duration_s: float) -> None:
+                  duration_s: float, operating: dict[str, OperatingNoise] | None = None) -> None:
     """Kalibr's imu.yaml from the figures, or one line saying which figure is missing (never a 0)."""
     from ..io.calibration_file import write_text_atomically
     from ..io.estimator_yaml import NoiseFigures, kalibr_imu_yaml
@@ -217,14 +268,21 @@ def _write_kalibr(args: argparse.Namespace, fits: dict[str, list[NoiseFit] | Non
     if absent:
         raise CalibrationError(f"{args.recording}: no white-noise region (-1/2 slope) in the Allan curve of "
                                f"{', '.join(absent)}: no noise density for Kalibr; record longer or faster")
+    densities = {sensor: max(f.noise.white_density.value for f in axes) for sensor, axes in measured.items()}
+    which = "static: the still stretch's white noise"
+    if args.noise == "operating" and operating is not None:
+        densities = {sensor: float(np.max(noise.operating_density)) for sensor, noise in operating.items()}
+        low, high = next(iter(operating.values())).band_hz
+        which = (f"in operation: the static density x the ratio of the running to the still stretch's density over "
+                 f"{low:g}..{high:g} Hz")
     figures = NoiseFigures(  # the largest axis of each: Kalibr takes one figure per sensor
-        accelerometer_noise_density=max(f.noise.white_density.value for f in measured["accelerometer"]),
+        accelerometer_noise_density=densities["accelerometer"],
         accelerometer_random_walk=max(f.noise.random_walk.value for f in measured["accelerometer"]),
-        gyroscope_noise_density=max(f.noise.white_density.value for f in measured["gyroscope"]),
+        gyroscope_noise_density=densities["gyroscope"],
         gyroscope_random_walk=max(f.noise.random_walk.value for f in measured["gyroscope"]),
         update_rate_hz=rate)
     comment = (f"accel-calib noise {Path(args.recording).name}: the largest axis of each figure; "
-               f"{duration_s / 60:.1f} min still at {rate:.1f} Hz")
+               f"{duration_s / 60:.1f} min still at {rate:.1f} Hz\nnoise densities {which}")
     unresolved = [s for s, axes in measured.items() if not all(f.noise.random_walk.resolved for f in axes)]
     said = ""
     if unresolved:  # the bound holds 95 % of the time: an estimator trusting the bias too long is the harm

@@ -158,3 +158,15 @@ def read_noise_figures(path: str, update_rate_hz: float | None = None) -> NoiseF
         return NoiseFigures(**{name: document[name] for name in NOISE_FIELDS}, update_rate_hz=rate)
     except EstimatorFileError as error:
         raise EstimatorFileError(f"{path}: {error}") from None
+
+
+NOISE_STATEMENTS = ("noise densities ", "random walk of ")  # what `accel-calib noise --kalibr` says of its figures
+
+
+def noise_statements(path: str) -> list[str]:
+    """The comment lines of a noise file saying which figures it carries (static or in operation; a random
+    walk that is an upper bound), for an export to carry on; [] for a file without them."""
+    raw = read_regular_file(path, 1 << 20, "noise file (Kalibr imu.yaml)", error=EstimatorFileError)
+    lines = raw.decode("utf-8", errors="replace").splitlines()
+    comments = [line.lstrip("# ").strip() for line in lines if line.startswith("#")]
+    return [line for line in comments if line.startswith(NOISE_STATEMENTS)]
