@@ -8,7 +8,7 @@ simulated without the floor, held the truth in 65-72 % of cases with all three p
 
 - Weights: the standard error of the overlapping estimate at each tau from the model itself, each term's
   share with its own equivalent degrees of freedom (the overlapping estimator's edf for white, flicker and
-  random-walk frequency noise), their standard deviations added (an upper bound on the correlated sum);
+  random-walk frequency noise), their standard deviations added in quadrature;
   reweighted from the fitted model (the first pass from the measured values).
 - Quantization and rate ramp enter only when they lower the weighted misfit by more than TERM_CHI2: the
   short and long taus have too few degrees of freedom to carry five free terms.
@@ -134,8 +134,10 @@ def _nnls_batch(design: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 def variance_sd(coefficients: np.ndarray, columns: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """(R, T): the standard deviation of the overlapping Allan variance under each model (R, P): each term's
-    sqrt(2 / edf) sigma_k^2 added (the terms' estimates are positively correlated: their sum bounds it)."""
-    sd: np.ndarray = np.sqrt(2.0) * np.einsum("rp,tp->rt", coefficients, np.abs(columns) / np.sqrt(dof))
+    sqrt(2 / edf) sigma_k^2 added in quadrature (as if the terms' estimates were independent; their plain
+    sum, an upper bound, weighted the points where two terms meet too little: K's median error 10-12 %
+    against 9-10 % at 2 h through a 10 Hz filter, the intervals being calibrated by simulation either way)."""
+    sd: np.ndarray = np.sqrt(2.0 * np.einsum("rp,tp->rt", coefficients**2, columns**2 / dof))
     return sd
 
 
@@ -151,7 +153,9 @@ def fit_batch(variance: np.ndarray, columns: np.ndarray, dof: np.ndarray,
     for _ in range(IRLS_PASSES):
         weight = 1.0 / np.maximum(level, 1e-300)
         solution = _nnls_batch(design * weight[:, :, None], target * weight)
-        modelled = variance_sd(solution, columns, dof) + (0.0 if known is None else known[1][None, :])
+        modelled = variance_sd(solution, columns, dof)
+        if known is not None:
+            modelled = np.sqrt(modelled**2 + known[1][None, :] ** 2)
         level = np.where(modelled > 0, modelled, level)
     return solution
 
