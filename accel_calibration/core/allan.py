@@ -194,7 +194,7 @@ class NoiseFit:
     floor: float  # C: the flat part of sigma^2
     white_from_tau_s: float | None = None  # where the fit starts (None: no -1/2 region)
     coefficients: np.ndarray | None = None  # (Q^2 or the filter's deficit, N^2, C, K^2, R^2) of sigma^2
-    terms: tuple[str, ...] = ()  # the terms the fit carries ("quantization" is a filter's deficit when filtered)
+    terms: tuple[str, ...] = ()  # the terms the fit carries; "filter": a low-pass filter's deficit (-3/tau^2)
 
 
 REPLICATES = 400
@@ -244,7 +244,7 @@ def fit_noise(tau_s: np.ndarray, adev: np.ndarray, relative_error: np.ndarray, d
                       rate_ramp=math.sqrt(coefficients[4]))
     return NoiseFit(tau_s=tau, adev=sigma, relative_error=relative, noise=noise, floor=float(coefficients[2]),
                     white_from_tau_s=None if start is None else float(tau[start]), coefficients=coefficients,
-                    terms=tuple(TERMS[j] for j in chosen))
+                    terms=tuple("filter" if filtered and j == 0 else TERMS[j] for j in chosen))
 
 
 Interval = tuple[float, float, bool]  # (low, high, resolved) of a variance coefficient; unresolved: high one-sided
