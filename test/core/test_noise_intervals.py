@@ -9,6 +9,8 @@ from scipy.signal import butter, lfilter
 
 from accel_calibration.core.allan import fit_noise, overlapping_adev
 
+from helpers.noise_processes import flicker
+
 RATE_HZ, RECORD_S, DENSITY, WALK = 100.0, 200.0, 1e-3, 1e-3
 TRIALS = 40
 # 95 % coverage over 40 trials: binomial sd 3.4 %; below 87 % is 2.4 sd short (the points taken as
@@ -36,18 +38,6 @@ def test_the_random_walk_interval_holds_the_truth_about_95_percent_and_no_bias_i
     assert COVERAGE_BAND[0] <= walk_held <= COVERAGE_BAND[1], walk_held
     assert COVERAGE_BAND[0] <= density_held <= COVERAGE_BAND[1], density_held
     assert absent >= 0.95, absent
-
-
-def flicker(rng: np.random.Generator, samples: int, rate_hz: float, floor_adev: float, channels: int) -> np.ndarray:
-    """Flicker (1/f) noise whose Allan deviation is the flat `floor_adev` (S(f) = h / f one-sided, Allan
-    variance 2 ln 2 h), shaped in the frequency domain."""
-    h = floor_adev**2 / (2.0 * np.log(2.0))
-    frequency = np.fft.rfftfreq(samples, 1.0 / rate_hz)
-    frequency[0] = np.inf  # no mean
-    amplitude = np.sqrt(h / frequency * rate_hz * samples / 2.0)
-    shape = (len(frequency), channels)
-    spectrum = amplitude[:, None] * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2.0)
-    return np.fft.irfft(spectrum, samples, axis=0)
 
 
 def test_the_bias_instability_interval_holds_a_flat_floor_about_95_percent():

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
-from test_noise_intervals import flicker
 
 from accel_calibration.core.allan import BIAS_INSTABILITY_FACTOR, fit_noise, overlapping_adev
+
+from helpers.noise_processes import flicker
 
 RATE_HZ, RECORD_S = 50.0, 4 * 3600.0
 DENSITY, FLOOR_ADEV, WALK = 1e-3, 2e-4, 5e-5  # white meets the floor at 25 s, the walk rises over it from ~50 s
