@@ -21,7 +21,7 @@ from stream_peers import turned_sensor  # noqa: E402
 from accel_calibration.core.session import CalibrationSession  # noqa: E402
 from accel_calibration.core.settings import Settings  # noqa: E402
 
-PASS_S = 0.2  # io/worker_protocol.FEED_PERIOD_S
+PASS_S = 0.2  # live/worker_protocol.FEED_PERIOD_S
 SECONDS = 48.0  # 24 poses of the turned sensor
 
 

@@ -1,5 +1,5 @@
 """Test-session isolation, access to ../shared reference data, and the fixtures tests of several layers share.
-The one conftest: the layer folders (core, io, bag, ros, cli, package) have none; shared helpers that are
+The one conftest: the layer folders (core, io, live, bag, ros, cli, package) have none; shared helpers that are
 not fixtures live in test/helpers/."""
 from __future__ import annotations
 

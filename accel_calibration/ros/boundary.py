@@ -10,8 +10,8 @@ from typing import Any
 
 from rclpy.node import Node
 
-from ..io.live_calibration import LOG_THROTTLE_S
-from ..io.worker_protocol import WorkerGone
+from ..live.calibration_work import LOG_THROTTLE_S
+from ..live.worker_protocol import WorkerGone
 
 Fallback = Callable[[tuple[Any, ...], Exception], Any]
 

@@ -1,11 +1,11 @@
-"""calibration_node: the live shell over io.live_stream (the stream side) and io.live_calibration (the
+"""calibration_node: the live shell over live.per_message (the stream side) and live.calibration_work (the
 work), without ROS both. Imu in, corrected Imu out; services to calibrate, inspect, reset, save and switch
 the correction; /diagnostics at 1 Hz.
 
 Wiring only. The Imu callback reads the message's serialised bytes, corrects and publishes them patched
 (core.correction's one correction, as every corrected copy of a recording) and pushes the raw sample into a
 shared ring. The work runs in a worker process
-(io/worker_process.py): it feeds the ring to the session every FEED_PERIOD_S and runs the services' jobs,
+(live/worker_process.py): it feeds the ring to the session every FEED_PERIOD_S and runs the services' jobs,
 which answer when the job ends (ros/boundary.py); so the stream never waits for a fit, a disk, or even
 the lock of the interpreter doing them. No exception from a callback ends the process (ros/boundary.py);
 signals end the spin loop (ros/process.py).
@@ -41,10 +41,16 @@ from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, frame_i
 
 from ..core.calibration import Calibration
 from ..core.correction import Correction
-from ..io.in_force import ERROR, OK, WARN
-from ..io.live_calibration import WorkSnapshot, diagnostic_values, file_status, open_calibration_file, starting_snapshot
-from ..io.live_stream import LiveStream, imu_ring, temperature_ring
-from ..io.worker_process import WorkerProcess, WorkerStart
+from ..live.calibration_work import (
+    WorkSnapshot,
+    diagnostic_values,
+    file_status,
+    open_calibration_file,
+    starting_snapshot,
+)
+from ..live.in_force import ERROR, OK, WARN
+from ..live.per_message import LiveStream, imu_ring, temperature_ring
+from ..live.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
 from .diagnostics import (
     NAMESAKE_CHECKS_S,

@@ -14,7 +14,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import AccelCalibrationError
-from ..io.live_calibration import LOG_THROTTLE_S
+from ..live.calibration_work import LOG_THROTTLE_S
 from .parameters import asks_for_help, first_line, params_file_problem, usage
 
 __all__ = ["GIL_SWITCH_INTERVAL_S", "run_node", "spin_until"]

@@ -11,7 +11,7 @@ import pytest
 
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.stream.detector import StaticDetector
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 
 from helpers.one_line import assert_one_error_line, run_main
 from helpers.real_bags import read_imu_and_temperature

@@ -17,7 +17,7 @@ from accel_calibration.core.correction import Correction
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import calibration_to_dict
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 
 from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream

@@ -211,7 +211,7 @@ def _problem(reference: str) -> str | None:
         found = _files_named(match.group(1) + ".py")
         return None if any(_defines(p, match.group(2)) for p in found) else f"no {reference} under test/"
     # core/fit.py, cli/replay.*, io/history.History.write, accel_calibration.io.history
-    match = re.fullmatch(r"(?:accel_calibration[./])?(core|io|bag|ros|cli)[./](\w+)(\.py)?((?:\.(?:\w+|\*))*)",
+    match = re.fullmatch(r"(?:accel_calibration[./])?(core|io|live|bag|ros|cli)[./](\w+)(\.py)?((?:\.(?:\w+|\*))*)",
                          reference)
     if match:
         module = f"accel_calibration.{match.group(1)}.{match.group(2)}"
@@ -484,8 +484,9 @@ def test_the_node_docs_interface_table_is_the_readmes():
 
 # The constants the docs quote: (doc, module, name, value, the doc's words).
 DOC_CONSTANTS = [
-    ("architecture.md", "accel_calibration.io.worker_protocol", "FEED_PERIOD_S", 0.2, "every `FEED_PERIOD_S` (0.2 s)"),
-    ("architecture.md", "accel_calibration.io.sample_ring", "RING_RECORDS", 2**18, "(`RING_RECORDS`, 2^18 samples,"),
+    ("architecture.md", "accel_calibration.live.worker_protocol", "FEED_PERIOD_S", 0.2,
+     "every `FEED_PERIOD_S` (0.2 s)"),
+    ("architecture.md", "accel_calibration.live.sample_ring", "RING_RECORDS", 2**18, "(`RING_RECORDS`, 2^18 samples,"),
     ("architecture.md", "accel_calibration.core.session", "RecordingFeed.PART_ROWS", 16_384,
      "parts of PART_ROWS = 16,384"),
     ("architecture.md", "accel_calibration.core.session", "RecordingFeed.LIVE_TEMPERATURE_WAIT_NS", 10**9,

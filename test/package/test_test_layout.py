@@ -6,7 +6,7 @@ import ast
 from pathlib import Path
 
 TEST = Path(__file__).resolve().parents[1]
-LAYERS = {"core", "io", "bag", "ros", "cli", "package"}
+LAYERS = {"core", "io", "live", "bag", "ros", "cli", "package"}
 
 
 def _imported_modules(path: Path) -> set[str]:

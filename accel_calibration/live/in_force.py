@@ -27,7 +27,7 @@ from ..core.fit_result import ParameterSource
 from ..core.plausibility import plausibility_problem
 from ..core.settings import Settings
 from ..core.stream.temperature_filter import TemperatureFilter
-from .calibration_file import MAX_CALIBRATION_BYTES, load_calibration, remove_stale_temp_files, save_calibration
+from ..io.calibration_file import MAX_CALIBRATION_BYTES, load_calibration, remove_stale_temp_files, save_calibration
 
 
 class Level(enum.StrEnum):

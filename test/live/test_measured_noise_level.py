@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from accel_calibration.core.settings import Settings
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 from helpers.session_doors import LogLines, buffer_messages

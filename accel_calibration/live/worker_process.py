@@ -2,8 +2,8 @@
 
 A batch of the detector or a fit holds its interpreter's lock for milliseconds; in the publishing process
 every message arriving meanwhile would wait (the stream's p99 latency was the batches'). Here the node
-keeps the stream side (io/live_stream.py) and `WorkerProcess` starts the work (io/live_calibration.py)
-in a spawned process (io/worker_main.py, then io/worker_loop.py) that reads the same shared sample rings,
+keeps the stream side (live/per_message.py) and `WorkerProcess` starts the work (live/calibration_work.py)
+in a spawned process (live/worker_main.py, then live/worker_loop.py) that reads the same shared sample rings,
 feeds every FEED_PERIOD_S, and runs the services' jobs in order. The two talk over one pipe:
 
 - to the work: ("job", id, name), ("settings", Settings), ("frame_id", str), ("stop",);
@@ -11,7 +11,7 @@ feeds every FEED_PERIOD_S, and runs the services' jobs in order. The two talk ov
   ("noise", accel_var, gyro_var), ("snapshot", WorkSnapshot), ("log", level, text).
 
 The work runs at a lower priority (os.nice) and, while a stream flows, in slices with pauses between
-(io/worker_pace.py): on a busy flight computer the stream comes first. It ignores
+(live/worker_pace.py): on a busy flight computer the stream comes first. It ignores
 SIGINT/SIGTERM (a terminal's Ctrl-C reaches the whole process group): the node stops it, letting a save in
 flight finish, and it ends by itself when the node's end of the pipe closes. A work that dies is started
 again (its poses are lost; the file is whole: saves are atomic).
@@ -30,8 +30,8 @@ from typing import Any
 from ..core.calibration import Calibration
 from ..core.settings import Settings
 from . import worker_main
-from .live_calibration import WorkSnapshot
-from .live_stream import LOG_THROTTLE_S, Log
+from .calibration_work import WorkSnapshot
+from .per_message import LOG_THROTTLE_S, Log
 from .sample_ring import SampleRing
 from .worker_protocol import FEED_PERIOD_S, WorkerGone, WorkerStart
 

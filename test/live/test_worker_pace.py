@@ -1,4 +1,4 @@
-"""The worker's pacer (io/worker_pace.py): while a stream flows, the work runs in slices with pauses between,
+"""The worker's pacer (live/worker_pace.py): while a stream flows, the work runs in slices with pauses between,
 so the stream's processes get the cores back often; outside its block nothing of it is left."""
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from accel_calibration.io.worker_pace import Pacer
+from accel_calibration.live.worker_pace import Pacer
 
 SLICE_S, PAUSE_S = 0.5e-3, 1e-3
 

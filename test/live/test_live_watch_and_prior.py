@@ -15,7 +15,7 @@ from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.units import MG
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 from msg_tools.synthetic_imu import SyntheticImu, spread_orientations
 
 from helpers.prior_sessions import level_stream, sensor_and_old_calibration

@@ -1,6 +1,6 @@
-"""The worker process's side: the work (io/live_calibration.py) fed every FEED_PERIOD_S from the shared
+"""The worker process's side: the work (live/calibration_work.py) fed every FEED_PERIOD_S from the shared
 rings, the node's jobs in order, its log lines and what it puts in force sent back over the pipe
-(io/worker_process.py has the protocol and the node's side)."""
+(live/worker_process.py has the protocol and the node's side)."""
 from __future__ import annotations
 
 import gc
@@ -14,8 +14,8 @@ from collections.abc import Callable
 from typing import Any
 
 from ..core.calibration import Calibration
-from .live_calibration import LiveCalibration
-from .live_stream import LOG_THROTTLE_S
+from .calibration_work import LiveCalibration
+from .per_message import LOG_THROTTLE_S
 from .sample_ring import SampleRing
 from .worker_pace import Pacer
 from .worker_protocol import FEED_PERIOD_S, WORKER_NICENESS, WorkerGone, WorkerStart
@@ -95,7 +95,7 @@ def run_worker(conn: Any, rings: tuple[Any, Any], start: WorkerStart) -> None:
 class _WorkerLoop:
     def __init__(self, conn: Any, live: LiveCalibration, log: _PipeLog, pacer: Pacer):
         self._conn, self._live, self._log = conn, live, log
-        self._pacer = pacer  # while a stream flows, the work goes in slices (io/worker_pace.py)
+        self._pacer = pacer  # while a stream flows, the work goes in slices (live/worker_pace.py)
         self._inbox: deque[tuple[Any, ...]] = deque()
         self._sent = b""  # the snapshot last sent, pickled (its arrays do not compare with ==)
         self._jobs: dict[str, Callable[[], tuple[bool, str]]] = {

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from accel_calibration.io.sample_ring import SampleRing
+from accel_calibration.live.sample_ring import SampleRing
 
 
 def record(i: int) -> tuple:

@@ -8,7 +8,7 @@ import yaml
 
 from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import save_calibration
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 
 from helpers.prior_sessions import level_stream, sensor_and_old_calibration
 from helpers.session_doors import LogLines, buffer_messages

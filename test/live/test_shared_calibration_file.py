@@ -10,7 +10,7 @@ import os
 import pytest
 
 from accel_calibration.core.settings import Settings
-from accel_calibration.io.live_calibration import LiveCalibration
+from accel_calibration.live.calibration_work import LiveCalibration
 
 from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream

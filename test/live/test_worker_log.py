@@ -2,7 +2,7 @@
 the node shows them (each line is pickled and sent: at info, the debug ones would be sent for nothing)."""
 from __future__ import annotations
 
-from accel_calibration.io.worker_loop import _PipeLog
+from accel_calibration.live.worker_loop import _PipeLog
 
 
 class Pipe:

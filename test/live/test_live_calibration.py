@@ -1,4 +1,4 @@
-"""The node's work without ROS (io.live_calibration), driven as a person and a stream would: samples in
+"""The node's work without ROS (live.calibration_work), driven as a person and a stream would: samples in
 parts of any size, services called in any order (calibrate too early, pause, reset, save, switch the
 correction off, arm). What must hold after every step: the calibration in force is the one its file
 holds (saved, then applied), a refusal leaves it as it was, nothing collected while paused or armed
@@ -17,8 +17,8 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 
 from accel_calibration.core.settings import Settings
 from accel_calibration.io.calibration_file import load_calibration
-from accel_calibration.io.live_calibration import LiveCalibration
-from accel_calibration.io.live_stream import imu_ring, temperature_ring
+from accel_calibration.live.calibration_work import LiveCalibration
+from accel_calibration.live.per_message import imu_ring, temperature_ring
 
 from helpers.session_doors import LogLines, buffer_messages
 from helpers.session_streams import stream

@@ -1,10 +1,10 @@
 """The live calibration's work: everything the node does besides correcting and publishing, without ROS.
 
-`feed` takes what the stream side (io/live_stream.py) put in the sample rings and hands it to the
+`feed` takes what the stream side (live/per_message.py) put in the sample rings and hands it to the
 session's live feed (the batch pipeline replay uses: live equals replay by construction), takes the poses,
 refits, judges and applies; `calibrate`, `reset` and `save` are the services' jobs, each answering
 (success, one line). A calibration put in force, and the noise measured, go to the stream side through its
-`link` (a LiveStream, or the node's pipe to it from the worker process, io/worker_process.py).
+`link` (a LiveStream, or the node's pipe to it from the worker process, live/worker_process.py).
 
 In one process (tests, tools): `LiveCalibration(settings, path, log)` makes its own rings and LiveStream
 (`.stream`), wired directly. The node runs this in a worker process over shared rings instead.
@@ -29,7 +29,7 @@ from ..core.session import CalibrationSession, Progress, Verdict
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
 from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
-from .live_stream import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
+from .per_message import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
 
 __all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "diagnostic_values",

@@ -1,7 +1,7 @@
 """The live calibration's stream side: what runs per message, in the process that publishes.
 
 `buffer_imu` pushes the raw sample, marked collecting or not, into the sample ring (the one path to the
-calibration work, io/sample_ring.py); `take_temperature` moves the correction's temperature and pushes the
+calibration work, live/sample_ring.py); `take_temperature` moves the correction's temperature and pushes the
 reading. The correction in force is this side's copy of the calibration work's (`install`, `set_noise`),
 so correcting a message never waits for a fit, a file or the other process. The armed input,
 calibration/pause and calibration/enable are answered here, at once.
@@ -17,7 +17,7 @@ from ..core.calibration import Calibration
 from ..core.settings import Settings
 from ..core.stream.collection_pause import CollectionPause
 from ..core.text import quoted
-from .calibration_file import calibration_to_yaml
+from ..io.calibration_file import calibration_to_yaml
 from .in_force import CalibrationInForce
 from .sample_ring import SampleRing
 
