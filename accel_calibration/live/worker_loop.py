@@ -18,7 +18,23 @@ from .calibration_work import LiveCalibration
 from .per_message import LOG_THROTTLE_S
 from .sample_ring import SampleRing
 from .worker_pace import Pacer
-from .worker_protocol import FEED_PERIOD_S, WORKER_NICENESS, WorkerGone, WorkerStart
+from .worker_protocol import (
+    FEED_PERIOD_S,
+    WORKER_NICENESS,
+    Done,
+    FrameId,
+    Install,
+    Job,
+    LogLevel,
+    LogLine,
+    NewSettings,
+    Noise,
+    Snapshot,
+    Stop,
+    ToWorker,
+    WorkerGone,
+    WorkerStart,
+)
 
 __all__ = ["run_worker"]
 
@@ -32,27 +48,28 @@ class _PipeLog:
         self._debug_logged = debug_logged
         self._last: dict[tuple[str, int], float] = {}
 
-    def _line(self, level: str, message: str, throttle_duration_sec: float | None = None, **kwargs: Any) -> None:
+    def _line(self, level: LogLevel, message: str, throttle_duration_sec: float | None = None,
+              **kwargs: Any) -> None:
         if throttle_duration_sec:
             caller = sys._getframe(2)
             site, now = (caller.f_code.co_filename, caller.f_lineno), time.monotonic()
             if now - self._last.get(site, -1e18) < throttle_duration_sec:
                 return
             self._last[site] = now
-        self._conn.send(("log", level, message))
+        self._conn.send(LogLine(level, message))
 
     def debug(self, message: str, **kwargs: Any) -> None:
         if self._debug_logged:
-            self._line("debug", message, **kwargs)
+            self._line(LogLevel.DEBUG, message, **kwargs)
 
     def info(self, message: str, **kwargs: Any) -> None:
-        self._line("info", message, **kwargs)
+        self._line(LogLevel.INFO, message, **kwargs)
 
     def warning(self, message: str, **kwargs: Any) -> None:
-        self._line("warning", message, **kwargs)
+        self._line(LogLevel.WARNING, message, **kwargs)
 
     def error(self, message: str, **kwargs: Any) -> None:
-        self._line("error", message, **kwargs)
+        self._line(LogLevel.ERROR, message, **kwargs)
 
 
 class _PipeLink:
@@ -62,10 +79,10 @@ class _PipeLink:
         self._conn = conn
 
     def install(self, calibration: Calibration | None) -> None:
-        self._conn.send(("install", calibration))
+        self._conn.send(Install(calibration))
 
     def set_noise(self, accel_var: float | None, gyro_var: float | None) -> None:
-        self._conn.send(("noise", accel_var, gyro_var))
+        self._conn.send(Noise(accel_var, gyro_var))
 
 
 def run_worker(conn: Any, rings: tuple[Any, Any], start: WorkerStart) -> None:
@@ -96,7 +113,7 @@ class _WorkerLoop:
     def __init__(self, conn: Any, live: LiveCalibration, log: _PipeLog, pacer: Pacer):
         self._conn, self._live, self._log = conn, live, log
         self._pacer = pacer  # while a stream flows, the work goes in slices (live/worker_pace.py)
-        self._inbox: deque[tuple[Any, ...]] = deque()
+        self._inbox: deque[ToWorker] = deque()
         self._sent = b""  # the snapshot last sent, pickled (its arrays do not compare with ==)
         self._jobs: dict[str, Callable[[], tuple[bool, str]]] = {
             "calibrate": live.calibrate, "calibration/reset": live.reset, "calibration/save": live.save,
@@ -110,7 +127,7 @@ class _WorkerLoop:
             if not self._inbox:
                 self._conn.poll(max(0.0, next_feed - time.monotonic()))  # a message, or the time to feed
             self._collect()  # every message waiting: a stop refuses the jobs queued before it
-            if any(message[0] == "stop" for message in self._inbox):
+            if any(isinstance(message, Stop) for message in self._inbox):
                 self._refuse_queued()
                 return
             if self._inbox:
@@ -128,23 +145,23 @@ class _WorkerLoop:
 
     def _refuse_queued(self) -> None:
         for message in self._inbox:
-            if message[0] == "job":
-                self._conn.send(("done", message[1], WorkerGone("not done: the node is shutting down")))
+            if isinstance(message, Job):
+                self._conn.send(Done(message.job_id, WorkerGone("not done: the node is shutting down")))
 
-    def _handle(self, message: tuple[Any, ...]) -> None:
-        kind = message[0]
-        if kind == "job":
-            outcome: Any
-            try:
-                outcome = self._jobs[message[2]]()
-            except Exception as error:  # noqa: BLE001 - the job's caller gets the error; the work carries on
-                outcome = RuntimeError(f"{type(error).__name__}: {error}")
-            self._send_snapshot()  # the node sees the state the answer speaks of
-            self._conn.send(("done", message[1], outcome))
-        elif kind == "settings":
-            self._guarded(lambda: self._live.update_settings(message[1]))
-        elif kind == "frame_id":
-            self._live.set_frame_id(message[1])
+    def _handle(self, message: ToWorker) -> None:
+        match message:
+            case Job(job_id, name):
+                outcome: tuple[bool, str] | BaseException
+                try:
+                    outcome = self._jobs[name]()
+                except Exception as error:  # noqa: BLE001 - the job's caller gets the error; the work carries on
+                    outcome = RuntimeError(f"{type(error).__name__}: {error}")
+                self._send_snapshot()  # the node sees the state the answer speaks of
+                self._conn.send(Done(job_id, outcome))
+            case NewSettings(settings):
+                self._guarded(lambda: self._live.update_settings(settings))
+            case FrameId(frame_id):
+                self._live.set_frame_id(frame_id)
 
     def _guarded(self, work: Callable[[], Any]) -> None:
         try:
@@ -155,7 +172,7 @@ class _WorkerLoop:
                             throttle_duration_sec=LOG_THROTTLE_S)
 
     def _send_snapshot(self) -> None:
-        message = pickle.dumps(("snapshot", self._live.snapshot()), protocol=pickle.HIGHEST_PROTOCOL)
+        message = pickle.dumps(Snapshot(self._live.snapshot()), protocol=pickle.HIGHEST_PROTOCOL)
         if message != self._sent:
             self._conn.send_bytes(message)  # recv() unpickles it as any other message
             self._sent = message

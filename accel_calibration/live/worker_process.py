@@ -4,11 +4,11 @@ A batch of the detector or a fit holds its interpreter's lock for milliseconds; 
 every message arriving meanwhile would wait (the stream's p99 latency was the batches'). Here the node
 keeps the stream side (live/per_message.py) and `WorkerProcess` starts the work (live/calibration_work.py)
 in a spawned process (live/worker_main.py, then live/worker_loop.py) that reads the same shared sample rings,
-feeds every FEED_PERIOD_S, and runs the services' jobs in order. The two talk over one pipe:
+feeds every FEED_PERIOD_S, and runs the services' jobs in order. The two talk over one pipe, in the
+messages of live/worker_protocol.py:
 
-- to the work: ("job", id, name), ("settings", Settings), ("frame_id", str), ("stop",);
-- to the node: ("done", id, (success, message) or an error), ("install", Calibration | None),
-  ("noise", accel_var, gyro_var), ("snapshot", WorkSnapshot), ("log", level, text).
+- to the work: Job, NewSettings, FrameId, Stop;
+- to the node: Done (a job's answer or its error), Install, Noise, Snapshot, LogLine.
 
 The work runs at a lower priority (os.nice) and, while a stream flows, in slices with pauses between
 (live/worker_pace.py): on a busy flight computer the stream comes first. It ignores
@@ -33,7 +33,23 @@ from . import worker_main
 from .calibration_work import WorkSnapshot
 from .per_message import LOG_THROTTLE_S, Log
 from .sample_ring import SampleRing
-from .worker_protocol import FEED_PERIOD_S, WorkerGone, WorkerStart
+from .worker_protocol import (
+    FEED_PERIOD_S,
+    Done,
+    FrameId,
+    Install,
+    Job,
+    LogLevel,
+    LogLine,
+    NewSettings,
+    Noise,
+    Snapshot,
+    Stop,
+    ToNode,
+    ToWorker,
+    WorkerGone,
+    WorkerStart,
+)
 
 __all__ = ["FEED_PERIOD_S", "WorkerGone", "WorkerProcess", "WorkerStart"]
 
@@ -92,20 +108,20 @@ class WorkerProcess:
                 return future
             job_id = next(self._ids)
             self._jobs[job_id] = future
-            self._send(("job", job_id, job))
+            self._send(Job(job_id, job))
         return future
 
     def update_settings(self, settings: Settings) -> None:
         with self._send_lock:
             self._settings = settings
-            self._send(("settings", settings))
+            self._send(NewSettings(settings))
 
     def set_frame_id(self, frame_id: str) -> None:
         with self._send_lock:
             self._frame_id = frame_id
-            self._send(("frame_id", frame_id))
+            self._send(FrameId(frame_id))
 
-    def _send(self, message: tuple[Any, ...]) -> None:
+    def _send(self, message: ToWorker) -> None:
         """Caller holds the send lock. A work that died meanwhile is restarted by the receiver, which
         answers the jobs it lost."""
         try:
@@ -127,31 +143,32 @@ class WorkerProcess:
                                 throttle_duration_sec=LOG_THROTTLE_S)
         self._gone()
 
-    def _take(self, message: tuple[Any, ...]) -> None:
-        kind = message[0]
-        if kind == "done":
-            future = self._jobs.pop(message[1], None)
-            if future is not None:
-                _settle(future, message[2])
-        elif kind == "install":
-            self._on_install(message[1])
-        elif kind == "noise":
-            self._on_noise(message[1], message[2])
-        elif kind == "snapshot":
-            self.snapshot = message[1]
-        elif kind == "log":
-            self._forward(message[1], message[2])
+    def _take(self, message: ToNode) -> None:
+        match message:
+            case Done(job_id, outcome):
+                future = self._jobs.pop(job_id, None)
+                if future is not None:
+                    _settle(future, outcome)
+            case Install(calibration):
+                self._on_install(calibration)
+            case Noise(accel_var, gyro_var):
+                self._on_noise(accel_var, gyro_var)
+            case Snapshot(snapshot):
+                self.snapshot = snapshot
+            case LogLine(level, text):
+                self._forward(level, text)
 
-    def _forward(self, level: str, text: str) -> None:
+    def _forward(self, level: LogLevel, text: str) -> None:
         """One call site per severity: rclpy refuses a call site whose severity changes."""
-        if level == "debug":
-            self._log.debug(text)
-        elif level == "info":
-            self._log.info(text)
-        elif level == "warning":
-            self._log.warning(text)
-        else:
-            self._log.error(text)
+        match level:
+            case LogLevel.DEBUG:
+                self._log.debug(text)
+            case LogLevel.INFO:
+                self._log.info(text)
+            case LogLevel.WARNING:
+                self._log.warning(text)
+            case LogLevel.ERROR:
+                self._log.error(text)
 
     def _gone(self) -> None:
         """The pipe closed: the work stopped (at close) or died. Its unanswered jobs fail; a death restarts it."""
@@ -180,9 +197,10 @@ class WorkerProcess:
             self.restarts += 1
             self._spawn()
             self._down = None
-            for message in ((("settings", self._settings),) if self._settings else ()) + (
-                    (("frame_id", self._frame_id),) if self._frame_id else ()):
-                self._send(message)
+            if self._settings:
+                self._send(NewSettings(self._settings))
+            if self._frame_id:  # an empty frame is no frame
+                self._send(FrameId(self._frame_id))
 
     @property
     def alive(self) -> bool:
@@ -194,7 +212,7 @@ class WorkerProcess:
         with self._send_lock:
             self._closing = True
             self._closed.set()
-            self._send(("stop",))
+            self._send(Stop())
         self._process.join(timeout=STOP_TIMEOUT_S)
         if self._process.is_alive():
             self._process.kill()
@@ -203,7 +221,7 @@ class WorkerProcess:
         self._receiver.join(timeout=5.0)
 
 
-def _settle(future: Future[tuple[bool, str]], outcome: Any) -> None:
+def _settle(future: Future[tuple[bool, str]], outcome: tuple[bool, str] | BaseException) -> None:
     if isinstance(outcome, BaseException):
         future.set_exception(outcome)
     else:
