@@ -2,9 +2,9 @@
 work), without ROS both. Imu in, corrected Imu out; services to calibrate, inspect, reset, save and switch
 the correction; /diagnostics at 1 Hz.
 
-Wiring only. The Imu callback reads the message's serialised bytes, corrects and publishes them patched
-(core.correction's one correction, as every corrected copy of a recording) and pushes the raw sample into a
-shared ring. The work runs in a worker process
+Wiring only. The Imu callback (ros/imu_path.py) reads the message's serialised bytes, corrects and
+publishes them patched (core.correction's one correction, as every corrected copy of a recording) and
+pushes the raw sample into a shared ring. The work runs in a worker process
 (live/worker_process.py): it feeds the ring to the session every FEED_PERIOD_S and runs the services' jobs,
 which answer when the job ends (ros/boundary.py); so the stream never waits for a fit, a disk, or even
 the lock of the interpreter doing them. No exception from a callback ends the process (ros/boundary.py);
@@ -14,33 +14,25 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import multiprocessing
-import os
 import pickle
 import sys
 import time
 from concurrent.futures import Future
-from pathlib import Path
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, Temperature
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from msg_tools.imu_cdr import COVARIANCE_AFTER, FRAME_AT, STAMP, VECTOR, frame_id_length, imu_offsets
-
 from ..core.calibration import Calibration
-from ..core.correction import Correction
 from ..live.calibration_work import (
     WorkSnapshot,
     diagnostic_values,
@@ -52,17 +44,11 @@ from ..live.in_force import ERROR, OK, WARN
 from ..live.per_message import LiveStream, imu_ring, temperature_ring
 from ..live.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
-from .diagnostics import (
-    NAMESAKE_CHECKS_S,
-    SilenceReminders,
-    StreamHealth,
-    diagnostic_status,
-    namesake_problem,
-    service_twins_problem,
-    waiting_advice,
-)
+from .diagnostics import SilenceReminders, StreamHealth, diagnostic_status, waiting_advice
+from .imu_path import ImuPath
 from .markers import pose_markers
-from .parameters import NODE_PARAMETERS, NodeParameters
+from .namesakes import NamesakeLook
+from .parameters import NODE_PARAMETERS, NodeParameters, calibration_path
 from .process import run_node, spin_until
 
 __all__ = ["NODE_NAME", "NODE_PARAMETERS", "CalibrationNode", "main", "spin_until"]
@@ -92,7 +78,7 @@ class CalibrationNode(Node):
         self.get_logger().info(f"gravity {settings.gravity:.5f} m/s^2 in use ({settings.gravity_source})")
         self._imu_topic = self.resolve_topic_name("imu/data_raw")
         self._temperature_topic = self.resolve_topic_name("imu/temperature")
-        path = self._calibration_path(node_values["calibration_file"])
+        path = calibration_path(node_values["calibration_file"], self.get_fully_qualified_name())
         calibrate_service = self._calibrate_service = self.resolve_service_name("calibrate")
         context = multiprocessing.get_context("spawn")  # not fork: this process runs DDS threads
         self._stream = LiveStream(self._params.settings, path, self.get_logger(), imu_ring(context),
@@ -109,8 +95,6 @@ class CalibrationNode(Node):
         self._stream.on_frame_id = self._worker.set_frame_id
         self._starting = starting_snapshot(self._params.settings, path, calibrate_service, opened)
         self._started = time.monotonic()
-        self._last_imu: float | None = None
-        self._frame_bytes: bytes | None = None  # the frame_id of the last Imu read as bytes
         self._last_temperature: float | None = None
         self._silence_reminders = SilenceReminders()
         self.add_on_set_parameters_callback(guard("parameters", self._on_set_parameters,
@@ -121,12 +105,12 @@ class CalibrationNode(Node):
                        else ReliabilityPolicy.BEST_EFFORT)
         output_qos = QoSProfile(depth=50, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
         self._publisher = self.create_publisher(Imu, "imu/data_calibrated", output_qos)
+        self._imu = ImuPath(self._stream, self._publisher)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._markers = self.create_publisher(MarkerArray, "calibration/markers", MARKER_QOS)
         self._markers_of = b""  # the pose map last published, pickled
-        # Raw: the message's CDR bytes, read and patched in place (msg_tools/imu_cdr.py); building a Python
-        # Imu and serialising it again is most of a relay's CPU per message.
-        self.create_subscription(Imu, "imu/data_raw", guard("imu", self._on_imu_cdr), INPUT_QOS, raw=True)
+        # Raw: the message's CDR bytes, read and patched in place (ros/imu_path.py).
+        self.create_subscription(Imu, "imu/data_raw", guard("imu", self._imu.take_cdr), INPUT_QOS, raw=True)
         # Optional: true while the vehicle is armed or flying (remap `armed` to the stack's state); nothing
         # is collected meanwhile. Reliable: one lost "true" would let a flight in.
         self.create_subscription(Bool, "armed", guard("armed", self._on_armed), ARMED_QOS)
@@ -140,9 +124,7 @@ class CalibrationNode(Node):
                                        (SetBool, "calibration/enable", self._srv_enable)):
             self.create_service(srv_type, name, guard(name, answer, failed_service), qos_profile=SERVICE_QOS)
         self.create_timer(1.0, guard("diagnostics", self._publish_diagnostics))
-        self._namesake: str | None = None
-        self._namesake_looks = 0  # of NAMESAKE_CHECKS_S done
-        self._namesake_timer = self.create_timer(1.0, guard("namesakes", self._look_for_namesakes))
+        self._namesakes = NamesakeLook(self, calibrate_service, self._started, guard)
 
     def _submit(self, job: str, request: Any) -> Future[tuple[bool, str]]:
         return self._worker.submit(job)
@@ -152,13 +134,6 @@ class CalibrationNode(Node):
         self._stream.install(calibration)
         if calibration is not None:
             self._params.mirror(calibration)
-
-    def _calibration_path(self, configured: str) -> Path:
-        if configured:
-            return Path(os.path.expanduser(configured))
-        # One file per node (namespace and name), so two instances never write the same file.
-        relative = self.get_fully_qualified_name().lstrip("/")
-        return Path(os.path.expanduser("~/.ros/accel_calibration")) / f"{relative}.yaml"
 
     def set_parameters_atomically(self, parameter_list: list[RosParameter]) -> SetParametersResult:
         """A parameter fixed at start-up is read-only in its descriptor: its change is refused here with the
@@ -181,73 +156,7 @@ class CalibrationNode(Node):
             self._worker.submit("refresh_progress")
         return answer
 
-    # ------------------------------------------------------------------ stream (hot path)
-    def _on_imu_cdr(self, raw: bytes) -> None:
-        """One Imu as its serialised bytes: the same correction as `_on_imu`, the same bytes out as
-        serialising its message (test_imu_cdr_path); any layout but the standard little-endian one goes
-        through `_on_imu`."""
-        offsets = imu_offsets(raw)
-        if offsets is None:
-            if frame_id_length(raw) == 0:
-                raise ValueError("an Imu whose frame_id length is 0 (a CDR string counts its NUL) is damaged: "
-                                 "not published")
-            self._on_imu(deserialize_message(raw, Imu))
-            return
-        frame_end, gyro_at, accel_at = offsets
-        stream = self._stream
-        frame = raw[FRAME_AT:frame_end]
-        if frame != self._frame_bytes:  # the frame_id's text only when its bytes change
-            try:
-                frame_id = frame.decode()
-            except UnicodeDecodeError:  # rclpy replaces each bad byte, which changes the message's length
-                self._on_imu(deserialize_message(raw, Imu))
-                return
-            if frame_id != stream.frame_id:
-                stream.set_frame_id(frame_id)
-            self._frame_bytes = frame
-        self._last_imu = time.monotonic()
-        sec, nanosec = STAMP.unpack_from(raw, 4)
-        gx, gy, gz = VECTOR.unpack_from(raw, gyro_at)
-        ax, ay, az = VECTOR.unpack_from(raw, accel_at)
-        stream.buffer_imu(sec * 1_000_000_000 + nanosec, ax, ay, az, gx, gy, gz)
-        correction = self._correction_for(ax, ay, az)
-        if correction is not None:
-            out = bytearray(raw)
-            VECTOR.pack_into(out, accel_at, *correction.apply(ax, ay, az))
-            VECTOR.pack_into(out, gyro_at, *correction.apply_gyro(gx, gy, gz))
-            correction.covariance_into(np.frombuffer(out, "<f8", 9, accel_at + COVARIANCE_AFTER))
-            correction.angular_covariance_into(np.frombuffer(out, "<f8", 9, gyro_at + COVARIANCE_AFTER), gx, gy, gz)
-            raw = bytes(out)
-        self._publisher.publish(raw)
-
-    def _on_imu(self, msg: Imu) -> None:
-        header = msg.header
-        stream = self._stream
-        if header.frame_id != stream.frame_id:
-            stream.set_frame_id(header.frame_id)
-            self._frame_bytes = None  # the bytes path compares its next frame_id again
-        self._last_imu = time.monotonic()
-        a, w = msg.linear_acceleration, msg.angular_velocity
-        ax, ay, az, gx, gy, gz = a.x, a.y, a.z, w.x, w.y, w.z
-        stream.buffer_imu(header.stamp.sec * 1_000_000_000 + header.stamp.nanosec, ax, ay, az, gx, gy, gz)
-        correction = self._correction_for(ax, ay, az)
-        if correction is not None:
-            a.x, a.y, a.z = correction.apply(ax, ay, az)
-            w.x, w.y, w.z = correction.apply_gyro(gx, gy, gz)
-            correction.covariance_into(msg.linear_acceleration_covariance)
-            correction.angular_covariance_into(msg.angular_velocity_covariance, gx, gy, gz)
-        self._publisher.publish(msg)  # non-finite samples pass on untouched: the stack sees what the driver sent
-
-    def _correction_for(self, ax: float, ay: float, az: float) -> Correction | None:
-        """The correction a sample gets, both paths: none while switched off, or for a non-finite acceleration
-        (it passes on untouched: the stack sees what the driver sent)."""
-        stream = self._stream
-        correction = stream.in_force.correction
-        if correction is None or not stream.enabled \
-                or not (math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):
-            return None
-        return correction
-
+    # ------------------------------------------------------------------ inputs besides the Imu (ros/imu_path.py)
     def _on_temperature(self, msg: Temperature) -> None:
         self._last_temperature = time.monotonic()
         stamp = msg.header.stamp
@@ -285,54 +194,19 @@ class CalibrationNode(Node):
         """The work's latest snapshot."""
         return self._worker.snapshot or self._starting
 
-    def _look_for_namesakes(self) -> None:
-        """At NAMESAKE_CHECKS_S after start: another node of this fully qualified name, or another node
-        offering this one's calibrate service, is a WARN (each logged once)."""
-        looks_due = sum(1 for at in NAMESAKE_CHECKS_S if time.monotonic() - self._started >= at)
-        if looks_due <= self._namesake_looks:
-            return
-        self._namesake_looks = looks_due
-        if looks_due == len(NAMESAKE_CHECKS_S):
-            self._namesake_timer.cancel()
-        own = self.get_fully_qualified_name()
-        graph = self.get_node_names_and_namespaces()
-        problems = [namesake_problem(own, graph), service_twins_problem(self._calibrate_service,
-                                                                         self._offering_calibrate(own, graph))]
-        said = self._namesake or ""
-        for problem in problems:
-            if problem is not None and problem not in said:
-                self.get_logger().warning(problem)
-        found = "; ".join(problem for problem in problems if problem is not None)
-        self._namesake = found or self._namesake
-
-    def _offering_calibrate(self, own: str, graph: list[tuple[str, str]]) -> list[str]:
-        """The other nodes (fully qualified names) that offer this node's calibrate service."""
-        offering = []
-        for name, namespace in graph:
-            fqn = f"{namespace.rstrip('/')}/{name}"
-            if fqn == own:
-                continue
-            try:
-                services = self.get_service_names_and_types_by_node(name, namespace)
-            except Exception:  # noqa: BLE001 - the node left the graph meanwhile
-                continue
-            if any(service == self._calibrate_service for service, _ in services):
-                offering.append(fqn)
-        return offering
-
     def _publish_diagnostics(self) -> None:
         self._stream.flush()
         now = time.monotonic()
         health = StreamHealth(self._imu_topic, self._temperature_topic,
-                              None if self._last_imu is None else now - self._last_imu,
+                              None if self._imu.last_seen is None else now - self._imu.last_seen,
                               None if self._last_temperature is None else now - self._last_temperature,
                               self._stream_timeout_s, now - self._started)
         for line in self._silence_reminders.due(health.problem_by_input(), now):
             self.get_logger().warning(line)
         work = self._work()
         level, message = work.status
-        if self._namesake is not None:
-            level, message = (WARN if level == OK else level), f"{message}; {self._namesake}".lstrip("; ")
+        if self._namesakes.found is not None:
+            level, message = (WARN if level == OK else level), f"{message}; {self._namesakes.found}".lstrip("; ")
         stream = self._stream
         calibration = stream.in_force.calibration
         if not self._worker.alive:
@@ -350,7 +224,7 @@ class CalibrationNode(Node):
     def _publish_markers(self, current: Any, stamp: Any) -> None:
         """The pose map on calibration/markers, when the work has made a new one; before any Imu, no way to
         turn: the text says what it waits for."""
-        if self._last_imu is None:
+        if self._imu.last_seen is None:
             current = dataclasses.replace(current, next_direction=None, advice=waiting_advice(self._imu_topic))
         pickled = pickle.dumps(current)  # each snapshot is a new object: compare what it holds
         if pickled != self._markers_of:

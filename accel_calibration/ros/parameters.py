@@ -12,7 +12,9 @@ answers them before rclpy sees them (CalibrationNode.set_parameters_atomically).
 from __future__ import annotations
 
 import math
+import os
 import threading
+from pathlib import Path
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -183,6 +185,14 @@ class NodeParameters:
                                       for name, value in values.items()])
         finally:
             self._mirroring.on = False
+
+
+def calibration_path(configured: str, fully_qualified_name: str) -> Path:
+    """The calibration_file parameter's path; empty: one file per node (namespace and name), so two
+    instances never write the same file."""
+    if configured:
+        return Path(os.path.expanduser(configured))
+    return Path(os.path.expanduser("~/.ros/accel_calibration")) / f"{fully_qualified_name.lstrip('/')}.yaml"
 
 
 def usage(program: str) -> str:

@@ -58,7 +58,7 @@ def test_in_process_the_node_calibrates_the_gyro_at_calibrate(ros, tmp_path):
     node._publisher.publish = published.append
     try:
         for i, t in enumerate(played.t_ns.tolist()):
-            node._on_imu(make_imu(START_NS + t, played.accel_raw[i], played.gyro_raw[i]))
+            node._imu.take(make_imu(START_NS + t, played.accel_raw[i], played.gyro_raw[i]))
         success, message = node._worker.submit("calibrate").result(timeout=120)
         assert success, message
         summary = yaml.safe_load(message)
@@ -67,7 +67,7 @@ def test_in_process_the_node_calibrates_the_gyro_at_calibrate(ros, tmp_path):
         true, raw = turns(truth)
         published.clear()
         for k in range(3):
-            node._on_imu(make_imu(START_NS + int(200e9) + k * 5_000_000, played.accel_raw[0], raw[k]))
+            node._imu.take(make_imu(START_NS + int(200e9) + k * 5_000_000, played.accel_raw[0], raw[k]))
         rates = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in published])
         assert_within_a_thousandth(rates, true)
         bias_only = raw - truth.bias_radps

@@ -1,4 +1,4 @@
-"""The node's Imu path over serialised bytes (msg_tools/imu_cdr.py, `_on_imu_cdr`): for any message it
+"""The node's Imu path over serialised bytes (msg_tools/imu_cdr.py, `ros/imu_path.py`): for any message it
 publishes the bytes that serialising its message path's output gives, and pushes the same raw sample; a
 message in another layout (big-endian) goes through the message path, a damaged one is one logged error.
 A real rclpy node in this process, its callbacks called directly, what it publishes captured."""
@@ -97,8 +97,8 @@ def test_the_bytes_path_publishes_what_the_message_path_would(node, msg, enabled
         msg.linear_acceleration.z)
     assert STAMP.unpack_from(raw, 4) == (msg.header.stamp.sec, msg.header.stamp.nanosec)
 
-    node._on_imu(sent)
-    node._on_imu_cdr(raw)
+    node._imu.take(sent)
+    node._imu.take_cdr(raw)
     assert node._stream.frame_id == sent.header.frame_id
     assert sent_bytes(published[-1]) == sent_bytes(published[-2])
     assert bits(pushed[-1]) == bits(pushed[-2])
@@ -121,18 +121,18 @@ def test_a_big_endian_message_goes_through_the_message_path(node):
     big = bytes(store.serialize_cdr(store.deserialize_cdr(raw, "sensor_msgs/msg/Imu"), "sensor_msgs/msg/Imu",
                                     little_endian=False))
     assert big[1] == 0 and imu_offsets(big) is None
-    node._on_imu_cdr(raw)
-    node._on_imu_cdr(big)
+    node._imu.take_cdr(raw)
+    node._imu.take_cdr(big)
     assert isinstance(published[-2], bytes) and isinstance(published[-1], Imu)
     assert sent_bytes(published[-1]) == sent_bytes(published[-2])
     assert published[-1].linear_acceleration.z != 9.8  # corrected
     # The frame_id a big-endian message brings is the stream's; the bytes path then notices its own again.
     msg.header.frame_id = "other_link"
-    node._on_imu_cdr(bytes(store.serialize_cdr(store.deserialize_cdr(bytes(serialize_message(msg)),
+    node._imu.take_cdr(bytes(store.serialize_cdr(store.deserialize_cdr(bytes(serialize_message(msg)),
                                                                       "sensor_msgs/msg/Imu"),
                                                "sensor_msgs/msg/Imu", little_endian=False)))
     assert node._stream.frame_id == "other_link"
-    node._on_imu_cdr(raw)
+    node._imu.take_cdr(raw)
     assert node._stream.frame_id == "imu_link"
 
 
@@ -172,7 +172,7 @@ def test_a_frame_id_that_is_not_utf8_is_published_as_rclpy_publishes_it(node, fr
     assert node._boundary.errors["imu"] == errors and len(published) == before + 20
     for raw, out in zip(raws, published[before:]):
         expected = deserialize_message(raw, Imu)
-        node._on_imu(expected)
+        node._imu.take(expected)
         assert sent_bytes(out) == sent_bytes(published.pop())
     assert node._stream.frame_id == frame.decode(errors="replace")
 
@@ -212,7 +212,7 @@ def test_a_huge_frame_id_is_not_written_whole_into_the_log(node):
         for frame in ("h" * 200_000, "imu_link"):
             msg = Imu()
             msg.header.frame_id = frame
-            node._on_imu_cdr(bytes(serialize_message(msg)))
+            node._imu.take_cdr(bytes(serialize_message(msg)))
     finally:
         node._stream._log = log
     assert lines and all(len(line) < 400 for line in lines), [len(line) for line in lines]
@@ -237,8 +237,8 @@ def test_the_alignment_padding_is_not_part_of_what_is_compared(node):
     offsets = imu_offsets(raw)
     padding = raw[offsets.frame_end + 1:offsets.gyro - ORIENTATION_BEFORE_GYRO]
     assert padding.strip(b"\0"), "the padding came out clean: this test no longer shows what it is for"
-    node._on_imu(deserialize_message(raw, Imu))
-    node._on_imu_cdr(raw)
+    node._imu.take(deserialize_message(raw, Imu))
+    node._imu.take_cdr(raw)
     longer.header.frame_id = "imu_link_9"
     serialize_message(longer)  # the message path's output is serialised into memory that held other characters
     assert sent_bytes(published[-1]) == sent_bytes(published[-2])

@@ -110,9 +110,9 @@ def test_silence_on_the_input_is_a_warning_naming_the_resolved_topic(make_node, 
     assert status["level"] == 1 and "no messages on /wrong/topic since start (1 s)" in status["message"]
     assert any("no messages on /wrong/topic" in text for severity, text in log_lines if severity == 30)
     # Data comes: OK; the driver stops: WARN again, with how long.
-    node._on_imu(make_imu(1_000_000_000, [0.0, 0.0, 9.8], [0.0, 0.0, 0.0]))
+    node._imu.take(make_imu(1_000_000_000, [0.0, 0.0, 9.8], [0.0, 0.0, 0.0]))
     assert "no messages" not in diagnostics_of(node)["message"]
-    node._last_imu = time.monotonic() - 3.0
+    node._imu.last_seen = time.monotonic() - 3.0
     status = diagnostics_of(node)
     assert status["level"] == 1 and "no messages on /wrong/topic for 3 s" in status["message"]
     assert status["hardware_id"] == "imu_link"  # no sensor_id: the frame names the hardware
@@ -172,7 +172,7 @@ def test_a_temperature_stamped_an_hour_ahead_is_screened_and_counted(make_node, 
     start = 1_700_000_000 * 10**9
     for k in range(200):
         t = start + k * 5_000_000
-        node._on_imu(make_imu(t, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
+        node._imu.take(make_imu(t, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
         if k % 20 == 0:
             node._on_temperature(make_temperature(t, 25.0))
         if k == 100:

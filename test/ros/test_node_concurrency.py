@@ -67,7 +67,7 @@ def test_corrected_stream_flows_while_the_work_is_frozen_in_a_calibrate(running_
     errors, samples = _session_samples()
     # The session goes in through the Imu callback (what playback would give, without its DDS traffic).
     for i in range(len(samples.t_ns)):
-        node._on_imu(make_imu(START_NS + int(samples.t_ns[i]), samples.accel_raw[i], samples.gyro_raw[i]))
+        node._imu.take(make_imu(START_NS + int(samples.t_ns[i]), samples.accel_raw[i], samples.gyro_raw[i]))
     assert node._worker.submit("ping").result(timeout=60) == (True, "")  # it has every sample
     tester.wait_ready()
 

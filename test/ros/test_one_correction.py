@@ -55,7 +55,7 @@ def test_a_corrected_bag_is_what_the_node_publishes(ros, recording, tmp_path):
             if t >= next_reading:
                 node._on_temperature(make_temperature(START_NS + t, float(samples.temperature_degc[i])))
                 next_reading = t + 100_000_000
-            node._on_imu(make_imu(START_NS + t, samples.accel_raw[i], samples.gyro_raw[i],  # as recorded
+            node._imu.take(make_imu(START_NS + t, samples.accel_raw[i], samples.gyro_raw[i],  # as recorded
                                   accel_cov=COVARIANCE, gyro_cov=GYRO_COVARIANCE))
     finally:
         node.close()

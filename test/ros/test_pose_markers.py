@@ -99,7 +99,7 @@ def test_before_any_imu_the_markers_wait_for_data_and_point_nowhere(ros, tmp_pat
         waiting = published[-1]
         assert markers_of(waiting, NEXT_ID) is None
         assert _text_marker(waiting).text == "waiting for data on /imu/data_raw: no Imu message yet"
-        node._on_imu(make_imu(START_NS, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
+        node._imu.take(make_imu(START_NS, [0.0, 0.0, 9.81], [0.0, 0.0, 0.0]))
         node._publish_diagnostics()
         heard = published[-1]
         assert markers_of(heard, NEXT_ID) is not None and _text_marker(heard).text.startswith("turn")
