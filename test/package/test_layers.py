@@ -152,3 +152,11 @@ def test_no_circle_even_through_annotations():
     graph = {name: imports_of(name, annotations=True) for name in MODULES}
     assert not import_cycles(graph), "import circles through annotations: " + "; ".join(
         " <-> ".join(sorted(m.removeprefix("accel_calibration.") for m in cycle)) for cycle in import_cycles(graph))
+
+
+def test_the_node_is_wiring_only_of_at_most_250_lines():
+    """docs/architecture.md: ros/node.py wires topics, services and timers to the live layer; what it
+    computes lives in live/ (and the Imu path in ros/imu_path.py), so the file stays short."""
+    lines = len((PACKAGE / "ros" / "node.py").read_text(encoding="utf-8").splitlines())
+    assert lines <= 250, f"ros/node.py has {lines} lines: move what it computes to live/ or a module of ros/"
+    assert "accel_calibration.live.per_message" in imports_of("accel_calibration.ros.node", annotations=False)
