@@ -28,9 +28,11 @@ from .options import add_settings_options, replay_settings
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
     from ..bag.replay import ReplayResult, ReplaySettings
+    from ..io.flight_history import EvidenceRecord
     from ..io.history import HistoryError, HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
+FLIGHT_LOG_SUFFIXES = (".ulg", ".bin")  # autopilot logs: each IMU's flight evidence is kept too
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name")
 DEFAULT_HISTORY = "calibrations.sqlite"
 
@@ -91,6 +93,8 @@ class RecordingOutcome:
     elapsed_s: float
     # The other IMUs of an autopilot log, one row each (the first IMU's is this one): empty otherwise.
     others: tuple[RecordingOutcome, ...] = ()
+    # An autopilot log's IMU: what its still moments on the ground say of the calibration in force.
+    evidence: EvidenceRecord | None = None
 
 
 def _package_version() -> str:
@@ -220,14 +224,59 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
     if replay is None:
         record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor="",
                                status="failed", reason=reason)
-        return outcome("failed", reason, record, _line(record, where.name))
+        failed = outcome("failed", reason, record, _line(record, where.name))
+        if where.suffix.lower() in FLIGHT_LOG_SUFFIXES:  # a flight log that fails is an evidence row too
+            from ..io.flight_history import EvidenceRecord
 
-    first_row = _described(replay, identity, vehicle, vehicle_source, where, outcome)
+            failed = dataclasses.replace(failed, evidence=EvidenceRecord(
+                identity["recording_id"], str(where), vehicle, "", "failed", reason=reason))
+        return failed
+
+    first_row = _with_evidence(_described(replay, identity, vehicle, vehicle_source, where, outcome), replay,
+                               _first_instance(replay, settings))
     other_rows = tuple(
-        _described(other, {**identity, "recording_id": _imu_identity(identity["recording_id"], instance)},
-                   vehicle, vehicle_source, where, outcome)
+        _with_evidence(_described(other, {**identity, "recording_id": _imu_identity(identity["recording_id"],
+                                                                                      instance)},
+                                  vehicle, vehicle_source, where, outcome), other, instance)
         for instance, other in _other_imus(path, settings, replay))
     return dataclasses.replace(first_row, others=other_rows)
+
+
+def _first_instance(replay: ReplayResult, settings: ReplaySettings | None) -> int | None:
+    """The instance of the first row's IMU: a DataFlash log's asked one, a ULog's the sensor_accel instance
+    of the device sensor_combined was fed from."""
+    from ..bag.recording import Recording, log_accel_devices
+
+    recording = replay.source.recording
+    if not isinstance(recording, Recording):
+        return None
+    if recording.format == "dataflash":
+        return (settings.instance if settings is not None else None) or 0
+    try:
+        devices = log_accel_devices(recording.path, recording.format)
+    except AccelCalibrationError:
+        return None
+    return next((n for n, device in devices.items() if device == recording.accel_device_id), None)
+
+
+def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | None) -> RecordingOutcome:
+    """An autopilot log's row with its IMU's flight evidence (bag/flight_evidence.py), keyed as the row."""
+    from ..bag.flight_evidence import evidence_of
+    from ..bag.recording import LOGS, Recording
+    from ..io.flight_history import evidence_record
+
+    recording = replay.source.recording
+    if row.record is None or not isinstance(recording, Recording) or recording.format not in LOGS:
+        return row
+    try:
+        evidence = evidence_of(replay)
+    except AccelCalibrationError as error:  # its parameters unreadable: a row with the reason
+        from ..bag.flight_evidence import FlightEvidence
+
+        evidence = FlightEvidence("", 0, "", "none", reason=str(error))
+    record = row.record
+    return dataclasses.replace(row, evidence=evidence_record(
+        evidence, record.recording_id, record.path, record.vehicle, record.sensor, instance, record.start_ns))
 
 
 def _imu_identity(recording_id: str, instance: int) -> str:
@@ -356,6 +405,13 @@ def _record_outcome(outcome: RecordingOutcome, history: Any, rows: dict[str, lis
             rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
         except HistoryError as history_error:
             outcome = _unwritten(outcome, history_error)
+    if outcome.evidence is not None:
+        try:
+            history.write_evidence([outcome.evidence])
+            counts["evidence"] += outcome.evidence.status == "evidence"
+            counts["no evidence"] += outcome.evidence.status != "evidence"
+        except HistoryError as history_error:
+            tqdm.write(f"accel-calib: error: {printable_text(str(history_error))}", file=sys.stderr)
     counts[outcome.status] += 1
     if outcome.status == "calibrated":  # printable whatever bytes a file name holds
         tqdm.write(printable_text(outcome.summary))
@@ -377,7 +433,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"accel-calib: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:
         raise FleetError("no recordings to calibrate")
-    counts = {"calibrated": 0, "refused": 0, "failed": 0}
+    counts = {"calibrated": 0, "refused": 0, "failed": 0, "evidence": 0, "no evidence": 0}
     rows: dict[str, list[str]] = {}  # recording_id -> recordings written to its row (same content: one row)
     started = time.perf_counter()
     with open_history(args.history) as history:
@@ -397,10 +453,14 @@ def run(args: argparse.Namespace) -> int:
     shared = sum(len(paths) - 1 for paths in rows.values())
     same = f" ({shared} recording{'s' if shared != 1 else ''} with the content of another: one row each)" \
         if shared else ""
-    total = sum(counts.values())
+    total = counts["calibrated"] + counts["refused"] + counts["failed"]
     sensors = f" ({total} sensors: a row per IMU of an autopilot log)" if total != len(recordings) else ""
     print(f"{len(recordings)} recordings{sensors}: {counts['calibrated']} calibrated, {counts['refused']} refused, "
           f"{counts['failed']} failed; {len(rows)} row{'s' if len(rows) != 1 else ''} written{same} "
           f"to {history.name}; {elapsed:.1f} s "
           f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
+    if counts["evidence"] or counts["no evidence"]:
+        print(f"flight evidence: {counts['evidence'] + counts['no evidence']} IMU rows, {counts['evidence']} with "
+              f"evidence from the still moments on the ground, {counts['no evidence']} without (see "
+              "'accel-calib history')")
     return 0 if counts["calibrated"] == total and not problems else 1

@@ -13,6 +13,7 @@ from ..core.units import MG
 from .fleet import DEFAULT_HISTORY
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..io.flight_history import EvidenceRecord, ImuSeries
     from ..io.history import DriftFlag, DriftRule, HistoryRecord
 
 DRIFT_EXIT_CODE = 3  # drift flagged (1 stays "could not run")
@@ -61,7 +62,7 @@ def _rule(args: argparse.Namespace) -> DriftRule:
                      max_scale_change=args.max_scale_change)
 
 
-def _records(args: argparse.Namespace) -> list[HistoryRecord]:
+def _records(args: argparse.Namespace) -> tuple[list[HistoryRecord], list[EvidenceRecord]]:
     from ..core.errors import CalibrationError
     from ..io.history import masked_url
 
@@ -73,13 +74,14 @@ def _records(args: argparse.Namespace) -> list[HistoryRecord]:
     with open_history(args.history, read_only=True) as history:  # only read: nothing created or switched
         records = history.records(vehicle=args.vehicle, sensor=args.sensor)
         unreadable = history.unreadable
+        evidence = history.evidence(vehicle=args.vehicle, sensor=args.sensor)
     if unreadable:
         print(f"accel-calib: warning: {name}: {len(unreadable)} row{'s' if len(unreadable) != 1 else ''} "
               f"not as accel_calibration writes them, left out (first: {unreadable[0]})", file=sys.stderr)
-    if not records:
+    if not records and not evidence:
         which = " ".join(f"{k} {v}" for k, v in (("vehicle", args.vehicle), ("sensor", args.sensor)) if v)
         raise CalibrationError(f"{name}: no recordings{' of ' + which if which else ''}")
-    return records
+    return records, evidence
 
 
 def _date(record: HistoryRecord) -> str:
@@ -121,14 +123,36 @@ def history_text(records: list[HistoryRecord], flags: list[DriftFlag]) -> str:
     return "\n".join(lines)
 
 
+def evidence_text(series: list[ImuSeries], unread: list[EvidenceRecord]) -> str:
+    """Per IMU its flights' evidence judged, one line each, then the flights that gave none and why."""
+    lines = ["flight evidence (still on the ground before arming and after landing, against the calibration in "
+             "force; level ground sees the z bias and z scale together):"]
+    lines += ["  " + imu.said() for imu in series]
+    without = [row for imu in series for row in imu.flights if row.status != "evidence"] + unread
+    if without:
+        lines.append(f"  flights without evidence: {len(without)}")
+        lines += [f"    {row.vehicle} {row.who if row.device or row.sensor else '-'} {row.flight}: {row.reason}"
+                  for row in without]
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
+    from ..io.flight_history import imu_series, unplaced
     from ..io.history import drift_flags
 
     rule = _rule(args)
-    records = _records(args)
+    records, evidence = _records(args)
     flags = drift_flags(records, rule)
-    print(history_text(records, flags))
-    return DRIFT_EXIT_CODE if flags else 0
+    if records:
+        print(history_text(records, flags))
+    if not evidence:
+        return DRIFT_EXIT_CODE if flags else 0
+    series = imu_series(evidence, rule)
+    print(evidence_text(series, unplaced(evidence)))
+    statuses = {imu.trend.status for imu in series}
+    if flags or "moved" in statuses:
+        return DRIFT_EXIT_CODE
+    return 1 if "cannot tell" in statuses or not series else 0  # no IMU named: nothing to say it holds
 
 
 def report_history(args: argparse.Namespace) -> int:
@@ -137,7 +161,7 @@ def report_history(args: argparse.Namespace) -> int:
     from ..io.history_figure import write_history_figure
 
     rule = _rule(args)
-    records = _records(args)
+    records, _ = _records(args)
     flags = drift_flags(records, rule)
     write_history_figure(records, flags, args.output)
     print(f"history report {args.output} ({len(sensor_series(records))} sensors, {len(flags)} changes flagged)")

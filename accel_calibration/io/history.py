@@ -23,12 +23,15 @@ import stat
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import unquote
 
 from ..core.change_rule import ChangeRule
 from ..core.errors import AccelCalibrationError
 from ..core.units import AXES, MG
+
+if TYPE_CHECKING:
+    from .flight_history import EvidenceRecord
 
 SCHEMA_VERSION = 1
 SQLITE_BUSY_TIMEOUT_S = 60.0  # a writer waits this long for another one before giving up
@@ -177,7 +180,7 @@ _TEXT_LIMITS = {"vehicle": 200, "sensor": 200, "vehicle_source": 16, "status": 1
                 "temperature_model": 32, "package_version": 64, "written_at": 40}  # String(n) columns
 
 
-def _tables() -> tuple[Any, Any, Any]:
+def _tables() -> tuple[Any, Any, Any, Any]:
     from sqlalchemy import JSON, BigInteger, Column, Float, Integer, MetaData, String, Table, Text
 
     short, text, real, whole = String(200), Text, Float, Integer
@@ -199,7 +202,9 @@ def _tables() -> tuple[Any, Any, Any]:
                       nullable=f.name != "recording_id" and f.name not in required)
                for f in fields(HistoryRecord)]
     calibrations = Table("calibrations", metadata, *columns)
-    return metadata, info, calibrations
+    from .flight_history import evidence_table
+
+    return metadata, info, calibrations, evidence_table(metadata)
 
 
 def _url(target: str) -> Any:
@@ -295,7 +300,7 @@ class History:
         self.name = unquote(masked_url(self.target)) if "://" in self.target else self.target
         self.unreadable: list[str] = []  # rows records() left out: "recording_id: why", one each
         url = _url(self.target)
-        self._metadata, self._info, self._table = _tables()
+        self._metadata, self._info, self._table, self._evidence = _tables()
         try:
             if url.get_backend_name() == "sqlite":
                 _refuse_foreign_sqlite(self.name, url.database, read_only)
@@ -364,7 +369,7 @@ class History:
         with self.engine.begin() as connection:
             if connection.dialect.name == "postgresql":
                 connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
-            for table in (self._info, self._table):
+            for table in (self._info, self._table, self._evidence):
                 connection.execute(CreateTable(table, if_not_exists=True))
             for columns in (("vehicle", "sensor", "start_ns"),):
                 index = Index("ix_calibrations_" + "_".join(columns), *(self._table.c[c] for c in columns))
@@ -467,6 +472,45 @@ class History:
                 self.unreadable.append(f"{printable_text(str(row.get('recording_id')))[:40]}: {error}")
         out.sort(key=lambda r: (r.vehicle, r.sensor, r.start_ns is None, r.start_ns or 0, r.path, r.recording_id))
         return out
+
+    def write_evidence(self, records: Iterable[EvidenceRecord]) -> int:
+        """Flight evidence rows (io/flight_history.py), inserted or updated by key in one transaction."""
+        from sqlalchemy.exc import SQLAlchemyError
+
+        from .flight_history import evidence_rows
+
+        rows = evidence_rows(records)
+        if not rows:
+            return 0
+        try:
+            with self.engine.begin() as connection:
+                self._upsert(connection, self._evidence, rows, "recording_id")
+        except SQLAlchemyError as error:
+            raise HistoryError(f"{self.name}: cannot write the flight evidence ({_one_line(error)})") from None
+        return len(rows)
+
+    def evidence(self, vehicle: str | None = None, sensor: str | None = None) -> list[EvidenceRecord]:
+        """Flight evidence rows, optionally of one vehicle and/or sensor; none from a history written before
+        the table was (read only: nothing created)."""
+        from sqlalchemy import inspect, select
+        from sqlalchemy.exc import SQLAlchemyError
+
+        from .flight_history import evidence_from_row
+
+        table = self._evidence
+        query = select(table)
+        if vehicle is not None:
+            query = query.where(table.c.vehicle == vehicle)
+        if sensor is not None:
+            query = query.where(table.c.sensor == sensor)
+        try:
+            with self.engine.connect() as connection:
+                if not inspect(connection).has_table(table.name):
+                    return []
+                rows = connection.execute(query).mappings().all()
+        except SQLAlchemyError as error:
+            raise HistoryError(f"{self.name}: cannot read the flight evidence ({_one_line(error)})") from None
+        return [evidence_from_row(dict(row)) for row in rows]
 
     def close(self) -> None:
         self.engine.dispose()
