@@ -164,7 +164,7 @@ def fit(
 
     try:
         with np.errstate(all="ignore"):
-            return leave_out_outliers(fit_poses, accel, temps, ref, gravity, outlier_options, pose_sigma)
+            return leave_out_outliers(fit_poses, accel, temps, ref, outlier_options, pose_sigma)
     except (ArithmeticError, np.linalg.LinAlgError, CalibrationError, ValueError) as error:
         text = error.args[-1] if error.args and isinstance(error.args[-1], str) else str(error)
         reason = text if isinstance(error, CalibrationError) else f"{type(error).__name__}: {text}"

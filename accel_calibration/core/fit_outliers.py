@@ -24,7 +24,7 @@ OUTLIER_CANDIDATES = 3
 
 
 def leave_out_outliers(fit_poses: Callable[[np.ndarray | None], FitResult], accel: np.ndarray,
-                        temps: np.ndarray | None, ref: np.ndarray | None, gravity: float, options: OutlierOptions,
+                        temps: np.ndarray | None, ref: np.ndarray | None, options: OutlierOptions,
                         pose_sigma: np.ndarray | None) -> FitResult:
     """The fit of all poses, or, when a pose does not lie on the sphere (reference) with the rest, the fit
     without it, naming it. One pose at a time: candidates are poses whose linearised deleted residual

@@ -71,8 +71,7 @@ class SilenceReminders:
 
 def diagnostic_status(name: str, level: bytes, message: str, progress: Progress, values: dict[str, str],
                       counts: dict[str, int], errors: dict[str, int], calibration: Calibration | None,
-                      hardware_id: str, health: StreamHealth, pause_reasons: tuple[str, ...],
-                      in_force_since_start: bool) -> DiagnosticStatus:
+                      hardware_id: str, health: StreamHealth, pause_reasons: tuple[str, ...]) -> DiagnosticStatus:
     if level == DiagnosticStatus.OK and any(v for k, v in counts.items() if k not in Counters.INFORMATIONAL):
         level = DiagnosticStatus.WARN
     silent = health.problems()

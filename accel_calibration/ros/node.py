@@ -215,7 +215,7 @@ class CalibrationNode(Node):
         status = diagnostic_status(f"accel_calibration: {self.get_fully_qualified_name()}", _LEVELS[level], message,
                                    work.progress, diagnostic_values(stream_values, work.values), self.counters(),
                                    dict(self._boundary.errors), calibration, stream.hardware_id(), health,
-                                   stream.pause.reasons, calibration is not None)
+                                   stream.pause.reasons)
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics.publish(array)

@@ -64,7 +64,7 @@ def test_a_silence_after_the_input_came_back_is_warned_at_once():
 def status_of(health):
     progress = CalibrationSession().progress()
     return diagnostic_status("accel_calibration: /uav1/accel_calibration", DiagnosticStatus.OK, "waiting", progress,
-                             {}, {}, {}, None, "imu0", health, (), False)
+                             {}, {}, {}, None, "imu0", health, ())
 
 
 def test_before_any_imu_message_the_advice_says_nothing_has_arrived():
