@@ -131,17 +131,19 @@ def log_evidence(path: str, settings: object | None = None) -> list[FlightEviden
     import dataclasses
 
     from ..core.errors import AccelCalibrationError
-    from .recording import log_accel_devices
+    from .recording import LOGS, detect_format, log_accel_devices
     from .replay import ReplaySettings, replay_bag
 
     base = settings if isinstance(settings, ReplaySettings) else ReplaySettings()
     try:
-        devices = log_accel_devices(path)
+        devices: dict[int | None, int | None] = {k: v for k, v in log_accel_devices(path).items()}
+        if not devices and detect_format(path) in LOGS:
+            devices = {None: None}  # a ULog of sensor_combined alone: the selected IMU
     except AccelCalibrationError as error:  # unreadable: one row with its reason
         return [_none("", str(error))]
     if not devices:
-        return [_none("", f"{Path(path).name}: not an autopilot log with IMU instances (PX4 ULog, ArduPilot "
-                          "DataFlash): it carries no calibration in force to check")]
+        return [_none("", f"{Path(path).name}: not an autopilot log (PX4 ULog, ArduPilot DataFlash): it "
+                          "carries no calibration in force to check")]
     out = []
     for instance, device in devices.items():
         try:

@@ -70,8 +70,20 @@ def test_a_log_without_evidence_says_why(tmp_path):
     csv = tmp_path / "imu.csv"
     csv.write_text("t_ns,ax,ay,az\n0,0,0,9.8\n10000000,0,0,9.8\n")
     (evidence,) = log_evidence(str(csv))
-    assert evidence.verdict == "none" and "no calibration in force" in evidence.reason
+    assert evidence.verdict == "none" and "not an autopilot log" in evidence.reason
     broken = tmp_path / "broken.ulg"
     broken.write_bytes(b"ULog\x01\x12\x35\x01" + b"\0" * 20)
     (evidence,) = log_evidence(str(broken))
     assert evidence.verdict == "none" and str(broken.name) in evidence.reason
+
+
+@pytest.mark.parametrize("relative, devices, reason", [
+    ("real/px4_ulog/sample.ulg", [""], "the log holds no calibration of this IMU"),
+    ("real/px4_ulog/sample_logging_tagged_and_default_params.ulg", ["1310988", "1310996", "1311004"],
+     "no still moment on the ground"),
+    ("real/ardupilot/test.BIN", ["1246730", "1442826"], "no flight state in the log"),
+])
+def test_every_imu_of_the_real_logs_gets_its_evidence_or_the_reason(shared, relative, devices, reason):
+    found = log_evidence(str(shared(relative)))
+    assert [e.device for e in found] == devices
+    assert all(e.verdict == "none" and reason in e.reason for e in found)
