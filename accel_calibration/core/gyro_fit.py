@@ -357,10 +357,6 @@ def _plain_directions(poses: Sequence[Pose], accel: Calibration) -> np.ndarray:
     return directions
 
 
-def _pose_time_ns(pose: Pose) -> float:
-    return 0.5 * (pose.start_ns + pose.end_ns)
-
-
 def fit_gyro(
     poses: Sequence[Pose],
     motions: Sequence[Motion | None],
