@@ -160,3 +160,39 @@ def test_the_node_is_wiring_only_of_at_most_250_lines():
     lines = len((PACKAGE / "ros" / "node.py").read_text(encoding="utf-8").splitlines())
     assert lines <= 250, f"ros/node.py has {lines} lines: move what it computes to live/ or a module of ros/"
     assert "accel_calibration.live.per_message" in imports_of("accel_calibration.ros.node", annotations=False)
+
+
+# The core modules that compose the parts and so read Settings whole (docs/maintaining.md, "A parameter");
+# every other core module takes its own option object.
+READ_SETTINGS_WHOLE = {"core.settings", "core.session", "core.stream.stream_side", "core.stream.screening",
+                       "core.gates", "core.warmup"}
+
+
+def test_only_the_composing_core_modules_read_settings_whole():
+    readers = {name.removeprefix("accel_calibration.") for name in MODULES if name.startswith("accel_calibration.core")
+               and "accel_calibration.core.settings" in imports_of(name, annotations=True)}
+    assert readers | {"core.settings"} == READ_SETTINGS_WHOLE, \
+        f"core modules reading Settings whole: {sorted(readers)}; give a new one its own option object"
+
+
+def test_every_error_of_the_package_is_an_accel_calibration_error():
+    """docs/maintaining.md, "Errors": the CLI prints any AccelCalibrationError as one line, so every error
+    type the package raises to a user derives from it (a module's private one, caught inside it, aside)."""
+    import importlib
+
+    from accel_calibration.core.errors import AccelCalibrationError
+
+    outside = []
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef) and node.name.endswith("Error") and not node.name.startswith("_"):
+                try:
+                    module = importlib.import_module(name)
+                except ImportError:  # a module needing an absent optional package: read its bases as text
+                    bases = {ast.unparse(base) for base in node.bases}
+                    if not bases & {"AccelCalibrationError", "CalibrationError", "BagError"}:
+                        outside.append(f"{name}.{node.name}")
+                    continue
+                if not issubclass(getattr(module, node.name), AccelCalibrationError):
+                    outside.append(f"{name}.{node.name}")
+    assert not outside, f"errors outside AccelCalibrationError: {outside}"
