@@ -15,7 +15,8 @@ A still interval becomes a Pose when motion starts again (or at `max_pose_s`), i
 `min_hold_s`; `trim_s` is dropped at both ends (settling after the last motion, the onset of the
 next one before the window noticed it).
 
-Samples go in as arrays, a recording whole or in parts (`process(..., final=False)`): the rules are in
+Samples go in as arrays, a recording whole or in parts (`find(..., final=False)`, which the stream side
+calls: each pose with its segment; `process` is its poses alone, for a caller that needs no segments): the rules are in
 detector_batch.py, over a `DetectorConfig` (frozen) and a `DetectorState` (what is learned and carried).
 Here: the clocks (a re-synchronised or paused stream, as `breaks`) and what the node and session read.
 """
@@ -152,7 +153,7 @@ class StaticDetector:
              temperature_degc: ArrayLike | None = None, breaks: ArrayLike | None = None,
              flush: bool = True, final: bool = True) -> list[FoundPose]:
         """The poses of a recording (or of its next part), with array operations. Needs a fresh detector,
-        or one whose last process() call had `final` False.
+        or one whose last call had `final` False.
 
         `breaks` (one per sample, optional): RESTART before a sample whose clock was re-synchronised (the
         interval open then ends as at a gap), DISCARD before one after a pause in collection (the interval
