@@ -166,3 +166,24 @@ def report_history(args: argparse.Namespace) -> int:
     write_history_figure(records, flags, args.output)
     print(f"history report {args.output} ({len(sensor_series(records))} sensors, {len(flags)} changes flagged)")
     return 0
+
+
+def report_page(args: argparse.Namespace) -> int:
+    """`accel-calib report --history DB --output fleet.html`: the fleet's page (io/fleet_page.py), one file."""
+    from ..core.errors import CalibrationError
+    from ..io.fleet_page import fleet_page
+    from ..io.flight_history import imu_series
+    from ..io.history import masked_url
+    from ..io.output_paths import write_bytes_atomically
+
+    rule = _rule(args)
+    _, evidence = _records(args)
+    series = imu_series(evidence, rule)
+    if not series:
+        raise CalibrationError(f"{masked_url(args.history)}: no flight evidence of any IMU (write it with "
+                               "'accel-calib fleet' on flight logs)")
+    write_bytes_atomically(args.output, fleet_page(series, masked_url(args.history), rule.k_sigma).encode())
+    counts = {status: sum(imu.trend.status == status for imu in series) for status in ("moved", "holds", "cannot tell")}
+    print(f"fleet page {args.output} ({len(series)} IMUs: {counts['moved']} moved, {counts['holds']} hold, "
+          f"{counts['cannot tell']} cannot tell)")
+    return 0

@@ -28,7 +28,8 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     source.add_argument("--history", help="calibration history (accel-calib fleet): one panel per sensor")
     history_command.add_drift_options(parser)
     parser.add_argument("--units", choices=sorted(UNIT_SCALE), default="mps2", help="units of the poses CSV")
-    parser.add_argument("--output", "-o", required=True, help="PNG to write")
+    parser.add_argument("--output", "-o", required=True,
+                        help="PNG to write; with --history, a .html name writes the fleet's page of flight evidence")
 
     return parser
 
@@ -61,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.history:
         check_outputs([("--output", args.output)], [args.history if "://" not in args.history else None])
+        if args.output.lower().endswith((".html", ".htm")):  # the fleet's page of flight evidence
+            return history_command.report_page(args)
         return history_command.report_history(args)
     if args.calibration is None:
         raise CalibrationError("report needs a calibration YAML (or --history DB)")
