@@ -28,7 +28,7 @@ from ..core.pose_map import PoseMap, PoseStatus, holes, pose_map
 from ..core.session import CalibrationSession, Progress, Verdict
 from ..core.settings import Settings
 from ..core.watch import CalibrationWatch
-from .in_force import ERROR, OK, WARN, CalibrationInForce, Level
+from .calibration_store import ERROR, OK, WARN, CalibrationStore, Level
 from .per_message import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
 
@@ -54,13 +54,13 @@ class WorkSnapshot:
     counts: dict[str, int]
 
 
-def open_calibration_file(in_force: CalibrationInForce, log: Log, calibrate_service: str) -> tuple[Level, str]:
+def open_calibration_file(store: CalibrationStore, log: Log, calibrate_service: str) -> tuple[Level, str]:
     """At start: clear what an interrupted save left beside the file, load it, and say in one line what it
     held: (level, that line)."""
-    removed = in_force.remove_stale_temp_files()
+    removed = store.remove_stale_temp_files()
     if removed:
-        log.info(f"removed {removed} stale temporary file(s) beside {in_force.path}")
-    level, text = in_force.load()
+        log.info(f"removed {removed} stale temporary file(s) beside {store.path}")
+    level, text = store.load()
     if level == WARN:
         log.info(f"{text} (call {calibrate_service} once poses are held)")
     elif level == OK:
@@ -89,12 +89,12 @@ class LiveCalibration:
                  imu_topic: str = "imu/data_raw", rings: tuple[SampleRing, SampleRing] | None = None,
                  link: StreamLink | None = None):
         self.session = CalibrationSession(settings)
-        self.in_force = CalibrationInForce(calibration_path, self.session.settings)  # the file, and what it holds
+        self.store = CalibrationStore(calibration_path, self.session.settings)  # the file, and what it holds
         # In one process: rings and a stream side of its own; in the worker process: the node's shared rings.
         self.stream: LiveStream | None = None
         if rings is None:
             rings = imu_ring(), temperature_ring()
-            self.stream = LiveStream(settings, calibration_path, log, *rings, imu_topic=imu_topic,
+            self.stream = LiveStream(settings, log, *rings, imu_topic=imu_topic,
                                      on_frame_id=self.set_frame_id)
         self._samples, self._readings = rings
         self._link: StreamLink | None = link or self.stream
@@ -122,12 +122,12 @@ class LiveCalibration:
         """Put the file's calibration in force. `open_file`: first clear what an interrupted save left and
         log what the file holds (open_calibration_file); the node's process has done both already, at once."""
         if open_file:
-            level, text = open_calibration_file(self.in_force, self._log, self._calibrate_service)
+            level, text = open_calibration_file(self.store, self._log, self._calibrate_service)
         else:
-            level, text = self.in_force.load()
+            level, text = self.store.load()
         self.status = file_status(level, text)
-        self._put_in_force(self.in_force.calibration)
-        self.watch.restart(self.in_force.calibration)
+        self._put_in_force(self.store.calibration)
+        self.watch.restart(self.store.calibration)
         self._take_prior()
         self.refresh_progress()
 
@@ -141,7 +141,7 @@ class LiveCalibration:
         start, at calibration/reset), not one fitted from the poses since (that would count them twice)."""
         if not self.session.settings.use_calibration_in_force_as_prior:
             return
-        calibration = self.in_force.calibration
+        calibration = self.store.calibration
         refusal = self.session.use_prior(calibration)
         if calibration is None:
             self._log.info("use_calibration_in_force_as_prior: no calibration in force; /calibrate fits without one")
@@ -175,7 +175,7 @@ class LiveCalibration:
         """The work's diagnostic values (the stream side has its own: diagnostic_values merges them)."""
         return {
             "detector_state": "still" if self.still else "moving",
-            "calibration_file": str(self.in_force.path),
+            "calibration_file": str(self.store.path),
             "calibration_watch": self.watch.state.text,
             "prior_unchecked": self.prior_unchecked,
             "pose_being_held": "" if self._held is None else (
@@ -193,8 +193,8 @@ class LiveCalibration:
         if self._held is not None:  # counted and drawn as /calibrate would fit it
             store = self.session.store.copy()
             if not store.add(self._held).merged:
-                accel = self._held.accel_mps2 if self.in_force.calibration is None else \
-                    self.in_force.calibration.apply(self._held.accel_mps2)
+                accel = self._held.accel_mps2 if self.store.calibration is None else \
+                    self.store.calibration.apply(self._held.accel_mps2)
                 directions = np.vstack([shown.directions.reshape(-1, 3), accel / np.linalg.norm(accel)])
                 shown = dataclasses.replace(shown, directions=directions, statuses=(*shown.statuses, PoseStatus.USED),
                                             holes=holes(directions))
@@ -205,8 +205,8 @@ class LiveCalibration:
         """The white noise measured at this session's poses, else the one the calibration in force was
         made with (Kalibr's *_noise_density, for the estimator's IMU file)."""
         noise, source = self.noise, "measured"
-        if noise is None and self.in_force.calibration is not None:
-            noise, source = self.in_force.calibration.noise, "calibration file"
+        if noise is None and self.store.calibration is not None:
+            noise, source = self.store.calibration.noise, "calibration file"
         if noise is None:
             return {"accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
         gyro = noise.gyro_density
@@ -219,14 +219,14 @@ class LiveCalibration:
         self.session.update_settings(settings)
 
     def refresh_progress(self) -> Progress:
-        progress = self.session.progress(self.in_force.calibration, self._calibrate_service)
+        progress = self.session.progress(self.store.calibration, self._calibrate_service)
         since = None if self._applied_at is None else self._poses_taken - self._applied_at
         if progress.ready and since in ((0, 1) if self._applied_with_held else (0,)):
             # What "ready" offered is done: the calibration in force is the fit of these very poses.
             progress = dataclasses.replace(progress, advised_direction=None, advice=(
                 "calibrated: the fit of the poses held is applied (more orientations would refine it)"))
         self.progress = progress
-        self.pose_map = pose_map(self.session, self.in_force.calibration, self.progress)
+        self.pose_map = pose_map(self.session, self.store.calibration, self.progress)
         return self.progress
 
     def _say_moved(self) -> None:
@@ -303,7 +303,7 @@ class LiveCalibration:
         verdict without a gyro matrix (its gyro fit refused, or none ran) never drops the matrix in force, nor
         the bias it was fitted with (w = M_g (w_raw - b_g): one without the other is neither calibration).
         A gyro part left out whole (implausible) keeps the bias in force too."""
-        new, old = verdict.calibration, self.in_force.calibration
+        new, old = verdict.calibration, self.store.calibration
         assert new is not None
         if old is None or new.gyro_matrix is not None or old.gyro_bias_radps is None \
                 or (old.gyro_matrix is None and new.gyro_bias_radps is not None):
@@ -318,8 +318,8 @@ class LiveCalibration:
     def _apply(self, calibration: Calibration, result: FitResult | None = None, asked: bool = True
                ) -> tuple[bool, str]:
         sources = () if result is None else result.parameter_sources
-        prior = f"the calibration in force before ({self.in_force.path})" if sources else None
-        applied, message = self.in_force.save_then_apply(calibration, asked, sources, prior)
+        prior = f"the calibration in force before ({self.store.path})" if sources else None
+        applied, message = self.store.save_then_apply(calibration, asked, sources, prior)
         if applied:
             self.prior_unchecked = "" if result is None else result.unchecked_line()
             self._put_in_force(calibration)
@@ -334,10 +334,10 @@ class LiveCalibration:
     def _say_unsaved(self, message: str) -> None:
         """A save refused because the file changed underneath is a WARN (nothing is broken: two writers
         share the file); any other failed save an ERROR (a file we could not read keeps its own)."""
-        if self.in_force.changed_underneath is not None:
+        if self.store.changed_underneath is not None:
             self.status = self._changed_underneath = (WARN, message)
             self._log.warning(message)
-        elif not self.in_force.file_unreadable:
+        elif not self.store.file_unreadable:
             self.status = (ERROR, f"save failed: {message}")
 
     def calibrate(self) -> tuple[bool, str]:
@@ -352,7 +352,7 @@ class LiveCalibration:
         self.refresh_progress()
         self._say_moved()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
-            message = f"not calibrated ({verdict.message}); {self.in_force.kept()}"
+            message = f"not calibrated ({verdict.message}); {self.store.kept()}"
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
         calibration, gyro_kept = self._keeping_gyro(verdict)
@@ -381,10 +381,10 @@ class LiveCalibration:
         return True, message
 
     def save(self) -> tuple[bool, str]:
-        saved, message = self.in_force.save()
+        saved, message = self.store.save()
         if saved and self._changed_underneath is not None and self.status == self._changed_underneath:
             self.status = (OK, "calibrated")  # the change underneath is overwritten on purpose
-        elif not saved and self.in_force.changed_underneath is not None:
+        elif not saved and self.store.changed_underneath is not None:
             self._say_unsaved(message)
         return saved, message
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import collections
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, Protocol
 
 from ..core.calibration import Calibration
@@ -18,7 +17,7 @@ from ..core.settings import Settings
 from ..core.stream.collection_pause import CollectionPause
 from ..core.text import quoted
 from ..io.calibration_file import calibration_to_yaml
-from .in_force import CalibrationInForce
+from .in_force import CorrectionInForce
 from .sample_ring import SampleRing
 
 __all__ = ["LOG_THROTTLE_S", "TEMPERATURE_AHEAD_NS", "LiveStream", "Log"]
@@ -48,11 +47,11 @@ def temperature_ring(context: Any = None) -> SampleRing:
 
 
 class LiveStream:
-    def __init__(self, settings: Settings, calibration_path: Path, log: Log, samples: SampleRing,
+    def __init__(self, settings: Settings, log: Log, samples: SampleRing,
                  readings: SampleRing, *, imu_topic: str = "imu/data_raw",
                  on_frame_id: Callable[[str], None] = lambda frame_id: None):
         self.settings = settings
-        self.in_force = CalibrationInForce(calibration_path, settings)  # the correction; the file is the work's
+        self.in_force = CorrectionInForce(settings.temperature_timeout_s)  # the file is the work's
         self.enabled = True  # calibration/enable: off passes raw through
         self.frame_id: str | None = None
         self.pause = CollectionPause()

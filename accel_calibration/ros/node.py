@@ -33,6 +33,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core.calibration import Calibration
+from ..live.calibration_store import ERROR, OK, WARN, CalibrationStore
 from ..live.calibration_work import (
     WorkSnapshot,
     diagnostic_values,
@@ -40,7 +41,6 @@ from ..live.calibration_work import (
     open_calibration_file,
     starting_snapshot,
 )
-from ..live.in_force import ERROR, OK, WARN
 from ..live.per_message import LiveStream, imu_ring, temperature_ring
 from ..live.worker_process import WorkerProcess, WorkerStart
 from .boundary import Boundary, failed_service
@@ -81,12 +81,14 @@ class CalibrationNode(Node):
         path = calibration_path(node_values["calibration_file"], self.get_fully_qualified_name())
         calibrate_service = self._calibrate_service = self.resolve_service_name("calibrate")
         context = multiprocessing.get_context("spawn")  # not fork: this process runs DDS threads
-        self._stream = LiveStream(self._params.settings, path, self.get_logger(), imu_ring(context),
+        self._stream = LiveStream(self._params.settings, self.get_logger(), imu_ring(context),
                                   temperature_ring(context), imu_topic=self._imu_topic)
         # The file's calibration in force from the first message on; the work loads it again for itself.
-        opened = file_status(*open_calibration_file(self._stream.in_force, self.get_logger(), calibrate_service))
-        if self._stream.in_force.calibration is not None:
-            self._params.mirror(self._stream.in_force.calibration)
+        store = CalibrationStore(path, self._params.settings)
+        opened = file_status(*open_calibration_file(store, self.get_logger(), calibrate_service))
+        if store.calibration is not None:
+            self._stream.in_force.install(store.calibration)
+            self._params.mirror(store.calibration)
         debug_logged = self.get_logger().get_effective_level() <= LoggingSeverity.DEBUG
         self._worker = WorkerProcess(WorkerStart(self._params.settings, path, calibrate_service, self._imu_topic,
                                                  debug_logged),

@@ -58,12 +58,12 @@ def test_a_restart_starts_from_the_noise_the_file_keeps(tmp_path, session):
     _, samples = session
     path = tmp_path / "cal.yaml"
     first = calibrated_live(path, samples)
-    noise = first.in_force.calibration.noise
+    noise = first.store.calibration.noise
     assert first.diagnostic_values()["noise_source"] == f"measured at {RATE_HZ:g} Hz"
 
     again = LiveCalibration(Settings(), path, LogLines())
     again.start()
-    calibration, correction = again.in_force.calibration, again.stream.in_force.correction
+    calibration, correction = again.store.calibration, again.stream.in_force.correction
     assert calibration.noise == noise
     # From the first message, before any pose: the whole covariance (the noise through M plus the
     # calibration's own part), whatever the driver said, unknown (zeros) included.
@@ -85,7 +85,7 @@ def test_a_restart_starts_from_the_noise_the_file_keeps(tmp_path, session):
 def test_round_trip_and_files_without_noise(tmp_path, session):
     _, samples = session
     live = calibrated_live(tmp_path / "cal.yaml", samples)
-    calibration = live.in_force.calibration
+    calibration = live.store.calibration
     assert load_calibration(tmp_path / "cal.yaml") == calibration
     save_calibration(calibration.replace(noise=None), tmp_path / "plain.yaml")
     plain = load_calibration(tmp_path / "plain.yaml")
@@ -116,7 +116,7 @@ def _written(tmp_path, calibration, noise):
 ])
 def test_implausible_noise_is_refused_in_one_line(tmp_path, session, noise, match):
     _, samples = session
-    calibration = calibrated_live(tmp_path / "first.yaml", samples).in_force.calibration
+    calibration = calibrated_live(tmp_path / "first.yaml", samples).store.calibration
     with pytest.raises(CalibrationError, match=match) as refused:
         load_calibration(_written(tmp_path, calibration, noise))
     assert "\n" not in str(refused.value)

@@ -35,7 +35,7 @@ def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
     log = LogLines()
     live = LiveCalibration(Settings(), tmp_path / "cal.yaml", log)
     live.start()
-    assert live.status[0] == "warn" and live.in_force.calibration is None
+    assert live.status[0] == "warn" and live.store.calibration is None
     rng = np.random.default_rng(0)
     start = 0
     while start < len(SAMPLES.t_ns):
@@ -45,7 +45,7 @@ def test_a_whole_session_fed_in_parts_calibrates_and_saves(tmp_path):
         start = stop
     success, message = live.calibrate()
     assert success, message
-    calibration = live.in_force.calibration
+    calibration = live.store.calibration
     assert np.abs(calibration.bias - ERRORS.bias_mps2).max() < 0.1 * MG
     np.testing.assert_allclose(load_calibration(tmp_path / "cal.yaml").bias, calibration.bias, rtol=0, atol=0)
     assert live.status == ("ok", "calibrated")
@@ -71,12 +71,12 @@ def test_a_restart_puts_the_saved_calibration_in_force_and_tells_the_stream_side
     first.start()
     buffer(first, 0, len(SAMPLES.t_ns))
     assert first.calibrate()[0]
-    np.testing.assert_array_equal(first.stream.in_force.calibration.bias, first.in_force.calibration.bias)
+    np.testing.assert_array_equal(first.stream.in_force.calibration.bias, first.store.calibration.bias)
     seen = StreamSideSeen()
     again = LiveCalibration(Settings(), path, LogLines(), rings=(imu_ring(), temperature_ring()), link=seen)
     again.start()
     assert again.status == ("ok", "calibrated from file") and again.stream is None
-    assert len(seen.installed) == 1 and np.array_equal(seen.installed[0].bias, first.in_force.calibration.bias)
+    assert len(seen.installed) == 1 and np.array_equal(seen.installed[0].bias, first.store.calibration.bias)
 
 
 @settings(max_examples=60, stateful_step_count=40, deadline=None,
@@ -111,24 +111,24 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
 
     @rule()
     def calibrate(self):
-        before = self.live.in_force.calibration
+        before = self.live.store.calibration
         success, message = self.live.calibrate()
         event(f"calibrate: {'applied' if success else 'refused'}")
         assert success or (message and "\n" not in message), message
         if not success:
-            assert self.live.in_force.calibration is before, "a refusal changed the calibration in force"
+            assert self.live.store.calibration is before, "a refusal changed the calibration in force"
 
     @rule()
     def reset(self):
-        before = self.live.in_force.calibration
+        before = self.live.store.calibration
         success, message = self.live.reset()
         assert success and self.live.session.progress().poses == 0
-        assert self.live.in_force.calibration is before
+        assert self.live.store.calibration is before
 
     @rule()
     def save(self):
         success, message = self.live.save()
-        assert success == (self.live.in_force.calibration is not None), message
+        assert success == (self.live.store.calibration is not None), message
 
     @rule(on=st.booleans())
     def pause(self, on):
@@ -143,12 +143,12 @@ class ServicesInAnyOrder(RuleBasedStateMachine):
     @rule(on=st.booleans())
     def enable(self, on):
         self.live.stream.enable(on)
-        assert self.live.diagnostic_values()["correction"] == ("on" if on and self.live.in_force.calibration
+        assert self.live.diagnostic_values()["correction"] == ("on" if on and self.live.store.calibration
                                                                else "off")
 
     @invariant()
     def the_calibration_in_force_is_the_files(self):
-        calibration = self.live.in_force.calibration
+        calibration = self.live.store.calibration
         if calibration is None:
             return
         saved = load_calibration(self.path)
@@ -203,7 +203,7 @@ def test_a_refused_gyro_part_keeps_the_gyro_calibration_in_force(tmp_path):
     _feed_motion_session(live, simulate_session(rng, poses=16, rate_hz=200.0, gyro=truth))
     success, message = live.calibrate()
     assert success and yaml.safe_load(message)["gyro"]["applied"] is True, message
-    first = live.in_force.calibration
+    first = live.store.calibration
     true = 2.0 * np.eye(3)
     raw = np.linalg.solve(truth.matrix, true.T).T + truth.bias_radps
 
@@ -219,11 +219,11 @@ def test_a_refused_gyro_part_keeps_the_gyro_calibration_in_force(tmp_path):
     assert success, message
     gyro = yaml.safe_load(message)["gyro"]
     assert gyro["applied"] is False and gyro["kept"] == "in force" and "gyro" in gyro["reason"], message
-    for kept in (live.in_force.calibration, load_calibration(path)):
+    for kept in (live.store.calibration, load_calibration(path)):
         np.testing.assert_array_equal(kept.gyro_matrix, first.gyro_matrix)
         np.testing.assert_array_equal(kept.gyro_bias_radps, first.gyro_bias_radps)
         assert rate_error(kept) < 1e-3, rate_error(kept)
-    assert live.in_force.calibration.bias is not first.bias  # the accelerometer's part is the new fit
+    assert live.store.calibration.bias is not first.bias  # the accelerometer's part is the new fit
 
 
 def test_after_a_successful_calibrate_the_advice_is_no_longer_ready(tmp_path):
@@ -286,7 +286,7 @@ def test_diagnostics_count_the_pose_being_held_as_calibrate_does(tmp_path):
     assert shown.values["pose_being_held"].startswith("counted"), shown.values["pose_being_held"]
     success, message = live.calibrate()
     assert success, message
-    assert yaml.safe_load(message)["poses"] == 16 == live.in_force.calibration.quality.poses
+    assert yaml.safe_load(message)["poses"] == 16 == live.store.calibration.quality.poses
     assert load_calibration(tmp_path / "cal.yaml").quality.poses == 16
     after = live.snapshot()
     assert after.progress.poses == 16 and after.progress.advice.startswith("calibrated: the fit"), after.progress

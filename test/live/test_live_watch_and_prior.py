@@ -69,7 +69,7 @@ def test_a_bias_moved_5_mg_on_y_warns_naming_bias_y_and_the_unchanged_sensor_hol
         else:
             assert level == "ok" and watch.startswith("calibration holds ("), watch
         # Nothing applied by itself: the calibration in force is still the file's.
-        np.testing.assert_array_equal(live.in_force.calibration.bias, load_calibration(tmp_path / "cal.yaml").bias)
+        np.testing.assert_array_equal(live.store.calibration.bias, load_calibration(tmp_path / "cal.yaml").bias)
 
 
 def test_with_the_prior_parameter_a_moved_z_bias_comes_back_from_eight_level_poses(tmp_path):
@@ -90,7 +90,7 @@ def test_with_the_prior_parameter_a_moved_z_bias_comes_back_from_eight_level_pos
     assert live.watch.state.moved and "poses off |a| = g" in live.watch.state.text
     success, message = live.calibrate()
     assert success, message
-    new = live.in_force.calibration
+    new = live.store.calibration
     assert abs(new.bias[2] - moved.bias_mps2[2]) / MG < 1.0
     assert abs(old.bias[2] - moved.bias_mps2[2]) / MG > 7.0
     parameters = yaml.safe_load((tmp_path / "cal.yaml").read_text())["accel_calibration"]["parameter_sources"][
@@ -120,11 +120,11 @@ def test_after_a_move_calibrate_refuses_naming_reset_and_after_the_reset_gives_t
     assert live.session.counters.merge_disagreements >= len(orientations) - 2
     success, message = live.calibrate()
     assert not success and "calibration/reset" in message, message
-    np.testing.assert_array_equal(live.in_force.calibration.bias, load_calibration(tmp_path / "cal.yaml").bias)
+    np.testing.assert_array_equal(live.store.calibration.bias, load_calibration(tmp_path / "cal.yaml").bias)
     assert live.reset()[0]
     samples = SyntheticImu(moved, orientations, dwell_s=2.5, move_s=1.0, rate_hz=200.0, seed=43).samples()
     feed_in_parts(live, dataclasses.replace(samples, t_ns=samples.t_ns + start_ns), 43)
     success, message = live.calibrate()
     assert success, message
-    assert abs(live.in_force.calibration.bias[1] - moved.bias_mps2[1]) < 0.5 * MG, \
-        (live.in_force.calibration.bias[1] - moved.bias_mps2[1]) / MG
+    assert abs(live.store.calibration.bias[1] - moved.bias_mps2[1]) < 0.5 * MG, \
+        (live.store.calibration.bias[1] - moved.bias_mps2[1]) / MG

@@ -27,7 +27,7 @@ def test_the_covariance_is_the_corrected_streams_variance(tmp_path, sigma_mps2):
     live.feed()
     success, message = live.calibrate()
     assert success, message
-    calibration = live.in_force.calibration
+    calibration = live.store.calibration
     covariance = np.asarray(live.stream.in_force.correction.covariance_for(np.zeros(9))).reshape(3, 3)
     # The corrected stream's real variance at rest: the raw white noise through M.
     matrix = np.asarray(calibration.matrix)

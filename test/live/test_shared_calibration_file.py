@@ -40,7 +40,7 @@ def rewrite_as_replay_would(path, text):
 def test_a_file_changed_underneath_is_not_overwritten_unnoticed(tmp_path, service, writer):
     path = tmp_path / "cal.yaml"
     node, log = calibrated(path, FIRST)
-    in_force = node.in_force.calibration
+    in_force = node.store.calibration
     if writer == "another node":
         calibrated(path, SECOND)
     else:
@@ -51,7 +51,7 @@ def test_a_file_changed_underneath_is_not_overwritten_unnoticed(tmp_path, servic
     assert not success
     assert "changed since this node" in message and "again" in message and "\n" not in message, message
     assert path.read_bytes() == theirs
-    assert node.in_force.calibration is in_force
+    assert node.store.calibration is in_force
     assert node.status[0] == "warn" and "changed" in node.status[1]
     assert any(level == "warning" and "changed since this node" in text for level, text in log.lines)
     success, message = job()  # the same call again: on purpose
@@ -83,6 +83,6 @@ def test_auto_calibrate_never_overwrites_a_change_it_did_not_make(tmp_path):
     rewrite_as_replay_would(path, path.read_text().replace("sensor_id:", "sensor_id: replayed #"))
     theirs = path.read_bytes()
     for _ in range(2):
-        applied, message = node._apply(node.in_force.calibration, asked=False)
+        applied, message = node._apply(node.store.calibration, asked=False)
         assert not applied and "call /calibrate to overwrite it" in message, message
     assert path.read_bytes() == theirs
