@@ -397,7 +397,8 @@ def _record_outcome(outcome: RecordingOutcome, history: Any, rows: dict[str, lis
     """One row into the history (it stands or fails alone), counted and said."""
     from tqdm import tqdm
 
-    from ..io.history import HistoryError, printable_text
+    from ..core.text import printable_text
+    from ..io.history import HistoryError
 
     if outcome.record is not None:
         try:
@@ -420,7 +421,8 @@ def _record_outcome(outcome: RecordingOutcome, history: Any, rows: dict[str, lis
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.history import open_history, printable_text, vehicle_from_rule
+    from ..core.text import printable_text
+    from ..io.history import open_history, vehicle_from_rule
 
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")

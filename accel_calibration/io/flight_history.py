@@ -17,8 +17,8 @@ import numpy as np
 
 from ..core.change_rule import ChangeRule
 from ..core.evidence_trend import Trend, trend
+from ..core.text import printable_text
 from ..core.units import MG
-from .history import printable_text
 
 EVIDENCE_STATUSES = ("evidence", "none", "failed")
 _TEXT_LIMITS = {"vehicle": 200, "sensor": 200, "status": 16, "device": 40, "verdict": 16, "written_at": 40}

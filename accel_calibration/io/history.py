@@ -28,6 +28,7 @@ from urllib.parse import unquote
 
 from ..core.change_rule import ChangeRule
 from ..core.errors import AccelCalibrationError
+from ..core.text import printable_text
 from ..core.units import AXES, MG
 
 if TYPE_CHECKING:
@@ -139,14 +140,6 @@ def recording_identity(path: str | Path) -> tuple[str, int]:
         raise HistoryError(f"{printable_text(str(path))}: cannot read the recording "
                            f"({error.strerror or error})") from None
     return digest.hexdigest(), total
-
-
-def printable_text(value: str) -> str:
-    """Text any database and any terminal takes: an undecodable byte of a file name (a lone surrogate)
-    becomes U+FFFD and a NUL '\\0'; everything else is kept."""
-    if value.isprintable() or not any(c == "\0" or "\ud800" <= c <= "\udfff" for c in value):
-        return value
-    return "".join("\\0" if c == "\0" else "\ufffd" if "\ud800" <= c <= "\udfff" else c for c in value)
 
 
 def masked_url(target: str) -> str:
