@@ -94,7 +94,7 @@ def evidence_rows(records: Iterable[EvidenceRecord]) -> list[dict[str, Any]]:
             elif isinstance(value, str):  # the same text on every backend: no NUL, within the column
                 row[name] = printable_text(value)[:_TEXT_LIMITS.get(name, len(value) + 1)]
         rows.append(row)
-    return sorted(rows, key=lambda row: str(row["recording_id"]))
+    return rows  # History._write_rows puts them in key order
 
 
 def evidence_from_row(values: dict[str, Any]) -> EvidenceRecord:

@@ -409,8 +409,6 @@ class History:
 
     def write(self, records: Iterable[HistoryRecord]) -> int:
         """Insert or update (by recording_id) in one transaction; returns rows written."""
-        from sqlalchemy.exc import SQLAlchemyError
-
         now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         rows = []
         for record in records:
@@ -425,16 +423,22 @@ class History:
                 elif isinstance(value, str):  # the same text on every backend: no NUL, within the column
                     row[name] = printable_text(value)[:_TEXT_LIMITS.get(name, len(value) + 1)]
             rows.append(row)
+        return self._write_rows(self._table, rows, "the history")
+
+    def _write_rows(self, table: Any, rows: list[dict[str, Any]], what: str) -> int:
+        """Rows inserted or updated by recording_id, in one transaction."""
+        from sqlalchemy.exc import SQLAlchemyError
+
         if not rows:
             return 0
         # Key order: where a database locks rows one by one (PostgreSQL), writers that lock in the same order
         # queue instead of deadlocking. Stable, so of one recording given twice the last one wins.
-        rows.sort(key=lambda row: row["recording_id"])
+        rows.sort(key=lambda row: str(row["recording_id"]))
         try:
             with self.engine.begin() as connection:
-                self._upsert(connection, self._table, rows, "recording_id")
+                self._upsert(connection, table, rows, "recording_id")
         except SQLAlchemyError as error:
-            raise HistoryError(f"{self.name}: cannot write the history ({_one_line(error)})") from None
+            raise HistoryError(f"{self.name}: cannot write {what} ({_one_line(error)})") from None
         return len(rows)
 
     def records(self, vehicle: str | None = None, sensor: str | None = None) -> list[HistoryRecord]:
@@ -468,19 +472,9 @@ class History:
 
     def write_evidence(self, records: Iterable[EvidenceRecord]) -> int:
         """Flight evidence rows (io/flight_history.py), inserted or updated by key in one transaction."""
-        from sqlalchemy.exc import SQLAlchemyError
-
         from .flight_history import evidence_rows
 
-        rows = evidence_rows(records)
-        if not rows:
-            return 0
-        try:
-            with self.engine.begin() as connection:
-                self._upsert(connection, self._evidence, rows, "recording_id")
-        except SQLAlchemyError as error:
-            raise HistoryError(f"{self.name}: cannot write the flight evidence ({_one_line(error)})") from None
-        return len(rows)
+        return self._write_rows(self._evidence, evidence_rows(records), "the flight evidence")
 
     def evidence(self, vehicle: str | None = None, sensor: str | None = None) -> list[EvidenceRecord]:
         """Flight evidence rows, optionally of one vehicle and/or sensor; none from a history written before
