@@ -322,26 +322,26 @@ def _bins(runs: list[_RunSamples], options: WarmupOptions) -> _Bins:
                  (np.vstack([a[0] for a in accel]), np.vstack([a[1] for a in accel])), joined_gyro)
 
 
-def _tied_runs(runs: list[_RunSamples]) -> tuple[list[_RunSamples], list[str]]:
-    """The runs tied together by common temperature (MIN_OVERLAP_DEGC) to the run of widest span; each
-    other run's offset against them cannot be known: left out, said."""
-    order = sorted(range(len(runs)), key=lambda i: -np.ptp(runs[i].run.range_degc))
+def _tied_runs(runs: list[Run]) -> tuple[list[int], list[str]]:
+    """The indices of the runs tied together by common temperature (MIN_OVERLAP_DEGC) to the run of widest
+    span; each other run's offset against them cannot be known: left out, said."""
+    order = sorted(range(len(runs)), key=lambda i: -np.ptp(runs[i].range_degc))
     tied = [order[0]]
-    low, high = runs[order[0]].run.range_degc
+    low, high = runs[order[0]].range_degc
     grown = True
     while grown:
         grown = False
         for i in order:
-            a, b = runs[i].run.range_degc
+            a, b = runs[i].range_degc
             if i not in tied and min(b, high) - max(a, low) >= MIN_OVERLAP_DEGC:
                 tied.append(i)
                 low, high = min(low, a), max(high, b)
                 grown = True
-    left_out = [f"recording {runs[i].run.recording + 1} {runs[i].run.start_ns * 1e-9:.1f}.."
-                f"{runs[i].run.end_ns * 1e-9:.1f} s ({runs[i].run.range_degc[0]:.1f}..{runs[i].run.range_degc[1]:.1f} "
+    left_out = [f"recording {runs[i].recording + 1} {runs[i].start_ns * 1e-9:.1f}.."
+                f"{runs[i].end_ns * 1e-9:.1f} s ({runs[i].range_degc[0]:.1f}..{runs[i].range_degc[1]:.1f} "
                 "degC): its temperatures overlap none of the others', so its turn-on offset cannot be told "
                 "from the drift" for i in sorted(set(range(len(runs))) - set(tied))]
-    return [runs[i] for i in sorted(tied)], left_out
+    return sorted(tied), left_out
 
 
 def _curves(bins: _Bins, reference_degc: float) -> tuple[CurveFit, CurveFit | None]:
@@ -412,10 +412,10 @@ def _choose_lag(bins: _Bins, runs: list[_RunSamples], options: WarmupOptions) ->
     return (best, True) if seen and best > 0 else (0.0, False)
 
 
-def _axes_text(runs: list[_RunSamples]) -> tuple[str, ...]:
-    """Per accelerometer axis, what one orientation lets its curve be: bias alone when level, bias and
-    scale drift x g together when along gravity (as the autopilots' models), a mix when tilted."""
-    directions = [_direction(run.accel) for run in runs]
+def _axes_text(directions: list[np.ndarray]) -> tuple[str, ...]:
+    """Per accelerometer axis, what one orientation (each run's gravity direction) lets its curve be: bias
+    alone when level, bias and scale drift x g together when along gravity (as the autopilots' models), a
+    mix when tilted."""
     if any(float(np.dot(directions[0], d)) < np.cos(np.radians(30.0)) for d in directions[1:]):
         return ("accelerometer: several orientations, each run's curve seen along its own gravity; the "
                 "scale drift is not separated from the bias (a fit with poses at several orientations and "
@@ -463,17 +463,32 @@ def fit_warmup(recordings: list[WarmupRecording], calibration: Calibration | Non
         left_out += dropped
     if not runs:
         return WarmupResult(None, "warm-up: no still stretch with a temperature in the recording(s)")
-    runs, untied = _tied_runs(runs)
+    tied, untied = _tied_runs([run.run for run in runs])
+    runs = [runs[i] for i in tied]
     left_out += untied
-    low = min(run.run.range_degc[0] for run in runs)
-    high = max(run.run.range_degc[1] for run in runs)
-    if high - low < options.min_span_degc:
-        return WarmupResult(None, f"warm-up: the still samples span {high - low:.1f} degC ({low:.1f}..{high:.1f}); "
-                                  f"a temperature curve needs {options.min_span_degc:g} degC",
-                            tuple(f"left out: {why}" for why in left_out))
+    refusal = _span_refusal([run.run for run in runs], options, left_out)
+    if refusal is not None:
+        return refusal
     measured = _bins(runs, options)
     lag, seen = _choose_lag(measured, runs, options)
-    bins = measured.at_lag(lag)
+    return _fitted(measured.at_lag(lag), [run.run for run in runs], [_direction(run.accel) for run in runs],
+                   calibration, options, lag, seen, steps, left_out)
+
+
+def _span_refusal(runs: list[Run], options: WarmupOptions, left_out: list[str]) -> WarmupResult | None:
+    low = min(run.range_degc[0] for run in runs)
+    high = max(run.range_degc[1] for run in runs)
+    if high - low >= options.min_span_degc:
+        return None
+    return WarmupResult(None, f"warm-up: the still samples span {high - low:.1f} degC ({low:.1f}..{high:.1f}); "
+                              f"a temperature curve needs {options.min_span_degc:g} degC",
+                        tuple(f"left out: {why}" for why in left_out))
+
+
+def _fitted(bins: _Bins, runs: list[Run], directions: list[np.ndarray], calibration: Calibration | None,
+            options: WarmupOptions, lag: float, seen: bool, steps: list[tuple[int, Step]],
+            left_out: list[str]) -> WarmupResult:
+    """The curves through the bins (of the tied runs, indexed 0..R-1 in `runs`) and what they are."""
     reference = _reference(options, calibration, float(bins.degc.min()), float(bins.degc.max()))
     try:
         accel, gyro = _curves(bins, reference)
@@ -482,11 +497,53 @@ def fit_warmup(recordings: list[WarmupRecording], calibration: Calibration | Non
     fit = WarmupFit(
         accel=accel.curve, gyro=None if gyro is None else gyro.curve, reference_degc=reference,
         gyro_bias_radps=None if gyro is None else gyro.offsets.mean(axis=0), accel_offsets=accel.offsets,
-        gyro_offsets=None if gyro is None else gyro.offsets, runs=tuple(run.run for run in runs),
-        lag_s=lag, lag_seen=seen, steps=tuple(steps), left_out=tuple(left_out), axes=_axes_text(runs),
+        gyro_offsets=None if gyro is None else gyro.offsets, runs=tuple(runs),
+        lag_s=lag, lag_seen=seen, steps=tuple(steps), left_out=tuple(left_out), axes=_axes_text(directions),
         bins=len(bins.degc), accel_residual_mg=accel.residual_rms / MG,
         gyro_residual_mradps=None if gyro is None else gyro.residual_rms * 1e3)
     return WarmupResult(fit, None, tuple(fit.describe()))
+
+
+@dataclass(frozen=True)
+class BinnedWarmup:
+    """Still samples already binned by temperature (as a node collects them, in bounded memory), in the
+    frame the curves are fitted in: per bin its mean temperature (B,), mean heating rate (B,), the index
+    of its run in `runs` (B,), its sample count (B,), accelerometer means and standard errors (B, 3) each,
+    the gyro's or None; per run its Run (its range from its bins) and its mean gravity direction."""
+
+    degc: np.ndarray
+    rate: np.ndarray
+    run_of: np.ndarray
+    counts: np.ndarray
+    accel: tuple[np.ndarray, np.ndarray]
+    gyro: tuple[np.ndarray, np.ndarray] | None
+    runs: tuple[Run, ...]
+    directions: tuple[np.ndarray, ...]
+
+
+def fit_binned_warmup(binned: BinnedWarmup, calibration: Calibration | None = None,
+                      options: WarmupOptions | None = None) -> WarmupResult:
+    """fit_warmup's curves from samples binned beforehand (bins of fewer than min_bin_samples left out;
+    `calibration` only names the reference temperature: the bins are in its corrected frame already).
+    The lag is taken as options.lag_s (0: not seen; binned samples keep no heating history to show it)."""
+    options = options or WarmupOptions()
+    keep = binned.counts >= options.min_bin_samples
+    present = sorted({int(r) for r in binned.run_of[keep]})
+    if not present:
+        return WarmupResult(None, "warm-up: no still samples with a temperature yet")
+    runs = [binned.runs[i] for i in present]
+    tied, left_out = _tied_runs(runs)
+    chosen = [present[i] for i in tied]
+    refusal = _span_refusal([binned.runs[i] for i in chosen], options, left_out)
+    if refusal is not None:
+        return refusal
+    keep &= np.isin(binned.run_of, chosen)
+    index = np.searchsorted(np.array(chosen), binned.run_of[keep])
+    lag = options.lag_s or 0.0
+    bins = _Bins(binned.degc[keep], binned.rate[keep], index, (binned.accel[0][keep], binned.accel[1][keep]),
+                 None if binned.gyro is None else (binned.gyro[0][keep], binned.gyro[1][keep])).at_lag(lag)
+    return _fitted(bins, [binned.runs[i] for i in chosen], [binned.directions[i] for i in chosen], calibration,
+                   options, lag, False, [], left_out)
 
 
 def warmup_calibration(fit: WarmupFit, calibration: Calibration | None = None) -> Calibration:
