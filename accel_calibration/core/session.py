@@ -82,6 +82,8 @@ class CalibrationSession:
         self.last_fit: FitResult | None = None
         # The last cold fit and the poses it fitted (held, not compared by value: a merge makes a new pose).
         self._cold_fit: tuple[tuple[Pose, ...], FitResult] | None = None
+        # The last gyro verdict and what it was a function of, held the same way (_same_inputs).
+        self._gyro_fit: tuple[tuple[object, ...], tuple[GyroFitResult | None, str | None]] | None = None
         self.frame_id = ""  # of the samples, from the first message; goes into the calibration
         # Recalibration with a prior (core/prior.py): calibrate() fits what the poses observe and keeps the
         # rest at the prior; set it with `use_prior`.
@@ -104,6 +106,7 @@ class CalibrationSession:
         self.gates = QualityGates.from_settings(settings)
         self.settings = settings
         self._cold_fit = None
+        self._gyro_fit = None
 
     # ------------------------------------------------------------------ stream side
     @property
@@ -182,6 +185,7 @@ class CalibrationSession:
         self.motions.clear()
         self.last_fit = None
         self._cold_fit = None
+        self._gyro_fit = None
         return dropped
 
     def temperature_problem(self, poses: Sequence[Pose] | None = None) -> str | None:
@@ -389,7 +393,7 @@ class CalibrationSession:
         calibration = result.calibration.replace(
             gyro_bias_radps=self.gyro_bias_radps(), frame_id=self.frame_id, sensor_id=self.settings.sensor_id,
             noise=self.measured_noise(), gravity_source=self.settings.gravity_source)
-        gyro, gyro_text = self.gyro_verdict(calibration)
+        gyro, gyro_text = self._gyro_verdict_of(result, calibration)
         if gyro is not None and gyro_text is None:
             calibration = gyro.apply_to(calibration)
         said = "" if gyro_text is None and gyro is None else (
@@ -452,6 +456,18 @@ class CalibrationSession:
             return None, f"gyro: not fitted ({error})"
         refusal = self.settings.gyro_gates.check(result)
         return result, refusal
+
+    def _gyro_verdict_of(self, result: FitResult, accel: Calibration) -> tuple[GyroFitResult | None, str | None]:
+        """gyro_verdict for the calibration of `result`, taken from the last when nothing it is a function of
+        changed: the fit (held, not compared by value), the poses and motions the recorder holds and the gyro's
+        noise. An auto-calibration's verdict, then /calibrate's on the same poses, fit the gyro once."""
+        poses, motions = self.motions.poses_and_motions()
+        inputs = (result, *poses, None, *motions, self.gyro_noise_var())
+        if self._gyro_fit is not None and _same_inputs(self._gyro_fit[0], inputs):
+            return self._gyro_fit[1]
+        verdict = self.gyro_verdict(accel)
+        self._gyro_fit = (inputs, verdict)
+        return verdict
 
     def auto_verdict(self, result: FitResult | None) -> Verdict | None:
         """With auto_calibrate on: the verdict to apply once the latest refit passes every gate (None when
@@ -539,6 +555,12 @@ def _directions(poses: Sequence[Pose], calibration: Calibration | None = None) -
 
 def _same_poses(fitted: Sequence[Pose], poses: Sequence[Pose]) -> bool:
     return len(fitted) == len(poses) and all(a is b for a, b in zip(fitted, poses, strict=True))
+
+
+def _same_inputs(held: Sequence[object], inputs: Sequence[object]) -> bool:
+    """The same objects (numbers: equal) in the same order."""
+    return len(held) == len(inputs) and all(
+        a == b if isinstance(a, float) or a is None else a is b for a, b in zip(held, inputs, strict=True))
 
 
 def _unit_tuple(direction: ArrayLike) -> tuple[float, float, float]:
