@@ -327,7 +327,7 @@ def calibration_in_force(path: str) -> Any:
     commands take no parameters, and replay at the default keeps the gyro's bias only too."""
     import sys
 
-    from ..core.plausibility import gyro_gain_outside, plausibility_problem
+    from ..core.plausibility import gyro_gain_outside, implausible_text, plausibility_refusal
     from ..core.settings import Settings
     from ..io.calibration_file import load_calibration
 
@@ -338,8 +338,8 @@ def calibration_in_force(path: str) -> Any:
         print(f"{PROG}: note: {path}: gyro matrix not used here ({outside}, the default gyro.scale_min.."
               "gyro.scale_max; the node takes its own): the gyro's bias only", file=sys.stderr)
     defaults = Settings()
-    problem = plausibility_problem(calibration, max_bias_mps2=defaults.max_bias_mps2,
+    refusal = plausibility_refusal(calibration, max_bias_mps2=defaults.max_bias_mps2,
                                    scale_band=(defaults.scale_min, defaults.scale_max))
-    if problem is not None:
-        raise CalibrationError(f"{path}: implausible, not used ({problem})")
+    if refusal is not None:
+        raise CalibrationError(f"{path}: implausible, not used ({implausible_text(refusal)})")
     return calibration

@@ -327,4 +327,4 @@ def gyro_lines(replay: ReplayResult) -> list[str]:
         return []
     if calibration is not None and calibration.gyro_matrix is not None:
         return [gyro.summary()]
-    return [f"{replay.gyro_refusal or gyro.message} (the gyro keeps its bias only)"]
+    return [f"{replay.gyro_refusal or 'gyro: ' + gyro.message} (the gyro keeps its bias only)"]

@@ -112,7 +112,7 @@ class QualityGates:
         node puts it in force (a well-formed file can still hold absurd numbers)."""
         return bias_scale_refusal(calibration.bias, calibration.matrix, self.max_bias_mps2, self.scale_band)
 
-    def loadable(self, calibration: Calibration) -> tuple[Calibration | None, str | None]:
+    def loadable(self, calibration: Calibration) -> tuple[Calibration | None, Refusal | None]:
         """What of a calibration that passed the gates may be saved: core/plausibility.loadable_part at
         these bounds, the check the file's readers (the node, `apply`, `report`) make before using it."""
         return loadable_part(calibration, max_bias_mps2=self.max_bias_mps2, scale_band=self.scale_band,

@@ -35,6 +35,7 @@ from .gyro_axes import gyro_axes_problem
 from .gyro_scoring import motion_intervals
 from .models import REFERENCE_MODELS, matrix_entries
 from .pose import Pose
+from .refusal import MotionProblem
 from .rotation_integration import IntervalSet, skew
 from .units import AXES
 
@@ -79,8 +80,7 @@ class RefusedMotion:
     """A motion not used, and why."""
 
     index: int  # motion k joins pose k and pose k + 1
-    kind: str  # "not recorded", "too short", "not finite", "stamps", "long", "gap", "saturated", "screened",
-    # "paused", "span"
+    kind: MotionProblem
     reason: str
 
     def describe(self) -> str:
@@ -127,11 +127,8 @@ class GyroFitResult:
         r = self.residuals_before_mrad
         return float(np.sqrt(np.mean(r**2))) if len(r) else float("nan")
 
-    def refused_counts(self) -> dict[str, int]:
-        counts: dict[str, int] = {}
-        for motion in self.refused:
-            counts[motion.kind] = counts.get(motion.kind, 0) + 1
-        return counts
+    def refused_counts(self) -> dict[MotionProblem, int]:
+        return refused_counts(self.refused)
 
     def scale_sigma_ppm(self) -> np.ndarray:
         """1 sigma of each axis' scale (diagonal of M_g), ppm of the gain of its row."""
@@ -167,9 +164,8 @@ class GyroFitResult:
 
     def summary(self) -> str:
         lines = [f"gyro: {'OK' if self.success else 'FAILED'} - {self.message}"]
-        counts = self.refused_counts()
-        lines.append(f"motions used {self.motions_used}" + (
-            ", not used: " + ", ".join(f"{n} {kind}" for kind, n in counts.items()) if counts else ""))
+        not_used = refused_text(self.refused)
+        lines.append(f"motions used {self.motions_used}" + (f", not used: {not_used}" if not_used else ""))
         if self.matrix is not None and self.matrix_sigma is not None:
             lines.append("gyro matrix M_g (w_true = M_g (w_raw - b_g)), +- 1 sigma:")
             for i in range(3):
@@ -186,41 +182,43 @@ class GyroFitResult:
 def motion_problem(motion: Motion | None, index: int, poses: Sequence[Pose], options: GyroFitOptions
                    ) -> RefusedMotion | None:
     """Why motion `index` (between pose index and index + 1) cannot be used; None when it can."""
-    def refuse(kind: str, reason: str) -> RefusedMotion:
+    def refuse(kind: MotionProblem, reason: str) -> RefusedMotion:
         return RefusedMotion(index, kind, reason)
 
     if motion is None:
-        return refuse("not recorded", "not recorded")
+        return refuse(MotionProblem.NOT_RECORDED, "not recorded")
     if motion.paused:
-        return refuse("paused", "collection was paused during it")
+        return refuse(MotionProblem.PAUSED, "collection was paused during it")
     if motion.saturated:
-        return refuse("saturated", "the gyro saturated during it")
+        return refuse(MotionProblem.SATURATED, "the gyro saturated during it")
     if motion.broken:
-        return refuse("screened", "a sample in it was screened out (not finite, out of range, frozen) "
+        return refuse(MotionProblem.SCREENED, "a sample in it was screened out (not finite, out of range, frozen) "
                                   "or the clock jumped")
     stamps, rates = motion.stamps_ns, motion.gyro_radps
     if len(stamps) < 3:
-        return refuse("too short", f"{len(stamps)} samples")
+        return refuse(MotionProblem.TOO_SHORT, f"{len(stamps)} samples")
     if not np.all(np.isfinite(rates)):
-        return refuse("not finite", "a sample is not finite")
+        return refuse(MotionProblem.NOT_FINITE, "a sample is not finite")
     intervals = np.diff(stamps)
     if np.any(intervals <= 0):
-        return refuse("stamps", "stamps not increasing")
+        return refuse(MotionProblem.STAMPS, "stamps not increasing")
     duration_s = float(stamps[-1] - stamps[0]) * 1e-9
     if duration_s > options.max_motion_s:
-        return refuse("long", f"{duration_s:.1f} s, longer than gyro.max_motion_s={options.max_motion_s:g} s")
+        return refuse(MotionProblem.LONG,
+                      f"{duration_s:.1f} s, longer than gyro.max_motion_s={options.max_motion_s:g} s")
     median = float(np.median(intervals))
     widest = float(intervals.max())
     if widest > options.gap_factor * median:
-        return refuse("gap", f"a gap of {widest * 1e-6:.1f} ms in samples {median * 1e-6:.2f} ms apart")
+        return refuse(MotionProblem.GAP, f"a gap of {widest * 1e-6:.1f} ms in samples {median * 1e-6:.2f} ms apart")
     peak = float(np.abs(rates).max())
     if peak >= options.gyro_range_radps:
-        return refuse("saturated", f"|w| reached {peak:.2f} rad/s (gyro_range_radps={options.gyro_range_radps:g})")
+        return refuse(MotionProblem.SATURATED,
+                      f"|w| reached {peak:.2f} rad/s (gyro_range_radps={options.gyro_range_radps:g})")
     before, after = poses[index], poses[index + 1]
     slack = 2.0 * median
     late, early = stamps[0] - before.end_ns, after.start_ns - stamps[-1]
     if late > slack or early > slack:
-        return refuse("span", f"its samples do not cover the time between the poses "
+        return refuse(MotionProblem.SPAN, f"its samples do not cover the time between the poses "
                               f"(start {late * 1e-9:+.3f} s after pose {index + 1} ends, end "
                               f"{early * 1e-9:+.3f} s before pose {index + 2} starts)")
     return None
@@ -389,29 +387,35 @@ def fit_gyro(
         else:
             refused.append(problem)
     # A gyro in deg/s reads 57 times its rate and is refused as saturated: the check sees those motions too.
-    saturated = {m.index for m in refused if m.kind == "saturated"}
+    saturated = {m.index for m in refused if m.kind is MotionProblem.SATURATED}
     checked = [motion if k in used or (k in saturated and motion is not None and not motion.saturated) else None
                for k, motion in enumerate(motions)]
     axes = gyro_axes_problem(poses, checked, _plain_directions(poses, accel), initial)
     if axes is not None:
-        return GyroFitResult(False, f"gyro: {axes}", used=tuple(used), refused=tuple(refused),
+        return GyroFitResult(False, axes, used=tuple(used), refused=tuple(refused),
                              bias_fitted=options.fit_bias)
     parameters = 12 if options.fit_bias else 9
     need = parameters // 2 + 1  # two residual components per motion, one degree of freedom left
     if len(used) < need:
-        counts = ", ".join(f"{n} {kind}" for kind, n in _count(refused).items())
-        return GyroFitResult(False, f"gyro: {len(used)} usable motions, need at least {need}"
+        counts = refused_text(refused)
+        return GyroFitResult(False, f"{len(used)} usable motions, need at least {need}"
                              + (f" ({counts} not used)" if counts else ""), used=tuple(used), refused=tuple(refused),
                              bias_fitted=options.fit_bias)
     with np.errstate(all="ignore"):
         return _fit(poses, [m for m in motions], used, refused, accel, noise, initial, options)
 
 
-def _count(refused: Sequence[RefusedMotion]) -> dict[str, int]:
-    counts: dict[str, int] = {}
+def refused_counts(refused: Sequence[RefusedMotion]) -> dict[MotionProblem, int]:
+    """How many motions were not used, by why, in the order first met."""
+    counts: dict[MotionProblem, int] = {}
     for motion in refused:
         counts[motion.kind] = counts.get(motion.kind, 0) + 1
     return counts
+
+
+def refused_text(refused: Sequence[RefusedMotion]) -> str:
+    """'2 not recorded, 1 long': the motions not used, by why, as people read it ("" when none)."""
+    return ", ".join(f"{n} {kind.value}" for kind, n in refused_counts(refused).items())
 
 
 def _tangent_basis(directions: np.ndarray) -> np.ndarray:
@@ -539,7 +543,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
     # ftol 1e-10: the last step then moves M_g by ~1e-6 of its sigma; a tighter one costs an evaluation more.
     solution = gauss_newton(residual_and_jacobian, x0, ftol=1e-10, max_iterations=options.max_iterations)
     if not solution.success:
-        return GyroFitResult(False, f"gyro: the fit did not converge ({solution.message})", solution.iterations,
+        return GyroFitResult(False, f"the fit did not converge ({solution.message})", solution.iterations,
                              used=used_, refused=refused_, turned_deg=turned_deg,
                              residuals_before_mrad=residuals_before, bias_fitted=options.fit_bias)
     x = solution.x
@@ -568,7 +572,7 @@ def _fit(poses: Sequence[Pose], motions: Sequence[Motion | None], used: list[int
         parameter_covariance = inverse if middle is None else inverse @ middle @ inverse
         sigma = np.sqrt(np.maximum(np.diag(parameter_covariance), 0.0) * factor)
     result = GyroFitResult(
-        True, "gyro: fitted", solution.iterations, matrix=matrix, bias_radps=mean_bias + bias_change,
+        True, "fitted", solution.iterations, matrix=matrix, bias_radps=mean_bias + bias_change,
         matrix_sigma=sigma[:9].reshape(3, 3), bias_sigma_radps=sigma[9:] if options.fit_bias else None,
         residuals_mrad=final.residuals_mrad(problem.end), residuals_before_mrad=residuals_before, used=used_,
         refused=refused_, turned_deg=turned_deg, condition_number=condition, scatter=math.sqrt(scatter_squared),
@@ -610,10 +614,10 @@ def _axes_text(axes: Sequence[int]) -> str:
 
 
 def turn_advice(loose: Sequence[int]) -> str:
-    """'gyro: motions turned about x and y only; turn about z' for the axes not pinned down."""
+    """'motions turned about x and y only; turn about z' for the axes not pinned down."""
     turned = [q for q in range(3) if q not in loose]
     if not turned:
-        return ("gyro: the motions pin down no axis well enough; turn about each of x, y and z between poses "
+        return ("the motions pin down no axis well enough; turn about each of x, y and z between poses "
                 "(not about the vertical), in more motions")
-    return (f"gyro: motions turned about {_axes_text(turned)} only; turn about {_axes_text(loose)} between poses "
+    return (f"motions turned about {_axes_text(turned)} only; turn about {_axes_text(loose)} between poses "
             "(not about the vertical)")

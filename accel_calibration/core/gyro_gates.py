@@ -1,6 +1,6 @@
 """Quality gates of a gyro fit (`gyro.*`), apart from the accelerometer's: a refused gyro fit keeps
-the accelerometer calibration and says why. Each refusal starts "gyro: gate <name>:" and says what to
-do; pure functions of a GyroFitResult."""
+the accelerometer calibration and says why. Each refusal is a GyroRefusal naming its gate (said
+"gyro: gate <name>: ...") and says what to do; pure functions of a GyroFitResult."""
 from __future__ import annotations
 
 import math
@@ -9,8 +9,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import CalibrationError
-from .gyro_fit import GyroFitResult, turn_advice, unobserved_axes
+from .gyro_fit import GyroFitResult, refused_text, turn_advice, unobserved_axes
 from .plausibility import GYRO_SCALE_BAND
+from .refusal import GyroGate, GyroRefusal
 from .units import AXES
 
 
@@ -39,7 +40,7 @@ class GyroGates:
         if not (0 < lo < 1 < hi):
             raise CalibrationError(f"gyro scale_min < 1 < scale_max must hold, got {lo!r}, {hi!r}")
 
-    def check(self, result: GyroFitResult) -> str | None:
+    def check(self, result: GyroFitResult) -> GyroRefusal | None:
         """None when the gyro fit may be applied, else the first gate it fails, one line."""
         return (motions_gate(result, self.min_motions)
                 or fit_gate(result)
@@ -48,31 +49,31 @@ class GyroGates:
                 or scale_gate(result, self.scale_band))
 
 
-def motions_gate(result: GyroFitResult, min_motions: int) -> str | None:
+def motions_gate(result: GyroFitResult, min_motions: int) -> GyroRefusal | None:
     if result.motions_used >= min_motions:
         return None
-    counts = result.refused_counts()
-    not_used = f"; not used: {', '.join(f'{n} {kind}' for kind, n in counts.items())}" if counts else ""
-    return (f"gyro: gate motions: {result.motions_used} usable motions between poses, need {min_motions}"
-            f"{not_used}; turn the sensor from pose to pose without stopping halfway")
+    counts = refused_text(result.refused)
+    not_used = f"; not used: {counts}" if counts else ""
+    return GyroRefusal(GyroGate.MOTIONS, f"{result.motions_used} usable motions between poses, need {min_motions}"
+                       f"{not_used}; turn the sensor from pose to pose without stopping halfway")
 
 
-def fit_gate(result: GyroFitResult) -> str | None:
+def fit_gate(result: GyroFitResult) -> GyroRefusal | None:
     if result.success:
         return None
-    message = result.message.removeprefix("gyro: ")
-    return f"gyro: gate fit: {message}"
+    return GyroRefusal(GyroGate.FIT, result.message)
 
 
-def residual_gate(result: GyroFitResult, max_rms_mrad: float) -> str | None:
+def residual_gate(result: GyroFitResult, max_rms_mrad: float) -> GyroRefusal | None:
     rms = result.residual_rms_mrad
     if rms <= max_rms_mrad:
         return None
-    return (f"gyro: gate residual: motions miss the next pose by {rms:.1f} mrad rms, above {max_rms_mrad:g} mrad "
-            "(poses not still, a knock, or the gyro's bias drifting: hold each pose still and turn smoothly)")
+    return GyroRefusal(GyroGate.RESIDUAL, f"motions miss the next pose by {rms:.1f} mrad rms, above {max_rms_mrad:g} "
+                       "mrad (poses not still, a knock, or the gyro's bias drifting: hold each pose still and turn "
+                       "smoothly)")
 
 
-def sigma_gate(result: GyroFitResult, max_scale_ppm: float, max_misalignment_mrad: float) -> str | None:
+def sigma_gate(result: GyroFitResult, max_scale_ppm: float, max_misalignment_mrad: float) -> GyroRefusal | None:
     """The loosest parameter against its bound, and the axes to turn about."""
     loose = unobserved_axes(result, max_scale_ppm, max_misalignment_mrad)
     if not loose:
@@ -84,17 +85,16 @@ def sigma_gate(result: GyroFitResult, max_scale_ppm: float, max_misalignment_mra
                 f"misalignment {AXES[p]}{AXES[q]} sigma {misalignment[p, q]:.3g} mrad above "
                 f"{max_misalignment_mrad:g} mrad") for p in range(3) for q in range(3) if p != q]
     worst = max(ratios, key=lambda item: item[0] if np.isfinite(item[0]) else np.inf)[1]
-    advice = turn_advice(loose).removeprefix("gyro: ")
-    return f"gyro: gate sigma: {worst}; {advice}"
+    return GyroRefusal(GyroGate.SIGMA, f"{worst}; {turn_advice(loose)}")
 
 
-def scale_gate(result: GyroFitResult, scale_band: tuple[float, float]) -> str | None:
+def scale_gate(result: GyroFitResult, scale_band: tuple[float, float]) -> GyroRefusal | None:
     if result.matrix is None:
-        return "gyro: gate scale: no gyro matrix"
+        return GyroRefusal(GyroGate.SCALE, "no gyro matrix")
     lo, hi = scale_band
     gains = np.linalg.norm(result.matrix, axis=1)
     outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
     if outside:
-        return (f"gyro: gate scale: correction gain {', '.join(outside)} outside {lo:g}..{hi:g} "
-                "(gyro.scale_min..gyro.scale_max; is the gyro in rad/s?)")
+        return GyroRefusal(GyroGate.SCALE, f"correction gain {', '.join(outside)} outside {lo:g}..{hi:g} "
+                           "(gyro.scale_min..gyro.scale_max; is the gyro in rad/s?)")
     return None

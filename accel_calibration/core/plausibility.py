@@ -1,8 +1,10 @@
 """Is a calibration fit to be put in force? What a calibration file must meet before the node, `apply` or
 `report` use it: a well-formed file can still mirror the axes, contradict its model's name, or hold a
 temperature block that drives the bias or the gain out of the gates somewhere in its calibrated range.
-Each refusal is one line naming what is wrong."""
+Each refusal is a value (core/refusal.Refusal): the bias or scale gate, or the plausibility gate for the rest."""
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,6 +23,7 @@ GYRO_SCALE_BAND = (0.9, 1.1)
 PLAUSIBLE_TEMPERATURE_DEGC = (-100.0, 200.0)
 # An entry this far from the structure's zero is a hand edit or another model, not rounding.
 STRUCTURE_TOLERANCE = 1e-12
+TEMPERATURE_BLOCK = "temperature block"  # the part of a calibration its temperature model is, as refusals say it
 _TEMPERATURE_STEPS = 241  # grid over the calibrated range, every 0.5 degC over 120 degC
 
 
@@ -75,10 +78,6 @@ def bias_scale_refusal(bias: np.ndarray, matrix: np.ndarray, max_bias_mps2: floa
     return None
 
 
-def _refusal_text(refusal: Refusal | None) -> str | None:
-    return None if refusal is None else str(refusal)
-
-
 def effective_terms(calibration: Calibration, temperatures_degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(b_eff (T, 3), M_eff (T, 3, 3)): the affine map a_true = M_eff (a_raw - b_eff) that best matches
     the correction at each temperature over raw inputs of +-1 g per axis (the secant at 1 g), whatever
@@ -95,17 +94,17 @@ def effective_terms(calibration: Calibration, temperatures_degc: np.ndarray) -> 
     return bias, matrices
 
 
-def _temperature_problem(calibration: Calibration, max_bias_mps2: float,
-                         scale_band: tuple[float, float]) -> str | None:
+def _temperature_refusal(calibration: Calibration, max_bias_mps2: float,
+                         scale_band: tuple[float, float]) -> Refusal | None:
     model = calibration.temperature
     assert model is not None
     lo, hi = model.range_degc
     low_limit, high_limit = PLAUSIBLE_TEMPERATURE_DEGC
     if not (low_limit <= lo <= hi <= high_limit):
-        return (f"temperature block: calibrated range {lo:.4g}..{hi:.4g} degC is not a sensor's "
-                f"({low_limit:g}..{high_limit:g} degC)")
+        return _temperature_block(f"calibrated range {lo:.4g}..{hi:.4g} degC is not a sensor's "
+                                  f"({low_limit:g}..{high_limit:g} degC)")
     if not low_limit <= model.reference_degc <= high_limit:
-        return f"temperature block: reference temperature {model.reference_degc:.4g} degC is not a sensor's"
+        return _temperature_block(f"reference temperature {model.reference_degc:.4g} degC is not a sensor's")
     grid = np.linspace(lo, hi, _TEMPERATURE_STEPS)
     try:
         with np.errstate(all="ignore"):  # absurd coefficients overflow: caught as non-finite below
@@ -114,33 +113,46 @@ def _temperature_problem(calibration: Calibration, max_bias_mps2: float,
     except (CalibrationError, np.linalg.LinAlgError):
         finite = False
     if not finite:
-        return "temperature block: its correction is not finite (or collapses) within its calibrated range"
+        return _temperature_block("its correction is not finite (or collapses) within its calibrated range")
     for k, temperature in enumerate(grid):
         where = f" at {temperature:.1f} degC"
-        problem = (_orientation_problem(matrices[k], f"the correction{where}")
-                   or _refusal_text(bias_scale_refusal(bias[k], matrices[k], max_bias_mps2, scale_band, where)))
+        problem = _orientation_problem(matrices[k], f"the correction{where}")
         if problem is not None:
-            return "temperature block: " + problem
+            return _temperature_block(problem)
+        refusal = bias_scale_refusal(bias[k], matrices[k], max_bias_mps2, scale_band, where)
+        if refusal is not None:
+            return replace(refusal, part=TEMPERATURE_BLOCK)
     return None
 
 
-def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0,
-                         scale_band: tuple[float, float] = (0.9, 1.1),
-                         max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS,
-                         gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
-    """None when the calibration may be put in force, else the first problem, one line. The bias and
-    scale gates take the node's settings (`max_bias_mps2`, `scale_min`, `scale_max`, `gyro.scale_min`,
-    `gyro.scale_max`); with a
-    temperature model they must hold over the whole calibrated range, not only at T_ref."""
+def _temperature_block(text: str) -> Refusal:
+    return Refusal(Gate.PLAUSIBILITY, text, part=TEMPERATURE_BLOCK)
+
+
+def plausibility_refusal(calibration: Calibration, *, max_bias_mps2: float = 2.0,
+                          scale_band: tuple[float, float] = (0.9, 1.1),
+                          max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS,
+                          gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> Refusal | None:
+    """None when the calibration may be put in force, else the first refusal: the bias or scale gate's when
+    the bias or a gain is out of its band (at T_ref or anywhere in the temperature block's range), the
+    plausibility gate's for anything else. The bias and scale gates take the node's settings
+    (`max_bias_mps2`, `scale_min`, `scale_max`, `gyro.scale_min`, `gyro.scale_max`); with a temperature model
+    they must hold over the whole calibrated range, not only at T_ref."""
     problem = structure_problem(calibration) or _orientation_problem(calibration.matrix, "the matrix M")
     if problem is not None:
-        return problem
+        return Refusal(Gate.PLAUSIBILITY, problem)
     if calibration.temperature is not None:
-        problem = _temperature_problem(calibration, max_bias_mps2, scale_band)
+        refusal = _temperature_refusal(calibration, max_bias_mps2, scale_band)
     else:
-        problem = _refusal_text(bias_scale_refusal(calibration.bias, calibration.matrix, max_bias_mps2, scale_band))
-    if problem is not None:
-        return problem
+        refusal = bias_scale_refusal(calibration.bias, calibration.matrix, max_bias_mps2, scale_band)
+    if refusal is not None:
+        return refusal
+    problem = _beyond_gyro_and_quadratic(calibration, max_gyro_bias_radps, gyro_scale_band)
+    return None if problem is None else Refusal(Gate.PLAUSIBILITY, problem)
+
+
+def _beyond_gyro_and_quadratic(calibration: Calibration, max_gyro_bias_radps: float,
+                               gyro_scale_band: tuple[float, float]) -> str | None:
     if calibration.gyro_bias_radps is not None:
         worst = float(np.max(np.abs(calibration.gyro_bias_radps)))
         if not worst <= max_gyro_bias_radps:
@@ -162,6 +174,11 @@ def plausibility_problem(calibration: Calibration, *, max_bias_mps2: float = 2.0
     return None
 
 
+def implausible_text(refusal: Refusal) -> str:
+    """A refusal as a file's reader says it after "implausible" or "left out": those words are the
+    plausibility gate, so only the bias and scale gates are named."""
+    return refusal.said(gate_named=refusal.gate is not Gate.PLAUSIBILITY)
+
 
 def gyro_gain_outside(calibration: Calibration, gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
     """The gyro matrix's axis gains outside gyro.scale_min..gyro.scale_max, said; None when within (or none)."""
@@ -178,16 +195,16 @@ def without_gyro(calibration: Calibration) -> Calibration:
     return calibration.replace(gyro_bias_radps=None, gyro_matrix=None, gyro_quality=None)
 
 
-def loadable_part(calibration: Calibration, **bounds: object) -> tuple[Calibration | None, str | None]:
+def loadable_part(calibration: Calibration, **bounds: object) -> tuple[Calibration | None, Refusal | None]:
     """What of `calibration` may be saved so that `apply`, `report` and the node will put it in force:
-    (the calibration, None) when all of it; (the accelerometer part, why the gyro part was left out) when
-    only that; (None, why) when not even that. `bounds` are plausibility_problem's keywords."""
-    problem = plausibility_problem(calibration, **bounds)  # type: ignore[arg-type]
-    if problem is None:
+    (the calibration, None) when all of it; (the accelerometer part, the gyro part's refusal) when only
+    that; (None, the refusal) when not even that. `bounds` are plausibility_refusal's keywords."""
+    refusal = plausibility_refusal(calibration, **bounds)  # type: ignore[arg-type]
+    if refusal is None:
         return calibration, None
     has_gyro = calibration.gyro_bias_radps is not None or calibration.gyro_matrix is not None
     if has_gyro:
         accel_only = without_gyro(calibration)
-        if plausibility_problem(accel_only, **bounds) is None:  # type: ignore[arg-type]
-            return accel_only, f"gyro left out: {problem}"
-    return None, problem
+        if plausibility_refusal(accel_only, **bounds) is None:  # type: ignore[arg-type]
+            return accel_only, refusal
+    return None, refusal

@@ -21,6 +21,7 @@ from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
 from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
+from .plausibility import implausible_text
 from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
@@ -301,9 +302,9 @@ class CalibrationSession:
                     f"noise would then be {math.radians(quietest_gyro) * 1e3:.1f} mrad/s)")
         return f"; {' and '.join(said)}{in_degrees}; to take this sensor as it is: {' '.join(allow)}"
 
-    def use_prior(self, prior: Prior | Calibration | None) -> str | None:
+    def use_prior(self, prior: Prior | Calibration | None) -> Refusal | None:
         """Fit /calibrate's verdicts with this prior (None: without one). Returns why it cannot serve as
-        this session's prior (then none is used), None when it can."""
+        this session's prior (the prior gate; then none is used), None when it can."""
         if prior is None:
             self.prior = None
             return None
@@ -312,7 +313,7 @@ class CalibrationSession:
             prior_terms(given, self.model, self.settings.gravity)
         except CalibrationError as error:
             self.prior = None
-            return str(error)
+            return Refusal(Gate.PRIOR, str(error))
         self.prior = given
         return None
 
@@ -400,11 +401,13 @@ class CalibrationSession:
             f"; gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms"
             if gyro_text is None and gyro is not None else f"; {gyro_text} (the gyro keeps its bias only)")
         # Never hand on what the file's readers would refuse: every writer (node, replay, fleet) saves this.
-        loadable, left_aside = self.gates.loadable(calibration)
+        loadable, refusal = self.gates.loadable(calibration)
         if loadable is None:
-            return Verdict.refused(Refusal(Gate.PLAUSIBILITY, str(left_aside)), left_out, result)
-        if left_aside is not None:
-            said, gyro_text = f"; {left_aside}; the accelerometer calibration is kept", left_aside
+            assert refusal is not None
+            return Verdict.refused(refusal, left_out, result)
+        if refusal is not None:  # the gyro part left out
+            gyro_text = f"gyro left out: {implausible_text(refusal)}"
+            said = f"; {gyro_text}; the accelerometer calibration is kept"
         return Verdict(True, "passed every gate" + left_out + said, replace(result, calibration=loadable),
                        loadable, gyro, gyro_text)
 
@@ -455,7 +458,7 @@ class CalibrationSession:
         except CalibrationError as error:  # the accelerometer's calibration stands whatever the gyro's inputs
             return None, f"gyro: not fitted ({error})"
         refusal = self.settings.gyro_gates.check(result)
-        return result, refusal
+        return result, None if refusal is None else str(refusal)
 
     def _gyro_verdict_of(self, result: FitResult, accel: Calibration) -> tuple[GyroFitResult | None, str | None]:
         """gyro_verdict for the calibration of `result`, taken from the last when nothing it is a function of

@@ -123,6 +123,8 @@ def _parameter_panel(drift: Any, calibration: Calibration) -> None:
 
 def _gyro_row(figure: Any, gyro: GyroFitResult, rows: int) -> None:  # a matplotlib Figure (untyped here)
     """Per motion used: by how much it misses the next pose with the gyro bias alone and with M_g."""
+    from ..core.gyro_fit import refused_text
+
     panel = figure.add_subplot(rows, 1, rows)
     index = np.array(gyro.used) + 1
     panel.bar(index - 0.2, gyro.residuals_before_mrad, width=0.4, label="bias only", color="tab:red")
@@ -130,7 +132,7 @@ def _gyro_row(figure: Any, gyro: GyroFitResult, rows: int) -> None:  # a matplot
     panel.set_yscale("log")
     panel.set_xlabel("motion (pose k to k + 1)")
     panel.set_ylabel("miss of the next pose, mrad")
-    refused = ", ".join(f"{n} {kind}" for kind, n in gyro.refused_counts().items())
+    refused = refused_text(gyro.refused)
     panel.set_title(f"gyro: {gyro.motions_used} motions, residual {gyro.residual_rms_mrad:.2f} mrad rms "
                     f"(bias only {gyro.residual_rms_before_mrad:.1f})" + (f"; not used: {refused}" if refused else ""))
     panel.legend()

@@ -18,7 +18,7 @@ from pathlib import Path
 from ..core.calibration import Calibration
 from ..core.errors import CalibrationError
 from ..core.fit_result import ParameterSource
-from ..core.plausibility import plausibility_problem
+from ..core.plausibility import implausible_text, plausibility_refusal
 from ..core.settings import Settings
 from ..io.calibration_file import MAX_CALIBRATION_BYTES, load_calibration, remove_stale_temp_files, save_calibration
 
@@ -88,12 +88,12 @@ class CalibrationStore:
             return WARN, f"no calibration file at {self.path}: raw acceleration passes through until calibrated"
         try:
             calibration = load_calibration(self.path)
-            implausible = plausibility_problem(calibration, max_bias_mps2=self.settings.max_bias_mps2,
-                                               scale_band=(self.settings.scale_min, self.settings.scale_max),
-                                               gyro_scale_band=(self.settings.gyro_scale_min,
-                                                                self.settings.gyro_scale_max))
-            if implausible is not None:
-                raise CalibrationError(f"{self.path}: implausible for an accelerometer in m/s^2 ({implausible})")
+            refusal = plausibility_refusal(calibration, max_bias_mps2=self.settings.max_bias_mps2,
+                                           scale_band=(self.settings.scale_min, self.settings.scale_max),
+                                           gyro_scale_band=(self.settings.gyro_scale_min, self.settings.gyro_scale_max))
+            if refusal is not None:
+                raise CalibrationError(f"{self.path}: implausible for an accelerometer in m/s^2 "
+                                       f"({implausible_text(refusal)})")
         except CalibrationError as error:
             self.file_unreadable = True
             return ERROR, f"calibration file unusable, left untouched, raw passes through: {error}"

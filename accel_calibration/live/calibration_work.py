@@ -147,7 +147,7 @@ class LiveCalibration:
             self._log.info("use_calibration_in_force_as_prior: no calibration in force; /calibrate fits without one")
         elif refusal is not None:
             self._log.warning(f"use_calibration_in_force_as_prior: the calibration in force cannot serve as the "
-                              f"prior ({refusal}); /calibrate fits without one")
+                              f"prior ({refusal.text}); /calibrate fits without one")
 
     def set_frame_id(self, frame_id: str) -> None:
         self.session.frame_id = frame_id  # a calibration is of the frame the samples were in

@@ -12,7 +12,8 @@ import pytest
 from conftest import shared_path
 
 from accel_calibration.core.calibration import Calibration
-from accel_calibration.core.plausibility import plausibility_problem
+from accel_calibration.core.plausibility import plausibility_refusal
+from accel_calibration.core.refusal import Gate
 from accel_calibration.io.calibration_file import load_calibration
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, rotation_with_up
 
@@ -52,9 +53,10 @@ def test_raising_gyro_scale_max_calibrates_the_xsens_gyro_at_its_nominal_scale(x
 
 def test_a_readers_gyro_gain_limit_is_the_gates_and_named_so():
     calibration = Calibration.identity().replace(gyro_bias_radps=np.zeros(3), gyro_matrix=np.eye(3) * 1.2)
-    problem = plausibility_problem(calibration)
-    assert problem is not None and "gyro.scale_max" in problem and "0.9..1.1" in problem, problem
-    assert plausibility_problem(calibration, gyro_scale_band=(0.9, 1.4)) is None
+    refusal = plausibility_refusal(calibration)
+    assert refusal is not None and refusal.gate is Gate.PLAUSIBILITY, refusal
+    assert "gyro.scale_max" in refusal.text and "0.9..1.1" in refusal.text, refusal
+    assert plausibility_refusal(calibration, gyro_scale_band=(0.9, 1.4)) is None
 
 
 def test_the_distinct_poses_said_are_the_directions_held(tmp_path):

@@ -47,7 +47,7 @@ def test_a_gyro_mapped_wrong_is_named_and_not_fitted(wrong, said):
     poses, motions = recorded_as(wrong, poses, motions)
     result = fit_gyro(poses, motions, accel, gyro_noise_radps=simulated.gyro_noise_radps)
     assert not result.success and result.iterations == 0, result.message
-    assert result.message.startswith(f"gyro: {said} ("), result.message
+    assert result.message.startswith(f"{said} ("), result.message
     assert "\n" not in result.message
 
 

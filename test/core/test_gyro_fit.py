@@ -15,6 +15,7 @@ from accel_calibration import Calibration, CalibrationError, fit
 from accel_calibration.core.gyro_fit import GyroFitOptions, Motion, fit_gyro, motions_between
 from accel_calibration.core.gyro_gates import GyroGates
 from accel_calibration.core.gyro_scoring import motion_residuals_mrad
+from accel_calibration.core.refusal import GyroGate, MotionProblem
 from accel_calibration.core.rotation_integration import IntervalSet, prefix_product, quaternion_exp
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
@@ -174,8 +175,10 @@ def test_turns_about_two_axes_only_ask_for_the_third():
     # z is seen only through the misalignment (raw z reads ~1 % of the turns): its column is loose.
     assert result.scale_sigma_ppm()[2] > 3 * result.scale_sigma_ppm()[:2].max()
     refusal = GyroGates(max_scale_sigma_ppm=200.0).check(result)
-    assert refusal.startswith("gyro: gate sigma: scale z sigma")
-    assert refusal.endswith("motions turned about x and y only; turn about z between poses (not about the vertical)")
+    assert refusal.gate is GyroGate.SIGMA
+    assert str(refusal).startswith("gyro: gate sigma: scale z sigma")
+    assert str(refusal).endswith("motions turned about x and y only; turn about z between poses (not about the "
+                                 "vertical)")
     # Turns about x alone leave y and z undetermined: the fit itself refuses. (The poses lie on one circle,
     # too few for the accelerometer's own fit: its truth stands in.)
     simulated = simulate_session(np.random.default_rng(32), poses=16, turn_axes="x")
@@ -183,8 +186,9 @@ def test_turns_about_two_axes_only_ask_for_the_third():
     accel = Calibration(bias=simulated.accel_bias_mps2, matrix=simulated.accel_matrix)
     result = fit_gyro(poses, motions, accel, gyro_noise_radps=simulated.gyro_noise_radps)
     assert not result.success
-    assert result.message.startswith("gyro: motions turned about x only; turn about y and z between poses")
-    assert GyroGates().check(result).startswith("gyro: gate fit: motions turned about x only")
+    assert result.message.startswith("motions turned about x only; turn about y and z between poses")
+    assert GyroGates().check(result).gate is GyroGate.FIT
+    assert str(GyroGates().check(result)).startswith("gyro: gate fit: motions turned about x only")
 
 
 # ------------------------------------------------------------------ refusals
@@ -203,15 +207,17 @@ def test_motions_that_cannot_be_used_are_counted_with_their_reason():
     motions[5] = Motion(motions[5].stamps_ns[40:], motions[5].gyro_radps[40:])  # starts late
     result = fit_gyro(poses, motions, fit(poses).calibration, gyro_noise_radps=simulated.gyro_noise_radps,
                       options=GyroFitOptions(max_motion_s=30.0))
-    assert result.refused_counts() == {"not recorded": 1, "paused": 1, "gap": 1, "saturated": 1, "span": 1}
+    assert result.refused_counts() == {MotionProblem.NOT_RECORDED: 1, MotionProblem.PAUSED: 1, MotionProblem.GAP: 1,
+                                       MotionProblem.SATURATED: 1, MotionProblem.SPAN: 1}
     assert [r.index for r in result.refused] == [1, 2, 3, 4, 5]
     assert result.motions_used == 8
     assert "gap of" in result.refused[2].reason and "gyro_range_radps" in result.refused[3].reason
     short = fit_gyro(poses, motions, fit(poses).calibration, options=GyroFitOptions(max_motion_s=1.0))
-    assert not short.success and short.refused_counts()["long"] >= 1
+    assert not short.success and short.refused_counts()[MotionProblem.LONG] >= 1
     assert "usable motions, need at least 5" in short.message
     refusal = GyroGates().check(short)
-    assert refusal.startswith("gyro: gate motions:") and "long" in refusal
+    assert refusal.gate is GyroGate.MOTIONS
+    assert str(refusal).startswith("gyro: gate motions:") and "long" in str(refusal)
 
 
 def test_motions_between_cut_a_recording_at_the_poses():
@@ -301,7 +307,7 @@ def test_xsens_recording(shared):
     assert result.residual_rms_mrad < 7.0 and result.residual_rms_before_mrad > 500
     # The nominal 6258 counts per rad/s is ~31 % off: the scale gate says so; the others pass.
     assert_allclose(np.diag(result.matrix), 1.31, atol=0.01)
-    assert "gate scale" in GyroGates().check(result)
+    assert GyroGates().check(result).gate is GyroGate.SCALE
     assert GyroGates(scale_band=(0.5, 2.0)).check(result) is None
     assert np.abs(result.matrix[OFF_DIAGONAL]).max() < 0.05  # tens of mrad, as imu_tk finds
     # Our integration against imu_tk's RK4 at our M_g, on three motions.
@@ -359,14 +365,15 @@ def test_gates_name_themselves_and_what_to_do():
     gates = GyroGates()
     assert gates.check(good) is None
     noisy = replace(good, residuals_mrad=good.residuals_mrad * 0 + 12.0)
-    assert gates.check(noisy).startswith("gyro: gate residual: motions miss the next pose by 12.0 mrad rms, above 10")
+    assert str(gates.check(noisy)).startswith("gyro: gate residual: motions miss the next pose by 12.0 mrad rms, "
+                                              "above 10")
     wrong_units = replace(good, matrix=good.matrix * 57.3)
-    assert gates.check(wrong_units).startswith("gyro: gate scale: correction gain x 58.0")
-    assert "rad/s" in gates.check(wrong_units)
+    assert str(gates.check(wrong_units)).startswith("gyro: gate scale: correction gain x 58.0")
+    assert "rad/s" in str(gates.check(wrong_units))
     loose = replace(good, matrix_sigma=good.matrix_sigma * np.array([[1, 1, 100], [1, 1, 100], [1, 1, 100]]))
-    assert gates.check(loose).endswith("motions turned about x and y only; turn about z between poses (not about "
+    assert str(gates.check(loose)).endswith("motions turned about x and y only; turn about z between poses (not about "
                                        "the vertical)")
-    assert GyroGates(min_motions=20).check(good).startswith("gyro: gate motions: 17 usable motions between poses, "
+    assert str(GyroGates(min_motions=20).check(good)).startswith("gyro: gate motions: 17 usable motions between poses, "
                                                             "need 20")
     for bad in (dict(min_motions=2), dict(max_residual_rms_mrad=0), dict(scale_band=(1.0, 1.1))):
         with pytest.raises(CalibrationError):

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from accel_calibration.core.refusal import MotionProblem
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.stream.motion_recorder import MotionRecorder
@@ -99,7 +100,7 @@ def test_a_paused_motion_is_not_used_and_counted():
     assert verdict.gyro is not None
     counts = verdict.gyro.refused_counts()
     # The pause dropped the pose after it only if it was then open: either way the motion is not used.
-    assert counts.get("paused", 0) + counts.get("not recorded", 0) >= 1
+    assert counts.get(MotionProblem.PAUSED, 0) + counts.get(MotionProblem.NOT_RECORDED, 0) >= 1
     assert verdict.gyro.motions_used <= 14
 
 
@@ -107,7 +108,7 @@ def test_a_motion_longer_than_max_motion_s_is_refused_as_long():
     _, sim = simulated(5, poses=14, rate_hz=200.0, move_s=(1.5, 3.5))
     _, verdict = calibrated(sim, Settings(gyro_max_motion_s=2.5))
     counts = verdict.gyro.refused_counts()
-    assert counts.get("long", 0) >= 1 and set(counts) <= {"long", "not recorded"}
+    assert counts.get(MotionProblem.LONG, 0) >= 1 and set(counts) <= {MotionProblem.LONG, MotionProblem.NOT_RECORDED}
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -97,14 +97,14 @@ def test_the_gates_and_the_file_check_judge_bias_and_scale_by_one_rule(bias):
     (only arrays, not a Calibration, can hold one) is refused by both."""
     from types import SimpleNamespace
 
-    from accel_calibration.core.plausibility import plausibility_problem
+    from accel_calibration.core.plausibility import plausibility_refusal
 
     gates = QualityGates(max_bias_mps2=0.5)
     terms = SimpleNamespace(bias=np.array(bias), matrix=np.eye(3), model="sphere9", quadratic=None,
                             temperature=None, gyro_bias_radps=None, gyro_matrix=None)
     from_gate = gates.plausibility(terms)
     assert from_gate is not None
-    assert str(from_gate) == plausibility_problem(terms, max_bias_mps2=0.5)
+    assert from_gate == plausibility_refusal(terms, max_bias_mps2=0.5)
     assert str(from_gate).startswith("gate bias: |b| ")
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accel_calibration.core.plausibility import plausibility_problem
+from accel_calibration.core.plausibility import plausibility_refusal
 from accel_calibration.core.session import CalibrationSession
 from accel_calibration.core.settings import Settings
 
@@ -29,7 +29,7 @@ def test_an_implausible_gyro_bias_is_left_out_and_the_accelerometer_kept(offset)
     assert verdict.success, verdict.message
     calibration = verdict.calibration
     assert calibration is not None
-    assert plausibility_problem(calibration) is None
+    assert plausibility_refusal(calibration) is None
     assert calibration.gyro_bias_radps is None and calibration.gyro_matrix is None
     np.testing.assert_array_equal(calibration.bias, clean.calibration.bias)
     np.testing.assert_array_equal(calibration.matrix, clean.calibration.matrix)

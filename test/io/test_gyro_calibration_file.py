@@ -7,7 +7,7 @@ import yaml
 from accel_calibration import Calibration, CalibrationError, fit, load_calibration, save_calibration
 from accel_calibration.core.calibration import GyroQuality
 from accel_calibration.core.gyro_fit import fit_gyro
-from accel_calibration.core.plausibility import plausibility_problem
+from accel_calibration.core.plausibility import plausibility_refusal
 from msg_tools.synthetic_motion import simulate_session
 
 from helpers.gyro_sessions import poses_and_motions
@@ -33,7 +33,7 @@ def test_round_trip_with_the_gyro_is_exact(tmp_path, calibrated):
     body = yaml.safe_load((tmp_path / "cal.yaml").read_text())["accel_calibration"]
     assert list(body).index("gyro_matrix") == list(body).index("gyro_bias_radps") + 1
     assert set(body["gyro_quality"]) == {"matrix_sigma", "residual_rms_mrad", "residual_max_mrad", "motions"}
-    assert plausibility_problem(again) is None
+    assert plausibility_refusal(again) is None
 
 
 def test_files_without_the_gyro_load_as_before(tmp_path, calibrated):
@@ -94,8 +94,8 @@ def test_a_quality_without_a_matrix_is_refused(calibrated):
 ])
 def test_implausible_gyro_matrices_are_not_put_in_force(calibrated, matrix, match):
     calibration, _ = calibrated
-    problem = plausibility_problem(calibration.replace(gyro_matrix=matrix))
-    assert problem is not None and __import__("re").search(match, problem), problem
+    refusal = plausibility_refusal(calibration.replace(gyro_matrix=matrix))
+    assert refusal is not None and __import__("re").search(match, refusal.text), refusal
 
 
 def test_gyro_quality_is_a_value():

@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 
 from accel_calibration import Calibration, CalibrationError, fit, load_calibration
 from accel_calibration.cli.main import main
-from accel_calibration.core.plausibility import plausibility_problem
+from accel_calibration.core.plausibility import plausibility_refusal
+from accel_calibration.core.refusal import Gate
 from accel_calibration.core.temperature_models import TemperatureModel
 from accel_calibration.io.calibration_file import calibration_from_yaml, calibration_to_dict, save_calibration
 
@@ -83,15 +84,16 @@ def test_the_temperature_gates_hold_over_the_whole_range_not_only_at_the_referen
     """The old check looked at b and M alone (T_ref): a drift of 50 mg/degC passed it."""
     body = good_body()
     base = calibration_from_yaml(yaml.safe_dump({"accel_calibration": body}))
-    assert plausibility_problem(base) is None
+    assert plausibility_refusal(base) is None
     body["temperature"] = polynomial_block(bias_c1=(0.05, 0, 0))
     drifting = calibration_from_yaml(yaml.safe_dump({"accel_calibration": body}))
-    problem = plausibility_problem(drifting)
-    assert problem is not None and "|b| 2.05 m/s^2 at -20.0 degC" in problem  # 0.2 - 0.05 x 45
+    refusal = plausibility_refusal(drifting)
+    assert refusal is not None and refusal.gate is Gate.BIAS, refusal
+    assert "|b| 2.05 m/s^2 at -20.0 degC" in refusal.text  # 0.2 - 0.05 x 45
     np.testing.assert_allclose(drifting.apply([0.2, -0.3, 9.9], 25.0), base.apply([0.2, -0.3, 9.9]), atol=1e-12)
     # The same drift over a narrow range stays within the gate: it is the range that makes it implausible.
     body["temperature"] = polynomial_block(bias_c1=(0.05, 0, 0), range_degc=(20.0, 30.0))
-    assert plausibility_problem(calibration_from_yaml(yaml.safe_dump({"accel_calibration": body}))) is None
+    assert plausibility_refusal(calibration_from_yaml(yaml.safe_dump({"accel_calibration": body}))) is None
 
 
 gains = st.floats(min_value=0.92, max_value=1.08)
@@ -110,12 +112,12 @@ def test_plausible_calibrations_pass_and_their_mirror_images_never_do(diagonal, 
     temperature = TemperatureModel("polynomial", 25.0, (20.0, 30.0), bias_coefficients=[list(drift)])
     for model in (None, temperature):
         cal = Calibration(bias=bias, matrix=matrix, temperature=model)
-        assert plausibility_problem(cal) is None
+        assert plausibility_refusal(cal) is None
         mirrored = matrix.copy()
         mirrored[row] *= -1
-        problem = plausibility_problem(Calibration(bias=bias, matrix=mirrored, model="reference12",
-                                                   temperature=model))
-        assert problem is not None and "mirrored" in problem
+        refusal = plausibility_refusal(Calibration(bias=bias, matrix=mirrored, model="reference12",
+                                                    temperature=model))
+        assert refusal is not None and "mirrored" in refusal.text
 
 
 def test_a_fitted_calibration_with_a_temperature_model_is_plausible(tmp_path):
@@ -128,7 +130,7 @@ def test_a_fitted_calibration_with_a_temperature_model_is_plausible(tmp_path):
     result = fit(raw, temperature_degc=temperatures, temperature_model="polynomial")
     assert result.success, result.message
     save_calibration(result.calibration, tmp_path / "cal.yaml")
-    assert plausibility_problem(load_calibration(tmp_path / "cal.yaml")) is None
+    assert plausibility_refusal(load_calibration(tmp_path / "cal.yaml")) is None
 
 
 # ------------------------------------------------------------------------------------------------ safe loading
