@@ -30,9 +30,8 @@ from .settings import BY_NAME, DYNAMIC, Settings, changed
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
-from .stream.screening import Counters, SampleScreen
+from .stream.screening import Counters
 from .stream.stream_side import StreamSide
-from .stream.temperature_filter import TemperatureFilter
 from .temperature_models import segment_status, temperature_span_problem
 from .units import MG, units_text
 from .watch import CalibrationWatch
@@ -115,19 +114,11 @@ class CalibrationSession:
         """The stream side: samples in parts -> poses and motions (core/stream/), the feeds' one target."""
         return self._stream
 
-    # The stream side's parts, read by the pose side and the node (its counters, the detector's floors,
-    # the motions between poses, the screen's clock).
+    # The stream side's parts the pose side and the node read: its counters, the detector's floors, the
+    # motions between poses (anything else through `stream`).
     @property
     def counters(self) -> Counters:
         return self._stream.counters
-
-    @property
-    def screen(self) -> SampleScreen:
-        return self._stream.screen
-
-    @property
-    def temperature(self) -> TemperatureFilter:
-        return self._stream.temperature
 
     @property
     def detector(self) -> StaticDetector:
@@ -136,11 +127,6 @@ class CalibrationSession:
     @property
     def motions(self) -> MotionRecorder:
         return self._stream.motions
-
-    @property
-    def implausible_means(self) -> tuple[np.ndarray, ...]:
-        """Means of the latest still intervals dropped as implausible for gravity."""
-        return self._stream.implausible_means
 
     def add_recording(self, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray,
                       temperature_stamps_ns: np.ndarray | None = None,
@@ -335,7 +321,7 @@ class CalibrationSession:
         need = self.poses_needed()
         if len(poses) < need:
             # Still intervals that were no gravity: a stream in g or in counts says so, not "0 poses".
-            dropped = self.implausible_means
+            dropped = self._stream.implausible_means
             problem = units_text(dropped, self.settings.gravity) if len(dropped) > len(poses) else None
             if problem is not None:
                 return Verdict.refused(Refusal(Gate.UNITS, problem))

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..pose import Pose
-from .detector import DISCARD, RESTART
-from .stream_side import StreamSide
+from .stream_side import StreamPart, StreamSide
 
 
 class RecordingFeed:
@@ -16,9 +15,9 @@ class RecordingFeed:
     than a part is one detector call). A part is processed once the temperature readings of its time have
     come (readings after its last stamp), or when the temperature stream lags by MAX_LAG_PARTS parts.
 
-    Carried between parts: the screen's, temperature filter's and detector's own state, and whether a
-    pause or a clock re-synchronisation came after the last sample the detector saw. Poses are checked
-    against frozen runs at the end, when every run is known (a run found later may overlap a pose)."""
+    Each part goes to the stream side whole (`StreamSide.take`), with the temperature readings of its time;
+    what is carried between parts is the stream side's. Poses are checked against frozen runs at the end,
+    when every run is known (a run found later may overlap a pose)."""
 
     PART_ROWS = 1 << 14  # ~16 s at 1 kHz: a part and its temporaries stay in cache (2 workers then scale)
     MAX_LAG_PARTS = 8
@@ -36,9 +35,6 @@ class RecordingFeed:
         self._readings: list[tuple[np.ndarray, np.ndarray]] = []  # as they came
         self._sorted: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros(0))  # not yet taken
         self._latest_reading: int | None = None
-        self._paused_since = False  # a paused sample since the detector's last one
-        self._restart_since = False  # a clock re-synchronisation since the detector's last one
-        self._segment_base = stream.screen.time_base  # the clock of the detector's current segment
         self._found: list[tuple[Pose, int]] = []  # poses with the clock they were measured on
         self.samples = 0
 
@@ -91,12 +87,7 @@ class RecordingFeed:
     def holding(self) -> Pose | None:
         """Live: the still interval in progress as the pose it would end as now (what a person holding a
         pose expects /calibrate to count), None when there is none or it is no pose."""
-        if self._paused_since:
-            return None
-        pose = self.stream.detector.peek_open()
-        if pose is None:
-            return None
-        return self.stream.usable_pose(pose, self._segment_base)
+        return self.stream.holding()
 
     def _run(self, final: bool) -> None:
         if self.live and not final:
@@ -171,55 +162,8 @@ class RecordingFeed:
 
     def _part(self, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray, collecting: np.ndarray | None,
               final: bool) -> None:
-        stream = self.stream
-        detector = stream.detector
-        fresh = not detector.continuing
-        time_base = stream.screen.time_base
-        keep, restart = stream.screen.screen_arrays(t, accel, gyro)
-        paused = np.zeros(len(t), dtype=bool) if collecting is None else ~collecting
-        stream.counters.samples_paused += int(np.count_nonzero(keep & paused))
-        stream.motions.add(t, gyro, keep, paused, restart)
-        rows = np.flatnonzero(keep & ~paused)  # what the detector sees
-        # Before each detector row: a pause since the previous one drops the interval (DISCARD), else a
-        # clock jump ends it (RESTART); a pause in force at the start changes nothing (nothing is open).
-        breaks = np.zeros(len(rows), dtype=np.int64)
-        if len(rows):
-            previous = np.concatenate([[-1], rows[:-1]])
-            paused_before = np.concatenate([[0], np.cumsum(paused)])
-            jumps_before = np.concatenate([[0], np.cumsum(restart)])
-            breaks[jumps_before[rows + 1] > jumps_before[previous + 1]] = RESTART
-            breaks[paused_before[rows] > paused_before[previous + 1]] = DISCARD
-            if self._restart_since and not breaks[0]:
-                breaks[0] = RESTART
-            if self._paused_since:
-                breaks[0] = DISCARD
-            self._paused_since = bool(np.any(paused[rows[-1] + 1:]))
-            self._restart_since = bool(np.any(restart[rows[-1] + 1:]))
-        else:
-            self._paused_since = self._paused_since or bool(np.any(paused))
-            self._restart_since = self._restart_since or bool(np.any(restart))
-        temps = None
-        if self.has_temperature:
-            # Always an array (NaN: no temperature yet): the detector's parts keep one presence.
-            readings = self._readings_upto(None if final or not len(t) else int(t.max()))
-            stamps, values = readings if readings is not None else (np.zeros(0, np.int64), np.zeros(0))
-            rejected = stream.temperature.rejected
-            temps, stale = stream.temperature.series(stamps, values, t[rows])
-            stream.counters.temperature_stale += stale
-            stream.counters.temperature_bad += stream.temperature.rejected - rejected
-        # Paused at the end: the interval then open was dropped when the pause began.
-        found = detector.find(t[rows], accel[rows], gyro[rows], temps, breaks, flush=not self._paused_since,
-                              final=final)
-        # Each pose on the clock it was measured on (frozen runs of other clocks do not overlap it): the
-        # segment in force when the part began, then one per break (the first part: from its first row).
-        bases = time_base + np.concatenate([[0], np.cumsum(restart)])[rows + 1]
-        if fresh:
-            firsts = np.concatenate([[0], np.flatnonzero(breaks[1:]) + 1]) if len(rows) else np.zeros(0, int)
-            segment_bases = bases[firsts]
-        else:
-            segment_bases = np.concatenate([[self._segment_base], bases[np.flatnonzero(breaks)]])
-        if len(rows):
-            self._segment_base = int(bases[-1])
-        for each in found:
-            stream.motions.pose_found(each.pose)
-        self._found += [(each.pose, int(segment_bases[each.segment])) for each in found]
+        readings = None
+        if self.has_temperature:  # the readings of the part's time; all that are left with the last part
+            readings = self._readings_upto(None if final or not len(t) else int(t.max())) \
+                or (np.zeros(0, np.int64), np.zeros(0))
+        self._found += self.stream.take(StreamPart(t, accel, gyro, collecting, readings, final))
