@@ -19,7 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..core.answers import calibrate_answer
+from ..core.answers import calibrate_answer, yaml_quoted
 from ..core.calibration import Calibration, MeasuredNoise
 from ..core.fit import FitResult
 from ..core.fit_outliers import nearest_face
@@ -31,6 +31,7 @@ from ..core.watch import CalibrationWatch
 from .calibration_store import ERROR, OK, WARN, CalibrationStore, Level
 from .per_message import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
+from .warmup_watch import WarmupWatch
 
 __all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "diagnostic_values",
            "file_status", "open_calibration_file", "starting_snapshot"]
@@ -117,6 +118,7 @@ class LiveCalibration:
         self.progress = self.session.progress(None, calibrate_service)
         self.pose_map = pose_map(self.session, None, self.progress)  # the latest, replaced whole
         self.watch: CalibrationWatch = self.session.watch  # the calibration in force against the poses found since
+        self.warmup = WarmupWatch(settings.temperature_timeout_s)  # a still warm-up's bias curves
 
     def start(self, open_file: bool = True) -> None:
         """Put the file's calibration in force. `open_file`: first clear what an interrupted save left and
@@ -182,6 +184,7 @@ class LiveCalibration:
                 f"counted: {nearest_face(self._held.accel_mps2)}, {self._held.duration_s:.1f} s still (/calibrate fits "
                 "it; a pose of its own once the sensor moves)"),
             **self._noise_values(),
+            **self.warmup.values(self.still),
         }
 
     def diagnostic_values(self) -> dict[str, str]:
@@ -245,12 +248,15 @@ class LiveCalibration:
                 self.set_aside[name] += lost
         if len(readings.stamps_ns):
             self._feed.add_temperatures(readings.stamps_ns, readings.values[:, 0])
+            self.warmup.add_readings(readings.stamps_ns, readings.values[:, 0])
         if len(samples.stamps_ns):
             self._feed.add_samples(samples.stamps_ns, samples.values[:, :3], samples.values[:, 3:], samples.flags)
+            self.warmup.add_samples(samples.stamps_ns, samples.values[:, :3], samples.values[:, 3:])
         else:  # the stream is idle: no later reading will come for what waits on one
             self._feed.drain()
         self.still = self.session.detector.holding_still
         poses = [pose for pose in self._feed.take_poses() if pose.start_ns != self._dropped_hold_ns]
+        self.warmup.add_still(poses)
         if poses:
             self._absorb(poses)
         # A stream that stops during a hold leaves it open (only later samples could end it): it is shown
@@ -340,12 +346,25 @@ class LiveCalibration:
         elif not self.store.file_unreadable:
             self.status = (ERROR, f"save failed: {message}")
 
+    def _warmup_alone(self, not_calibrated: str) -> tuple[bool, str]:
+        """/calibrate when the poses give no calibration: a warm-up's curves alone, on top of the calibration
+        in force (or the raw output); else the refusal as before, and why no temperature model was added."""
+        added, line = self.warmup.added(self.store.calibration, self.session.gates)
+        applied, saved = (False, "") if added is None else self._apply(added)
+        if not applied:
+            message = f"{not_calibrated}; {line}" if added is None else saved
+            self._log.warning(f"{self._calibrate_service}: {message}")
+            return False, message
+        self._log.info(f"{self._calibrate_service}: the warm-up's temperature curves applied, {saved}")
+        return True, f"poses: {yaml_quoted(not_calibrated)}\n{line}\nsaved: {saved}"
+
     def calibrate(self) -> tuple[bool, str]:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
         self.feed()
         self._feed.drain()
         last = [pose for pose in self._feed.take_poses() if pose.start_ns != self._dropped_hold_ns]
         self._held = self._holding()
+        self.warmup.add_still([*last, *([] if self._held is None else [self._held])])
         _, verdict = self.session.verdict_for(last, self._held)
         self._poses_taken += len(last)
         self.watch.add(last)
@@ -353,9 +372,13 @@ class LiveCalibration:
         self._say_moved()
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.store.kept()}"
+            if self.warmup.collected():
+                return self._warmup_alone(message)
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
         calibration, gyro_kept = self._keeping_gyro(verdict)
+        warmed, warmup_line = self.warmup.added(calibration, self.session.gates)
+        calibration = warmed or calibration
         applied, saved = self._apply(calibration, verdict.result)
         if not applied:
             self._log.warning(f"{self._calibrate_service}: {saved}")
@@ -365,7 +388,8 @@ class LiveCalibration:
         self._log.info(f"{self._calibrate_service}: calibrated, {saved}")
         if verdict.result.unchecked_line():  # with a prior: what the poses could not check, said
             self._log.warning(f"{self._calibrate_service}: {verdict.result.unchecked_line()}")
-        return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal, gyro_kept)
+        return True, calibrate_answer(verdict.result, saved, verdict.gyro_refusal, gyro_kept) + (
+            f"\n{warmup_line}" if warmup_line else "")
 
     def reset(self) -> tuple[bool, str]:
         self.feed()
@@ -374,6 +398,7 @@ class LiveCalibration:
         # The hold in progress goes too: held before the reset, it is never counted after it.
         self._dropped_hold_ns = None if held is None else held.start_ns
         self._applied_at, self._held = None, None
+        self.warmup.reset()
         self._take_prior()
         self.refresh_progress()
         message = f"dropped {dropped} poses; the calibration in force is unchanged"

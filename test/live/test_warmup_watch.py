@@ -1,0 +1,215 @@
+"""The node learns a warm-up (live/warmup_watch.py through LiveCalibration, the node's work without ROS):
+a sensor still and level while it warms gives its biases' temperature curves, accelerometer and gyro;
+/diagnostics says the span and what is missing; /calibrate applies the curves on top of the calibration in
+force. Input a user will hand it (a frozen or absent register, NaN readings, motion, a jump in the
+reading, too little span) is said, never a wrong model applied."""
+from __future__ import annotations
+
+import numpy as np
+import yaml
+
+from accel_calibration.core.settings import Settings
+from accel_calibration.core.warmup import WarmupRecording
+from accel_calibration.io.calibration_file import load_calibration, save_calibration
+from accel_calibration.live.calibration_work import LiveCalibration
+
+from helpers.session_doors import LogLines
+from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_recording
+
+RATE_HZ = 100.0
+READING_EVERY = 10  # a temperature message per 10 samples (10 Hz)
+FEED_EVERY = 200  # the worker's feed every 2 s of samples
+
+
+def started(tmp_path, truth=None) -> tuple[LiveCalibration, LogLines]:
+    """A LiveCalibration whose file holds `truth`'s calibration in force (the warm-up goes on top of it)."""
+    path = tmp_path / "cal.yaml"
+    if truth is not None:
+        save_calibration(truth.calibration, path)
+    log = LogLines()
+    live = LiveCalibration(Settings(), path, log)
+    live.start()
+    return live, log
+
+
+def play(live: LiveCalibration, recording: WarmupRecording, readings: np.ndarray | None = None,
+         start: int = 0, stop: int | None = None, temperature: bool = True) -> None:
+    """The recording as the node hands it over: each Imu message, a Temperature message every
+    READING_EVERY samples (`readings`: what the register says, default the recording's), a feed every
+    FEED_EVERY samples."""
+    stream = live.stream
+    assert stream is not None
+    temps = recording.temperature_degc if readings is None else readings
+    accel, gyro = recording.accel_mps2.tolist(), recording.gyro_radps.tolist()
+    stop = len(recording.t_ns) if stop is None else stop
+    for i in range(start, stop):
+        stamp = int(recording.t_ns[i])
+        stream.buffer_imu(stamp, *accel[i], *gyro[i])
+        if i % READING_EVERY == 0 and temperature:
+            stream.take_temperature(stamp, float(temps[i]))
+        if i % FEED_EVERY == FEED_EVERY - 1:
+            live.feed()
+    live.feed()
+
+
+def test_a_still_warm_up_is_learned_and_calibrate_applies_its_curves_within_1_5_mg_and_0_3_mradps(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(1), Heating(minutes=12.0), rate_hz=RATE_HZ)
+    live, _ = started(tmp_path, truth)
+    early = int(20 * RATE_HZ)  # the first still interval is not ended yet
+    play(live, recording, stop=early)
+    assert live.diagnostic_values()["warmup"].startswith("no warm-up yet: still"), live.diagnostic_values()["warmup"]
+    play(live, recording, start=early)
+    values = live.diagnostic_values()
+    low, high = (float(v) for v in values["warmup_span_degc"].split(".."))
+    assert low < 16.0 and high > 43.5, values["warmup_span_degc"]
+    assert values["warmup"].startswith("ready: /calibrate adds the temperature curves over"), values["warmup"]
+    assert "1 run(s)" in values["warmup_bins"]
+    # The detector's poses alone (one orientation) cannot calibrate: the curves go on the calibration in force.
+    success, answer = live.calibrate()
+    assert success, answer
+    said = yaml.safe_load(answer)
+    assert said["warmup"]["added"] is True and said["warmup"]["held_flat_outside"] is True
+    assert said["warmup"]["range_degc"][0] < 16.0 and said["warmup"]["range_degc"][1] > 43.5
+    assert "gate poses" in said["poses"]
+    applied = live.store.calibration
+    assert applied is not None and applied.temperature is not None and applied.temperature.kind == "spline"
+    stored = load_calibration(tmp_path / "cal.yaml")
+    assert "format_version: 2" in (tmp_path / "cal.yaml").read_text()
+    inside = np.linspace(said["warmup"]["range_degc"][0], said["warmup"]["range_degc"][1], 60)
+    for calibration in (applied, stored):
+        accel_mg, gyro_mradps = temperature_errors(calibration, truth, inside)
+        assert accel_mg < 1.5 and gyro_mradps < 0.3, (accel_mg, gyro_mradps)
+    # Uncorrected, the same sensor moves by tens of mg and mrad/s over the range.
+    drift = truth.accel_drift(inside)
+    assert np.ptp(drift, axis=0).max() / 9.80665e-3 > 20.0
+
+
+def test_too_little_span_calibrates_as_before_and_says_why_no_temperature_model(tmp_path):
+    truth = two_imus()[1]
+    recording = warmup_recording(truth, np.random.default_rng(2), Heating(start_degc=20.0, end_degc=23.0,
+                                                                         minutes=4.0), rate_hz=RATE_HZ)
+    live, _ = started(tmp_path, truth)
+    before = (tmp_path / "cal.yaml").read_text()
+    play(live, recording)
+    state = live.diagnostic_values()["warmup"]
+    assert state.startswith("collecting: needs 5 degC of span, has "), state
+    success, message = live.calibrate()
+    assert not success
+    assert message.startswith("not calibrated (gate poses"), message
+    assert "warmup: {added: false, reason: 'warm-up: the still samples span 1." in message
+    assert "a temperature curve needs 5 degC" in message
+    assert (tmp_path / "cal.yaml").read_text() == before and live.store.calibration.temperature is None
+
+
+def test_a_frozen_register_is_a_steady_temperature_and_no_model(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(3), Heating(minutes=3.0), rate_hz=RATE_HZ)
+    live, _ = started(tmp_path, truth)
+    play(live, recording, readings=np.full(len(recording.t_ns), 31.25))  # the die warms, the register does not
+    state = live.diagnostic_values()["warmup"]
+    assert state.startswith("no warm-up: the temperature is steady at 31.2 degC over"), state
+    assert "a frozen register reads so too" in state
+    success, message = live.calibrate()
+    assert not success and "span 0.0 degC" in message, message
+    assert live.store.calibration.temperature is None
+
+
+def test_absent_or_nan_temperature_is_said(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(4), Heating(minutes=1.5), rate_hz=RATE_HZ)
+    nan = np.full(len(recording.t_ns), np.nan)
+    for name, readings, temperature, said in (
+            ("nan", nan, True, "no warm-up: the 900 temperature readings are not numbers (NaN or Inf)"),
+            ("absent", None, False, "no warm-up: no Temperature messages")):
+        (tmp_path / name).mkdir()
+        live, _ = started(tmp_path / name, truth)
+        play(live, recording, readings=readings, temperature=temperature)
+        assert live.diagnostic_values()["warmup"].startswith(said), live.diagnostic_values()["warmup"]
+        success, message = live.calibrate()
+        assert not success and message.startswith("not calibrated (gate poses"), message
+        # With readings that are no numbers the answer says so; with none at all it is today's answer.
+        assert (f"warmup: {{added: false, reason: '{said}" in message) == temperature, message
+        assert live.store.calibration.temperature is None
+
+
+def tumbling(recording: WarmupRecording, inside: np.ndarray) -> WarmupRecording:
+    """The recording with the sensor turning (0.5 rad/s about a tilted axis) where `inside`: the accelerometer
+    sees gravity move, the gyro the turn."""
+    t = recording.t_ns * 1e-9
+    angle = 0.5 * (t - t[inside][0])
+    accel, gyro = recording.accel_mps2.copy(), recording.gyro_radps.copy()
+    g = 9.80665
+    accel[inside] += np.column_stack([g * np.sin(angle[inside]), 0.5 * g * np.sin(2 * angle[inside]),
+                                      g * (np.cos(angle[inside]) - 1.0)])
+    gyro[inside] += np.array([0.1, 0.5, 0.05])
+    return WarmupRecording(recording.t_ns, accel, gyro, recording.temperature_degc)
+
+
+def test_motion_during_the_warm_up_never_enters_the_bins(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(5), Heating(minutes=10.0), rate_hz=RATE_HZ)
+    t_s = recording.t_ns * 1e-9
+    moving = (t_s >= 60.0) & (t_s < 180.0)  # carried around for two minutes of the fast rise
+    live, _ = started(tmp_path, truth)
+    carried = tumbling(recording, moving)
+    starts, middle = int(np.flatnonzero(moving)[0]), int(np.flatnonzero(moving).mean())
+    play(live, carried, stop=starts + int(5 * RATE_HZ))
+    before = live.diagnostic_values()["warmup_span_degc"]
+    play(live, carried, start=starts + int(5 * RATE_HZ), stop=middle)
+    # A minute of motion while the temperature rose 5 degC: the span has not grown.
+    assert live.diagnostic_values()["detector_state"] == "moving"
+    assert live.diagnostic_values()["warmup_span_degc"] == before, before
+    play(live, carried, start=middle)
+    assert live.warmup.still_binned <= np.count_nonzero(~moving)
+    success, answer = live.calibrate()
+    assert success, answer
+    low, high = yaml.safe_load(answer)["warmup"]["range_degc"]
+    accel_mg, gyro_mradps = temperature_errors(live.store.calibration, truth, np.linspace(low, high, 60))
+    assert accel_mg < 1.5 and gyro_mradps < 0.3, (accel_mg, gyro_mradps)
+
+
+def test_a_jump_in_the_temperature_reading_is_left_out_or_a_run_of_its_own(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(6), Heating(minutes=10.0), rate_hz=RATE_HZ)
+    t_s = recording.t_ns * 1e-9
+    # A glitch: one reading of 85 degC in the fast rise. The samples it would label are left out.
+    glitch = recording.temperature_degc.copy()
+    glitch[np.searchsorted(t_s, 100.0) // READING_EVERY * READING_EVERY] = 85.0
+    live, _ = started(tmp_path, truth)
+    play(live, recording, readings=glitch)
+    state = live.diagnostic_values()["warmup"]
+    assert "1 temperature readings off the trend left out" in state, state
+    success, answer = live.calibrate()
+    assert success, answer
+    low, high = yaml.safe_load(answer)["warmup"]["range_degc"]
+    assert high < 46.0
+    accel_mg, gyro_mradps = temperature_errors(live.store.calibration, truth, np.linspace(low, high, 60))
+    assert accel_mg < 1.5 and gyro_mradps < 0.3, (accel_mg, gyro_mradps)
+    # A lasting jump: from 300 s the register reads 20 degC high. Its level is a run of its own whose
+    # temperatures meet no other's: left out, said; the curve is the first run's, over its own range.
+    shifted = recording.temperature_degc + np.where(t_s >= 300.0, 20.0, 0.0)
+    (tmp_path / "jump").mkdir()
+    jumped, _ = started(tmp_path / "jump", truth)
+    play(jumped, recording, readings=shifted)
+    state = jumped.diagnostic_values()["warmup"]
+    assert "temperature reading jumped" in state and "at 300.0 s" in state, state
+    success, answer = jumped.calibrate()
+    assert success, answer
+    warmup = yaml.safe_load(answer)["warmup"]
+    top = float(recording.temperature_degc[np.searchsorted(t_s, 300.0)])
+    assert warmup["range_degc"][1] <= top + 0.1, (warmup["range_degc"], top)
+    assert "overlap none of the others'" in warmup["said"]
+    accel_mg, gyro_mradps = temperature_errors(jumped.store.calibration, truth, np.linspace(*warmup["range_degc"], 60))
+    assert accel_mg < 1.5 and gyro_mradps < 0.3, (accel_mg, gyro_mradps)
+
+
+def test_memory_stays_bounded_over_a_long_warm_up(tmp_path):
+    truth = two_imus()[0]
+    recording = warmup_recording(truth, np.random.default_rng(7), Heating(minutes=8.0), rate_hz=RATE_HZ)
+    live, _ = started(tmp_path, truth)
+    play(live, recording)
+    waiting = sum(len(chunk[0]) for chunk in live.warmup._chunks)
+    assert waiting <= (75.0 + 2.0) * RATE_HZ
+    bins = sum(len(run.bins) for run in live.warmup._runs)
+    assert bins <= 2 * 31 / 0.5 + 2
