@@ -21,6 +21,7 @@ from ..core.gates import QualityGates
 from ..core.pose import Pose
 from ..core.stream.temperature_filter import TemperatureFilter
 from ..core.warmup import (
+    GAP_S,
     ORIENTATION_DEG,
     PASS_RATE,
     BinnedWarmup,
@@ -51,7 +52,7 @@ class _Run:
     """One orientation at one temperature level: its bins' sums about `shift` (numerically safe)."""
 
     epoch: int
-    direction: np.ndarray
+    direction: np.ndarray  # gravity's direction at its latest samples
     shift: np.ndarray  # (6,) the first sample's accel and gyro
     start_ns: int
     end_ns: int
@@ -206,8 +207,14 @@ class WarmupWatch:
         return degc, rate, epoch
 
     def _run_for(self, epoch: int, direction: np.ndarray, first: np.ndarray, start_ns: int) -> _Run | None:
+        """The run these samples belong to: the one they continue (no gap: one still stretch, whatever
+        the drift does to gravity's direction), else one at their orientation and temperature level
+        (core/warmup joins a stretch at one orientation after a motion alike: one turn-on), else a new one."""
         for run in self._runs:
-            if run.epoch == epoch and float(np.dot(run.direction, direction)) > np.cos(np.radians(ORIENTATION_DEG)):
+            continues = start_ns - run.end_ns <= GAP_S * 1e9
+            if run.epoch == epoch and (continues or float(np.dot(run.direction, direction))
+                                       > np.cos(np.radians(ORIENTATION_DEG))):
+                run.direction = direction  # the latest: a bias drifting over a long warm-up turns it slowly
                 return run
         if len(self._runs) >= MAX_RUNS:
             self.runs_not_kept += 1
