@@ -15,7 +15,8 @@ HEAD = b"\xa3\x95"
 FMT_ID = 0x80
 
 _STRUCT = {"Q": "Q", "q": "q", "B": "B", "b": "b", "H": "H", "h": "h", "I": "I", "i": "i", "f": "f", "d": "d",
-           "n": "4s", "N": "16s", "Z": "64s", "M": "b"}
+           "n": "4s", "N": "16s", "Z": "64s", "M": "b",
+           "c": "h", "C": "H", "e": "i", "E": "I"}  # c, C, e, E: 100 x the value as an integer (readers divide)
 
 
 def write_dataflash(path: str | os.PathLike[str], formats: dict[str, tuple[str, str]], records: list[Record]) -> int:

@@ -10,7 +10,17 @@ import numpy as np
 MAGIC = b"ULog\x01\x12\x35"
 _TYPES = {np.dtype("<u8"): "uint64_t", np.dtype("<i8"): "int64_t", np.dtype("<u4"): "uint32_t",
           np.dtype("<i4"): "int32_t", np.dtype("<u2"): "uint16_t", np.dtype("<i2"): "int16_t",
-          np.dtype("u1"): "uint8_t", np.dtype("i1"): "int8_t", np.dtype("<f4"): "float", np.dtype("<f8"): "double"}
+          np.dtype("u1"): "uint8_t", np.dtype("i1"): "int8_t", np.dtype("<f4"): "float", np.dtype("<f8"): "double",
+          np.dtype("?"): "bool"}
+
+
+def _field(kind: np.dtype, name: str) -> str:
+    """A field's ULog declaration: `float x;`, or `float[3] accel_bias;` for a sub-array (pyulog reads it as
+    accel_bias[0], accel_bias[1], accel_bias[2])."""
+    if kind.subdtype is not None:
+        base, shape = kind.subdtype
+        return f"{_TYPES[base.newbyteorder('<')]}[{int(np.prod(shape))}] {name};"
+    return f"{_TYPES[kind.newbyteorder('<')]} {name};"
 
 
 def _record(kind: bytes, body: bytes) -> bytes:
@@ -31,7 +41,7 @@ def write_ulog(path: str | os.PathLike[str], topics: list[tuple[str, int, np.nda
         if name not in formats:
             if array.dtype.names is None:
                 raise ValueError(f"topic {name}: a structured array is needed (timestamp first)")
-            fields = "".join(f"{_TYPES[array.dtype[field].newbyteorder('<')]} {field};" for field in array.dtype.names)
+            fields = "".join(_field(array.dtype[field], field) for field in array.dtype.names)
             formats[name] = fields
             out.append(_record(b"F", f"{name}:{fields}".encode()))
     for key, text in ({"sys_name": "accelcal"} if info is None else info).items():

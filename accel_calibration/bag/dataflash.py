@@ -230,3 +230,31 @@ def correction_on_top_mg(matrix: np.ndarray, bias_mps2: np.ndarray, gravity: flo
     x = gravity * directions
     moved = (x - np.asarray(bias_mps2)) @ np.asarray(matrix).T - x
     return float(np.max(np.linalg.norm(moved, axis=1)) / (gravity / 1000.0))
+
+
+def scan_messages(path: Path, kinds: list[str]) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
+    """Every record of the given types as {field: value} (pymavlink's scaling of its format characters
+    applied), and the log's parameters; one DataflashError line for a log pymavlink cannot read."""
+    from pymavlink import DFReader
+
+    head = read_head(path, lambda stream: stream.read(len(MAGIC)), DataflashError, "a .bin file")
+    if head[:2] != HEAD:
+        raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
+    found: dict[str, list[dict[str, Any]]] = {}
+    try:
+        with captured_output() as chatter:
+            log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+            try:
+                while (message := log.recv_match(type=kinds)) is not None:
+                    found.setdefault(message.get_type(), []).append(message.to_dict())
+                params = {str(k): float(v) for k, v in log.params.items()}
+            finally:
+                log.close()
+    except OSError as error:
+        raise DataflashError(f"{path}: cannot read ({error.strerror or error})") from None
+    except Exception as error:  # noqa: BLE001 - pymavlink raises bare Exception on a bad FMT record
+        raise DataflashError(f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})") from None
+    damage = damage_said(chatter)
+    if damage is not None:
+        raise DataflashError(f"{path}: {damage}")
+    return found, params

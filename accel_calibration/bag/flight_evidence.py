@@ -11,15 +11,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .correction_in_force import calibration_in_force
+from .correction_in_force import ulog_correction as _ulog_correction
+
 if TYPE_CHECKING:
-    from ..core.calibration import Calibration
     from ..core.check import CheckResult
     from ..core.pose import Pose
-    from .logged_correction import LoggedCorrection
     from .replay import ReplayResult
 
 Z_GROUP = "bias z or scale z"  # what level ground sees of the z axis (check's name for it)
@@ -38,6 +39,10 @@ class FlightEvidence:
     changes: tuple[tuple[str, float, float], ...] = ()
     reason: str | None = None
     temperature_degc: float | None = None  # the poses' mean temperature, where the log gives one
+    # In flight (bag/in_flight_evidence.py), as stored: the filter's settled bias (bag/estimator_bias.py) and
+    # the agreement with the IMU's siblings (bag/imu_agreement.py); {"reason": ...} where the log gives none.
+    estimator: dict[str, Any] | None = None
+    agreement: dict[str, Any] | None = None
 
     def change(self, name: str) -> tuple[float, float] | None:
         return next(((value, sigma) for n, value, sigma in self.changes if n == name), None)
@@ -48,34 +53,24 @@ class FlightEvidence:
         return self.change(Z_GROUP) or self.change("bias z")
 
 
-def calibration_in_force(correction: LoggedCorrection) -> Calibration:
-    """The log's offsets and scales as a calibration of the raw sensor (no uncertainty: the log keeps none)."""
-    from ..core.calibration import Calibration
-
-    return Calibration(bias=np.array(correction.axis_wise.offset_mps2, dtype=float),
-                       matrix=np.diag(np.array(correction.axis_wise.scale, dtype=float)), model="six",
-                       sensor_id=correction.names)
-
-
-def _ulog_correction(path: str, device: int | None) -> LoggedCorrection | None:
-    """PX4's CAL_ACCn slot of this device from the parameters the log starts with (a sensor_accel instance is
-    logged raw: the correction is not undone on read, and is looked up here)."""
-    from pyulog import ULog
-
-    from .logged_correction import px4_correction
-
-    log = ULog(path, [])
-    params = {str(k): float(v) for k, v in log.initial_parameters.items()}
-    return px4_correction(params, device, None, path)
-
-
 def _none(device: str, reason: str, in_force: str = "", poses: int = 0) -> FlightEvidence:
     return FlightEvidence(device, poses, in_force, "none", reason=reason)
 
 
 def evidence_of(replay: ReplayResult) -> FlightEvidence:
     """The evidence of one IMU from its replay (bag/replay.replay_bag of a ULog instance or the selected
-    sensor_combined, or a DataFlash IMU instance); never raises for what the log lacks: the reason says it."""
+    sensor_combined, or a DataFlash IMU instance): its still moments on the ground, then what the log says of
+    it in flight; never raises for what the log lacks: the reason says it."""
+    import dataclasses
+
+    from .in_flight_evidence import in_flight_of
+
+    ground = _ground_evidence(replay)
+    estimator, agreement = in_flight_of(replay.source.recording)
+    return dataclasses.replace(ground, estimator=estimator, agreement=agreement)
+
+
+def _ground_evidence(replay: ReplayResult) -> FlightEvidence:
     from ..core.check import check_calibration
     from .recording import LOGS, Recording
 

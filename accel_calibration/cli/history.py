@@ -126,8 +126,10 @@ def history_text(records: list[HistoryRecord], flags: list[DriftFlag]) -> str:
 def evidence_text(series: list[ImuSeries], unread: list[EvidenceRecord]) -> str:
     """Per IMU its flights' evidence judged, one line each, then the flights that gave none and why."""
     lines = ["flight evidence (still on the ground before arming and after landing, against the calibration in "
-             "force; level ground sees the z bias and z scale together):"]
-    lines += ["  " + imu.said() for imu in series]
+             "force; level ground sees the z bias and z scale together; in flight, the filter's bias estimates and "
+             "the IMUs' agreement):"]
+    for imu in series:
+        lines += ["  " + line for line in [imu.said(), *imu.said_in_flight()]]
     without = [row for imu in series for row in imu.flights if row.status != "evidence"] + unread
     if without:
         lines.append(f"  flights without evidence: {len(without)}")
@@ -149,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         return DRIFT_EXIT_CODE if flags else 0
     series = imu_series(evidence, rule)
     print(evidence_text(series, unplaced(evidence)))
-    statuses = {imu.trend.status for imu in series}
+    statuses = {imu.status for imu in series}
     if flags or "moved" in statuses:
         return DRIFT_EXIT_CODE
     return 1 if "cannot tell" in statuses or not series else 0  # no IMU named: nothing to say it holds
@@ -183,7 +185,7 @@ def report_page(args: argparse.Namespace) -> int:
         raise CalibrationError(f"{masked_url(args.history)}: no flight evidence of any IMU (write it with "
                                "'accel-calib fleet' on flight logs)")
     write_bytes_atomically(args.output, fleet_page(series, masked_url(args.history), rule.k_sigma).encode())
-    counts = {status: sum(imu.trend.status == status for imu in series) for status in ("moved", "holds", "cannot tell")}
+    counts = {status: sum(imu.status == status for imu in series) for status in ("moved", "holds", "cannot tell")}
     print(f"fleet page {args.output} ({len(series)} IMUs: {counts['moved']} moved, {counts['holds']} hold, "
           f"{counts['cannot tell']} cannot tell)")
     return 0

@@ -22,6 +22,9 @@ from .units import MG
 
 MIN_FLIGHTS = 10  # fewer flights with evidence: the scatter between flights is not known well enough
 MIN_BEFORE = 5  # flights a change is measured from
+# No healthy MEMS gyro's bias moves this much between flights (its turn-on repeatability is a fraction of it):
+# the gyro's plausibility bound, as the rule's 50 mg is the accelerometer's.
+MAX_GYRO_BIAS_CHANGE_RADPS = float(np.radians(3.0))
 
 
 @dataclass(frozen=True)
@@ -45,9 +48,13 @@ def scatter_between_flights(values: np.ndarray, sigmas: np.ndarray) -> float:
     return float(np.sqrt(max(spread**2 / 2.0 - float(np.median(sigmas**2)), 0.0)))
 
 
-def trend(values: np.ndarray, sigmas: np.ndarray, rule: ChangeRule | None = None) -> Trend:
-    """The series (in flight order, m/s^2 at 1 g, with their 1-sigma) judged: moved, holds or cannot tell."""
+def trend(values: np.ndarray, sigmas: np.ndarray, rule: ChangeRule | None = None, bound: float | None = None
+          ) -> Trend:
+    """The series (in flight order, with their 1-sigma; by default m/s^2 at 1 g) judged: moved, holds or
+    cannot tell. `bound`: the plausibility bound in the values' units (default the rule's bias bound, in m/s^2;
+    a gyro bias series passes its own, in rad/s)."""
     rule = rule or ChangeRule()
+    bound = rule.max_bias_change_mg * MG if bound is None else bound
     z, s = np.asarray(values, dtype=float), np.asarray(sigmas, dtype=float)
     n = len(z)
     if n < MIN_FLIGHTS:
@@ -63,7 +70,7 @@ def trend(values: np.ndarray, sigmas: np.ndarray, rule: ChangeRule | None = None
     step_sigmas = np.sqrt(1.0 / before_w + 1.0 / after_w)
     split = int(splits[int(np.argmax(np.abs(steps) / step_sigmas))])
     change, sigma, strength, scatter = _step_at(z, s, split)
-    judged = rule.judge(change, abs(change) / strength if strength > 0 else np.inf, rule.max_bias_change_mg * MG)
+    judged = rule.judge(change, abs(change) / strength if strength > 0 else np.inf, bound)
     return Trend("moved" if judged.flagged else "holds", n, scatter, change, sigma, judged.sigmas, split)
 
 
@@ -85,9 +92,10 @@ def _step_at(z: np.ndarray, s: np.ndarray, split: int) -> tuple[float, float, fl
     return after - before, sigma, strength, float(np.sqrt(tau2))
 
 
-def first_flagged(values: np.ndarray, sigmas: np.ndarray, rule: ChangeRule | None = None) -> int | None:
+def first_flagged(values: np.ndarray, sigmas: np.ndarray, rule: ChangeRule | None = None, bound: float | None = None
+                  ) -> int | None:
     """The number of flights after which the series is first judged moved (as flights arrive), None: never."""
     for n in range(MIN_FLIGHTS, len(values) + 1):
-        if trend(values[:n], sigmas[:n], rule).status == "moved":
+        if trend(values[:n], sigmas[:n], rule, bound).status == "moved":
             return n
     return None

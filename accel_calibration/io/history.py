@@ -364,6 +364,7 @@ class History:
                 connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _SCHEMA_LOCK})
             for table in (self._info, self._table, self._evidence):
                 connection.execute(CreateTable(table, if_not_exists=True))
+            self._add_missing_columns(connection, self._evidence)
             for columns in (("vehicle", "sensor", "start_ns"),):
                 index = Index("ix_calibrations_" + "_".join(columns), *(self._table.c[c] for c in columns))
                 connection.execute(CreateIndex(index, if_not_exists=True))
@@ -375,6 +376,19 @@ class History:
             elif not stored.isdigit() or int(stored) > SCHEMA_VERSION:
                 raise HistoryError(f"{self.name}: history schema {stored} is newer than this accel_calibration "
                                    f"reads ({SCHEMA_VERSION}); upgrade the package")
+
+    @staticmethod
+    def _add_missing_columns(connection: Any, table: Any) -> None:
+        """Columns a later version added to a table (all nullable): a history written before gains them, its
+        rows reading NULL there. Under the schema lock above on PostgreSQL; SQLite's writers queue."""
+        from sqlalchemy import inspect
+        from sqlalchemy.schema import CreateColumn
+
+        present = {c["name"] for c in inspect(connection).get_columns(table.name)}
+        for column in table.columns:
+            if column.name not in present:
+                definition = CreateColumn(column).compile(dialect=connection.dialect)
+                connection.exec_driver_sql(f"ALTER TABLE {table.name} ADD COLUMN {definition}")
 
     @staticmethod
     def _upsert(connection: Any, table: Any, rows: list[dict[str, Any]], key: str, update: bool = True) -> None:
@@ -485,15 +499,17 @@ class History:
         from .flight_history import evidence_from_row
 
         table = self._evidence
-        query = select(table)
-        if vehicle is not None:
-            query = query.where(table.c.vehicle == vehicle)
-        if sensor is not None:
-            query = query.where(table.c.sensor == sensor)
         try:
             with self.engine.connect() as connection:
                 if not inspect(connection).has_table(table.name):
                     return []
+                # A history written before later columns were added: what it has (read only: nothing added).
+                present = {c["name"] for c in inspect(connection).get_columns(table.name)}
+                query = select(*(c for c in table.columns if c.name in present))
+                if vehicle is not None:
+                    query = query.where(table.c.vehicle == vehicle)
+                if sensor is not None:
+                    query = query.where(table.c.sensor == sensor)
                 rows = connection.execute(query).mappings().all()
         except SQLAlchemyError as error:
             raise HistoryError(f"{self.name}: cannot read the flight evidence ({_one_line(error)})") from None

@@ -69,6 +69,8 @@ def test_fleet_writes_a_row_of_evidence_per_imu_and_flight(tmp_path, capsys):
         assert list(json.loads(row.changes)) == ["bias z or scale z"]  # level ground: nothing of x or y
     assert main(["history", "--history", target]) == 1  # two or three flights an IMU: cannot tell
     out = capsys.readouterr().out
-    assert out.count(": cannot tell: ") == 4
+    assert out.count(": cannot tell: ") == 4 + 4  # each IMU's ground moments and its agreement in flight
+    assert out.count(": agreement with its siblings: cannot tell: ") == 4
+    assert out.count(": the filter's bias: none: ") == 4  # these logs carry no filter's estimates
     assert "vehicle uavA IMU 2 (device 1442060): cannot tell: 3 flights with evidence" in out
     assert np.isfinite([r.z_sigma_mps2 for r in good]).all()

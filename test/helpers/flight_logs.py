@@ -22,6 +22,10 @@ MG = G / 1000.0
 RATE_HZ = 100.0
 START_US = 9_000_000
 DEVICES = (1310988, 1442060)
+ALL_DEVICES = (*DEVICES, 3801122)  # a third IMU where a test needs one (`sensors(seed, 3)`)
+ESTIMATE_HZ = 10.0  # the filter's bias records
+ESTIMATE_NOISE_MPS2 = 0.1 * MG  # its wander about the settled value
+ESTIMATE_NOISE_RADPS = 2e-5
 GROUND_S, FLIGHT_S = 10.0, 20.0  # still on the ground before arming and after disarming; armed in between
 NOISE_MPS2 = 0.004
 
@@ -51,11 +55,81 @@ def true_in_force(truth: SensorErrors) -> InForce:
     return InForce(np.array(truth.bias_mps2, dtype=float), np.diag(truth.matrix).astype(float))
 
 
-def sensors(seed: int) -> list[SensorErrors]:
+def sensors(seed: int, count: int = len(DEVICES)) -> list[SensorErrors]:
     rng = np.random.default_rng(seed)
     return [SensorErrors(bias_mps2=rng.uniform(0.05, 0.3, 3) * rng.choice([-1.0, 1.0], 3),
                          matrix=np.diag(1.0 + rng.uniform(0.005, 0.02, 3) * rng.choice([-1.0, 1.0], 3)))
-            for _ in DEVICES]
+            for _ in range(count)]
+
+
+@dataclass(frozen=True)
+class FilterBias:
+    """What the autopilot's filter settles on in flight for one IMU (accel m/s^2, gyro rad/s)."""
+
+    accel_mps2: np.ndarray
+    gyro_radps: np.ndarray
+
+
+def filter_estimates(flight: FlightLog, bias: FilterBias, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                              np.ndarray, np.ndarray]:
+    """The filter's records at ESTIMATE_HZ over the whole log: (t_us, accel (N, 3), gyro (N, 3), valid,
+    stable). Zero and invalid before arming; from arming it converges to the bias (3 s) with a small
+    wander; stable 5 s after arming."""
+    rng = np.random.default_rng(seed)
+    t_us = np.arange(flight.t_us[0], flight.t_us[-1], int(1e6 / ESTIMATE_HZ), dtype=np.int64)
+    since = np.clip((t_us - flight.arm_us) / 1e6, 0.0, None)[:, None]
+    reached = 1.0 - np.exp(-since / 3.0)
+    accel = bias.accel_mps2 * reached + rng.normal(0.0, ESTIMATE_NOISE_MPS2, (len(t_us), 3)) * (since > 0)
+    gyro = bias.gyro_radps * reached + rng.normal(0.0, ESTIMATE_NOISE_RADPS, (len(t_us), 3)) * (since > 0)
+    return t_us, accel, gyro, t_us >= flight.arm_us, t_us >= flight.arm_us + 5_000_000
+
+
+def estimator_sensor_bias_array(flight: FlightLog, bias: FilterBias, device: int, seed: int) -> np.ndarray:
+    """PX4's estimator_sensor_bias (msg/EstimatorSensorBias.msg) of one filter on one IMU."""
+    t_us, accel, gyro, valid, stable = filter_estimates(flight, bias, seed)
+    kinds = [("timestamp", "<u8"), ("timestamp_sample", "<u8"), ("gyro_device_id", "<u4"), ("gyro_bias", "<f4", 3),
+             ("gyro_bias_limit", "<f4"), ("gyro_bias_variance", "<f4", 3), ("gyro_bias_valid", "?"),
+             ("gyro_bias_stable", "?"), ("accel_device_id", "<u4"), ("accel_bias", "<f4", 3),
+             ("accel_bias_limit", "<f4"), ("accel_bias_variance", "<f4", 3), ("accel_bias_valid", "?"),
+             ("accel_bias_stable", "?")]
+    out = np.zeros(len(t_us), dtype=kinds)
+    out["timestamp"] = out["timestamp_sample"] = t_us
+    out["gyro_device_id"] = out["accel_device_id"] = device
+    out["gyro_bias"], out["accel_bias"] = gyro, accel
+    out["gyro_bias_limit"], out["accel_bias_limit"] = 0.4, 0.4
+    out["gyro_bias_variance"] = ESTIMATE_NOISE_RADPS**2
+    out["accel_bias_variance"] = ESTIMATE_NOISE_MPS2**2
+    out["gyro_bias_valid"] = out["accel_bias_valid"] = valid
+    out["gyro_bias_stable"] = out["accel_bias_stable"] = stable
+    return out
+
+
+# ArduPilot's EKF records (libraries/AP_NavEKF3/LogStructure.h, AP_NavEKF2/LogStructure.h): `c` is an int16 of
+# 100 x the value (XKF2 AX: m/s^2, XKF1 GX: deg/s), NKF2 AZbias an int8 of 100 x m/s^2.
+EKF_FORMATS = {
+    "XKF1": ("QBccCfffffffccce", "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH"),
+    "XKF2": ("QBccccchhhhhhfff", "TimeUS,C,AX,AY,AZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,IDX,IDY,IS"),
+    "NKF1": ("QBccCfffffffccce", "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH"),
+    "NKF2": ("QBbccccchhhhhhB", "TimeUS,C,AZbias,GSX,GSY,GSZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,MI"),
+}
+
+
+def ekf_records(flight: FlightLog, biases: list[FilterBias], seed: int, ekf: int = 3) -> list[tuple[int, tuple]]:
+    """(TimeUS, record) of XKF1/XKF2 (ekf=3) or NKF1/NKF2 (ekf=2) per core, core k on IMU k, as logged."""
+    out = []
+    first, second = ("XKF1", "XKF2") if ekf == 3 else ("NKF1", "NKF2")
+    for core, bias in enumerate(biases):
+        t_us, accel, gyro, _, _ = filter_estimates(flight, bias, seed + core)
+        for t, a, g in zip(t_us, accel, gyro):
+            gx, gy, gz = (int(round(100 * np.degrees(v))) for v in g)
+            out.append((int(t), (first, (int(t), core, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, gx, gy, gz, 0))))
+            if ekf == 3:
+                ax, ay, az = (int(round(100 * v)) for v in a)
+                out.append((int(t), (second, (int(t), core, ax, ay, az, 0, 0, 0, 0, 0, 0, 0, 0, 0.0, 0.0, 0.0))))
+            else:
+                az = int(round(100 * a[2]))
+                out.append((int(t), (second, (int(t), core, az, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))))
+    return out
 
 
 def fly(truths: list[SensorErrors], seed: int, parked: Rotation | None = None) -> FlightLog:
@@ -86,21 +160,22 @@ def _logged(raw: np.ndarray, in_force: InForce) -> np.ndarray:
     return (raw - in_force.offset) * in_force.scale
 
 
-def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce]) -> None:
+def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce], biases: list[FilterBias] | None = None,
+                      seed: int = 0) -> None:
     """sensor_accel per IMU (its own output, as PX4 logs it), sensor_combined (IMU 0 corrected), CAL_ACCn_*,
-    vehicle_status and vehicle_land_detected."""
+    vehicle_status and vehicle_land_detected; with `biases`, estimator_sensor_bias per IMU (one filter each)."""
     params: dict[str, float | int] = {"SENS_BOARD_ROT": 0, "TC_A_ENABLE": 0, "TC_G_ENABLE": 0}
     topics = []
     for k, calibration in enumerate(in_force):
-        params[f"CAL_ACC{k}_ID"] = DEVICES[k]
-        params[f"CAL_GYRO{k}_ID"] = DEVICES[k]
+        params[f"CAL_ACC{k}_ID"] = ALL_DEVICES[k]
+        params[f"CAL_GYRO{k}_ID"] = ALL_DEVICES[k]
         for axis, name in enumerate("XYZ"):
             params[f"CAL_ACC{k}_{name}OFF"] = float(calibration.offset[axis])
             params[f"CAL_ACC{k}_{name}SCALE"] = float(calibration.scale[axis])
-        topics.append(("sensor_accel", k, sensor_triplet_array(flight.t_us, flight.raw[k], DEVICES[k],
+        topics.append(("sensor_accel", k, sensor_triplet_array(flight.t_us, flight.raw[k], ALL_DEVICES[k],
                                                                flight.temperature)))
     for k in range(len(in_force)):
-        topics.append(("sensor_gyro", k, sensor_triplet_array(flight.t_us, flight.gyro, DEVICES[k],
+        topics.append(("sensor_gyro", k, sensor_triplet_array(flight.t_us, flight.gyro, ALL_DEVICES[k],
                                                               flight.temperature)))
     topics.append(("sensor_combined", 0, sensor_combined_array(flight.t_us, _logged(flight.raw[0], in_force[0]),
                                                                flight.gyro)))
@@ -114,16 +189,20 @@ def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce]) -> None:
     land["timestamp"] = stamps
     land["landed"] = ~((stamps >= flight.liftoff_us) & (stamps < flight.touchdown_us))
     topics += [("vehicle_status", 0, status), ("vehicle_land_detected", 0, land)]
+    for k, bias in enumerate(biases or []):
+        topics.append(("estimator_sensor_bias", k, estimator_sensor_bias_array(flight, bias, ALL_DEVICES[k], seed + k)))
     write_ulog(path, topics, parameters=params)
 
 
-def write_dataflash_flight(path, flight: FlightLog, in_force: list[InForce]) -> None:
+def write_dataflash_flight(path, flight: FlightLog, in_force: list[InForce], biases: list[FilterBias] | None = None,
+                           seed: int = 0, ekf: int = 3) -> None:
     """IMU records per instance (corrected by INS_ACCnOFFS/SCAL, as ArduPilot logs them), PARM with the
-    devices' INS_ACCn_ID, ARM and EV records."""
+    devices' INS_ACCn_ID, ARM and EV records; with `biases`, the filter's records (EKF3 XKF1/XKF2, or EKF2
+    NKF1/NKF2), core k on IMU k."""
     params: dict[str, float] = {"AHRS_ORIENTATION": 0.0}
     for k, calibration in enumerate(in_force):
         n = "" if k == 0 else str(k + 1)
-        params[f"INS_ACC{n}_ID"] = params[f"INS_GYR{n}_ID"] = float(DEVICES[k])
+        params[f"INS_ACC{n}_ID"] = params[f"INS_GYR{n}_ID"] = float(ALL_DEVICES[k])
         for axis, name in enumerate("XYZ"):
             params[f"INS_ACC{n}OFFS_{name}"] = float(calibration.offset[axis])
             params[f"INS_ACC{n}SCAL_{name}"] = float(calibration.scale[axis])
@@ -137,5 +216,11 @@ def write_dataflash_flight(path, flight: FlightLog, in_force: list[InForce]) -> 
                              (flight.liftoff_us, "EV", (28,)), (flight.touchdown_us, "EV", (18,)),
                              (flight.disarm_us, "ARM", (0, 0, 0, 0)), (flight.disarm_us, "EV", (11,))):
         records.append((when, (kind, (when, *body))))
+    formats = dict(FORMATS_4X)
+    if biases:
+        params_mask = (1 << len(biases)) - 1
+        records.append((START_US - 1000, ("PARM", (START_US - 1000, f"EK{ekf}_IMU_MASK", float(params_mask)))))
+        records += ekf_records(flight, biases, seed, ekf)
+        formats.update(EKF_FORMATS)
     records.sort(key=lambda r: r[0])
-    write_dataflash(path, FORMATS_4X, [r for _, r in records])
+    write_dataflash(path, formats, [r for _, r in records])

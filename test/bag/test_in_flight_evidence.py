@@ -1,0 +1,109 @@
+"""What a flight log says of each IMU in flight: the autopilot filter's own settled bias (PX4
+estimator_sensor_bias per device, ArduPilot EKF3 XKF2/XKF1 and EKF2 NKF2/NKF1 per core) in SI units, and each
+IMU's agreement with its siblings after the rotation between them. Simulated logs in the real formats with
+known truth; the real logs give each IMU its values or the reason none can be had."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from accel_calibration.bag.flight_evidence import log_evidence
+from accel_calibration.bag.imu_agreement import agreement, flight_means
+from msg_tools.synthetic_imu import SensorErrors
+
+from helpers.flight_logs import (
+    ALL_DEVICES,
+    MG,
+    FilterBias,
+    fly,
+    sensors,
+    true_in_force,
+    write_dataflash_flight,
+    write_ulog_flight,
+)
+
+ACCEL_BIAS_MG = np.array([[1.5, -2.5, 3.5], [-0.7, 0.4, 6.0]])
+GYRO_BIAS_RADPS = np.array([[1e-3, -2e-3, 5e-4], [-4e-4, 3e-4, 2e-3]])
+OFF_MG = 5.0
+
+
+@pytest.fixture(scope="module")
+def flown():
+    truths = sensors(61)
+    biases = [FilterBias(a * MG, g) for a, g in zip(ACCEL_BIAS_MG, GYRO_BIAS_RADPS)]
+    return truths, [true_in_force(t) for t in truths], fly(truths, 62), biases
+
+
+@pytest.mark.parametrize("suffix, write, ekf", [("ulg", write_ulog_flight, None), ("bin", write_dataflash_flight, 3),
+                                                ("bin", write_dataflash_flight, 2)])
+def test_the_filters_settled_bias_is_read_per_imu_in_si_units(flown, tmp_path, suffix, write, ekf):
+    truths, in_force, log, biases = flown
+    path = tmp_path / f"flight.{suffix}"
+    write(path, log, in_force, biases, 7, **({} if ekf is None else {"ekf": ekf}))
+    found = log_evidence(str(path))
+    assert [e.device for e in found] == [str(d) for d in ALL_DEVICES[:2]]
+    resolution_mg = 0.0 if suffix == "ulg" else 1.02  # ArduPilot logs 100 x m/s^2 as an integer
+    for k, evidence in enumerate(found):
+        said = evidence.estimator
+        accel = np.array([np.nan if v is None else v for v in said["accel"]]) / MG
+        if ekf == 2:  # EKF2 learns the z bias alone: x and y are not known, not zero
+            assert np.isnan(accel[:2]).all() and said["source"] == f"ArduPilot EKF2 NKF2/NKF1 core {k}"
+            accel, truth = accel[2:], ACCEL_BIAS_MG[k, 2:]
+        else:
+            truth = ACCEL_BIAS_MG[k]
+        # The settled value: the ground and the filter's first seconds left out (it starts at 0).
+        assert np.all(np.abs(accel - truth) < 0.1 + resolution_mg / 2), (accel, truth)
+        sigma = np.array([v for v in said["accel_sigma"] if v is not None]) / MG
+        assert np.all(sigma < 0.3 + resolution_mg / 2)  # the wander, the resolution where it is coarse
+        gyro = np.array(said["gyro"])
+        assert np.all(np.abs(gyro - GYRO_BIAS_RADPS[k]) < 5e-5 + (np.radians(0.01) if suffix == "bin" else 0.0))
+
+
+def test_an_imu_that_disagrees_is_named_and_its_siblings_agree(tmp_path):
+    truths = sensors(71, 3)
+    in_force = [true_in_force(t) for t in truths]
+    moved = SensorErrors(bias_mps2=truths[1].bias_mps2 + [0.0, 0.0, OFF_MG * MG], matrix=truths[1].matrix)
+    path = tmp_path / "three.ulg"
+    write_ulog_flight(path, fly([truths[0], moved, truths[2]], 72), in_force)
+    found = log_evidence(str(path))
+    by_device = {e.device: e.agreement for e in found}
+    drifted = by_device[str(ALL_DEVICES[1])]
+    # Its z reads 5 mg high through its z gain; the rotation fit cannot take a difference along the force.
+    assert abs(drifted["accel"][2] / MG - OFF_MG * truths[1].matrix[2, 2]) < 0.3
+    assert drifted["siblings"] == 2
+    for device in (ALL_DEVICES[0], ALL_DEVICES[2]):
+        sibling = by_device[str(device)]
+        assert abs(sibling["accel"][2]) / MG < 0.2 and sibling["against"] != f"IMU 2 (device {ALL_DEVICES[1]})"
+
+
+def test_agreement_sees_a_gyro_offset_after_the_rotation_between_imus():
+    rng = np.random.default_rng(5)
+    t_ns = np.arange(60_000) * 2_000_000  # 2 min at 500 Hz, all in flight
+    from scipy.spatial.transform import Rotation
+
+    attitude = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.002, (len(t_ns), 3)), axis=0))
+    force = attitude.inv().apply([0.0, 0.0, 9.80665]) + rng.normal(0, 0.3, (len(t_ns), 3))
+    rate = rng.normal(0, 0.2, (len(t_ns), 3))
+    mounted = Rotation.from_euler("z", 90, degrees=True)  # the second IMU turned a quarter about z
+    flying = np.ones(len(t_ns), dtype=bool)
+    offset = np.array([0.0, 0.0, 0.002])
+    imus = {0: flight_means("IMU 1", t_ns, force, rate, flying),
+            1: flight_means("IMU 2", t_ns, mounted.apply(force), mounted.apply(rate) + offset, flying)}
+    said = agreement(imus)
+    second = said[1]
+    assert not isinstance(second, str) and second.gyro_radps is not None
+    assert np.allclose(second.gyro_radps, offset, atol=3e-4)
+    assert np.allclose(second.accel_mps2, 0.0, atol=0.3 * MG)
+
+
+@pytest.mark.parametrize("relative, reason", [
+    ("real/px4_ulog/sample.ulg", "no flight in the log (the vehicle was never armed or airborne)"),
+    ("real/px4_ulog/sample_logging_tagged_and_default_params.ulg",
+     "no flight in the log (the vehicle was never armed or airborne)"),
+    ("real/ardupilot/test.BIN", "no flight state in the log"),
+])
+def test_every_imu_of_the_real_logs_gets_its_in_flight_evidence_or_the_reason(shared, relative, reason):
+    found = log_evidence(str(shared(relative)))
+    assert found
+    for evidence in found:
+        assert reason in evidence.estimator["reason"] and reason in evidence.agreement["reason"]
