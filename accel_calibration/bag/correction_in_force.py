@@ -28,6 +28,6 @@ def ulog_correction(path: str, device: int | None) -> LoggedCorrection | None:
 
     from .logged_correction import px4_correction
 
-    log = ULog(path, [])
+    log = ULog(path, [], parse_header_only=True)  # the parameters the log starts with are in its definitions
     params = {str(k): float(v) for k, v in log.initial_parameters.items()}
     return px4_correction(params, device, None, path)
