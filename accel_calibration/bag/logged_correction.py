@@ -17,6 +17,7 @@ than composing two calibrations after the fit: the thermal offset varies from po
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -103,16 +104,36 @@ def rotation_of(params: dict[str, float], name: str, what: str) -> np.ndarray:
     return rotation_matrix(int(value))
 
 
-def ardupilot_correction(params: dict[str, float], instance: int, what: str) -> LoggedCorrection | None:
-    """ArduPilot's correction of IMU instance `instance` from its PARM records; None when the log has none."""
-    from ..io.autopilot_params import ParameterFileError, ardupilot_calibration
+def _invalid(what: str, problem: object, firmware: str) -> LoggedCorrectionError:
+    """A logged calibration parameter that is there but invalid: the IMU is refused, not fitted as if the log
+    held no correction (its samples are corrected by it, whatever it is)."""
+    return LoggedCorrectionError(f"{what}: {problem} ({firmware}, so the logged samples were corrected by it): "
+                                 "this IMU is not calibrated from this log; set the parameter right, or calibrate "
+                                 "a raw stream")
 
+
+def ardupilot_correction(params: dict[str, float], instance: int, what: str) -> LoggedCorrection | None:
+    """ArduPilot's correction of IMU instance `instance` from its PARM records; None when the log has none
+    (absent); LoggedCorrectionError naming the parameter when one is there but invalid. ArduPilot applies
+    INS_ACC*OFFS/SCAL as stored (AP_InertialSensor_Backend::_rotate_and_correct_accel; only an all-zero
+    scale, never calibrated, is taken as 1), so an out-of-range value corrected the logged samples."""
+    from ..io.autopilot_params import ParameterFileError, ParametersAbsentError, ardupilot_calibration
+
+    scale_prefix = "INS_ACCSCAL_" if instance == 0 else f"INS_ACC{instance + 1}SCAL_"
+    scales = {axis: params.get(scale_prefix + axis, 1.0) for axis in "XYZ"}
+    zero = [axis for axis, value in scales.items() if value == 0]
+    if zero and len(zero) < 3 and any(f"INS_ACC{'' if instance == 0 else instance + 1}OFFS_{a}" in params
+                                      for a in "XYZ"):
+        name = scale_prefix + zero[0]
+        raise LoggedCorrectionError(f"{what}: {name} = 0: ArduPilot multiplied that axis by 0 before logging it "
+                                    "(it applies the scale as stored), so the log holds none of it to calibrate "
+                                    "from; set the parameter right (calibrate the accelerometer on the vehicle)")
     try:
         axis_wise = ardupilot_calibration(params, instance)
-    except ParameterFileError:
+    except ParametersAbsentError:
         return None
-    if np.any(axis_wise.scale == 0):
-        raise LoggedCorrectionError(f"{what}: a logged accelerometer scale of 0: cannot undo the logged correction")
+    except ParameterFileError as error:
+        raise _invalid(what, error, "ArduPilot applies it as stored") from None
     rotation = rotation_of(params, "AHRS_ORIENTATION", what)
     prefix = "INS_GYROFFS_" if instance == 0 else f"INS_GYR{instance + 1}OFFS_"
     gyro = np.array([params.get(prefix + axis, 0.0) for axis in "XYZ"])
@@ -137,17 +158,18 @@ def px4_correction(params: dict[str, float], accel_device: int | None, gyro_devi
                    what: str) -> LoggedCorrection | None:
     """PX4's correction of the selected accelerometer (by device ID) from the log's parameters; None when
     the log holds no calibration slot for it."""
-    from ..io.autopilot_params import ParameterFileError, px4_calibration
+    from ..io.autopilot_params import ParameterFileError, ParametersAbsentError, px4_calibration
 
     slot = px4_slot(params, "ACC", accel_device)
     if slot is None:
         return None
+    params, ignored = _as_px4_applies(params, slot)
     try:
         axis_wise = px4_calibration(params, slot)
-    except ParameterFileError:  # a slot with an ID and no offsets: nothing known to undo
+    except ParametersAbsentError:  # a slot with an ID and no offsets: nothing known to undo
         return None
-    if np.any(axis_wise.scale == 0):
-        raise LoggedCorrectionError(f"{what}: a logged accelerometer scale of 0: cannot undo the logged correction")
+    except ParameterFileError as error:
+        raise _invalid(what, error, "PX4 applies a positive, finite scale as stored") from None
     # An external sensor carries its own rotation (CAL_ACCn_ROT >= 0); an internal one the board's.
     own = params.get(f"CAL_ACC{slot}_ROT", -1.0)
     rotation_name = f"CAL_ACC{slot}_ROT" if own >= 0 else "SENS_BOARD_ROT"
@@ -159,8 +181,24 @@ def px4_correction(params: dict[str, float], accel_device: int | None, gyro_devi
     thermal = ", TC_A" if axis_wise.has_drift else ""
     gyro_names = f", CAL_GYRO{gyro_slot}_OFF" if gyro is not None else ""
     names = (f"CAL_ACC{slot}_OFF/SCALE{thermal}{gyro_names}, {rotation_name} "
-             f"{int(params.get(rotation_name, 0))}")
+             f"{int(params.get(rotation_name, 0))}{ignored}")
     return LoggedCorrection(names, axis_wise, rotation, gyro)
+
+
+def _as_px4_applies(params: dict[str, float], slot: int) -> tuple[dict[str, float], str]:
+    """The parameters as PX4 put them in force, and what it ignored, said: calibration::Accelerometer's
+    set_scale takes a scale only when all three are positive and finite, set_offset an offset only when all
+    three are finite; else the sensor keeps its start-up value (scale 1, offset 0)."""
+    said = []
+    for kind, default, taken in (("SCALE", 1.0, lambda v: math.isfinite(v) and v > 0),
+                                 ("OFF", 0.0, math.isfinite)):
+        names = [f"CAL_ACC{slot}_{axis}{kind}" for axis in "XYZ"]
+        refused = [name for name in names if name in params and not taken(params[name])]
+        if refused:
+            said.append(f"{refused[0]} = {params[refused[0]]:g} ignored by PX4 (it keeps "
+                        f"{'scale 1' if kind == 'SCALE' else 'offset 0'} on every axis)")
+            params = {**params, **{name: default for name in names}}
+    return params, "".join(f"; {line}" for line in said)
 
 
 def raw_or_said(correction: LoggedCorrection | None, accel: np.ndarray, gyro: np.ndarray | None,

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.errors import CalibrationError
+from ..core.errors import AccelCalibrationError, CalibrationError
 
 if TYPE_CHECKING:
     from ..bag.replay import ReplayResult, ReplaySettings
@@ -78,9 +78,10 @@ def _check_arguments(args: argparse.Namespace) -> str:
     return bag
 
 
-def replay_every_imu(bag: str, settings: ReplaySettings) -> dict[int, ReplayResult]:
-    """Each IMU instance the log holds (whichever numbers they have: a log may lack instance 0); a --prior that
-    names its device is put on that device's instance only (said), and one no IMU of the log is, one line."""
+def replay_every_imu(bag: str, settings: ReplaySettings) -> tuple[dict[int, ReplayResult], dict[int, str]]:
+    """Each IMU instance the log holds (whichever numbers they have: a log may lack instance 0), and why each
+    that could not be read was not (one line each: the others go on); a --prior that names its device is put
+    on that device's instance only (said), and one no IMU of the log is, one line."""
     from ..bag.recording import log_accel_devices
     from ..bag.replay import replay_bag
     from .options import file_accel_device
@@ -93,14 +94,19 @@ def replay_every_imu(bag: str, settings: ReplaySettings) -> dict[int, ReplayResu
         listed = ", ".join(f"{d} (instance {n})" for n, d in named.items())
         raise CalibrationError(f"--prior {settings.prior_path} is the calibration of device {prior}; the IMUs of "
                                f"{bag} are devices {listed}: not this log's")
-    replays = {}
+    replays, unread = {}, {}
     for instance in instances:
         own = dataclasses.replace(settings, instance=instance)
         if prior is not None and named.get(instance, prior) != prior:
             own = dataclasses.replace(own, prior=None, prior_path=None)
             print(f"IMU {instance} (device {named[instance]}): fitted without --prior (it is device {prior}'s)")
-        replays[instance] = replay_bag(bag, own)
-    return replays
+        try:
+            replays[instance] = replay_bag(bag, own)
+        except AccelCalibrationError as error:
+            if len(instances) == 1:
+                raise
+            unread[instance] = str(error)
+    return replays, unread
 
 
 def alignment_lines(replays: dict[int, ReplayResult]) -> list[str]:
@@ -136,10 +142,10 @@ def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
 
     bag = _check_arguments(args)
     check_outputs([("--output", args.output)], [bag, args.params_file], directories=("--output",))
-    replays = replay_every_imu(bag, settings)
+    replays, unread = replay_every_imu(bag, settings)
     directory = Path(args.output)
     texts: dict[Path, str] = {}
-    lines, errors = [], []
+    lines, errors = [], [f"IMU {instance}: {reason}" for instance, reason in sorted(unread.items())]
     for instance, replay in sorted(replays.items()):
         if replay.calibration is None or replay.result is None:
             errors.append(f"{bag}: IMU {instance}: {replay.problem}")

@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Any
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.units import MG
 from .dask_cluster import dask_client, default_workers, run_tasks
+from .fleet_warmups import add_arguments as add_warmup_arguments
+from .fleet_warmups import warmup_requested
 from .options import add_settings_options, replay_settings
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
@@ -382,6 +384,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                              "(named group 'vehicle', else the first group, else the match; default: the "
                              "recording's metadata, else the folder holding it)")
     add_settings_options(parser, detector=False)
+    add_warmup_arguments(parser)  # fleet --warmup -o DIR: cli/fleet_warmups.py
     return parser
 
 
@@ -424,6 +427,10 @@ def run(args: argparse.Namespace) -> int:
     from ..core.text import printable_text
     from ..io.history import open_history, vehicle_from_rule
 
+    if warmup_requested(args):  # the logs' warm-ups pooled per vehicle and IMU, no history rows
+        from .fleet_warmups import run_warmups
+
+        return run_warmups(args)
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
     settings = replay_settings(args)

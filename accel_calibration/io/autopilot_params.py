@@ -51,6 +51,10 @@ class ParameterFileError(CalibrationError):
     """io: an autopilot parameter file that cannot be read, or values the autopilot would not accept."""
 
 
+class ParametersAbsentError(ParameterFileError):
+    """The calibration parameters of an instance are not there at all (not invalid: absent)."""
+
+
 @dataclass(frozen=True)
 class Parameter:
     name: str
@@ -201,7 +205,7 @@ def px4_calibration(values: dict[str, float], instance: int) -> AxisWiseCalibrat
     offset = [values.get(f"{prefix}{a}OFF", 0.0) for a in AXES]
     scale = [values.get(f"{prefix}{a}SCALE", 1.0) for a in AXES]
     if not any(f"{prefix}{a}OFF" in values for a in AXES):
-        raise ParameterFileError(f"no {prefix}XOFF/YOFF/ZOFF parameters: not this instance, or not PX4")
+        raise ParametersAbsentError(f"no {prefix}XOFF/YOFF/ZOFF parameters: not this instance, or not PX4")
     for a, value in zip(AXES, offset):
         _check_float32(f"{prefix}{a}OFF", value)
     for a, value in zip(AXES, scale):
@@ -323,7 +327,7 @@ def ardupilot_calibration(values: dict[str, float], instance: int) -> AxisWiseCa
     _check_instance("ardupilot", instance)
     offset_prefix, scale_prefix, _, _ = _ardupilot_names(instance)
     if not any(offset_prefix + a in values for a in AXES):
-        raise ParameterFileError(f"no {offset_prefix}X/Y/Z parameters: not this instance, or not ArduPilot")
+        raise ParametersAbsentError(f"no {offset_prefix}X/Y/Z parameters: not this instance, or not ArduPilot")
     offset = np.array([values.get(offset_prefix + a, 0.0) for a in AXES])
     scale = np.array([values.get(scale_prefix + a, 1.0) for a in AXES])
     for a, value in zip(AXES, offset):

@@ -92,8 +92,10 @@ def ardupilot_parameters(board: Board, devices: tuple[int, int] | None = None) -
     return params
 
 
-def write_ardupilot_log(path, board: Board, old_style: bool = False, devices: tuple[int, int] | None = None) -> None:
-    records = parameter_records(START_US - 1000, ardupilot_parameters(board, devices))
+def write_ardupilot_log(path, board: Board, old_style: bool = False, devices: tuple[int, int] | None = None,
+                        changed: dict[str, float] | None = None) -> None:
+    """`changed`: parameters logged with other values than the board's (what the autopilot held them at)."""
+    records = parameter_records(START_US - 1000, {**ardupilot_parameters(board, devices), **(changed or {})})
     per_imu = []
     for k, imu in enumerate(board.imus):
         accel, gyro = logged(imu)
@@ -104,10 +106,12 @@ def write_ardupilot_log(path, board: Board, old_style: bool = False, devices: tu
 
 
 def write_px4_log(path, board: Board, instances: tuple[int, int] = (0, 1), accel_devices: tuple[int, int] = DEVICES,
-                  gyro_devices: tuple[int, int] | None = None, gyro_instances: tuple[int, int] | None = None) -> None:
+                  gyro_devices: tuple[int, int] | None = None, gyro_instances: tuple[int, int] | None = None,
+                  changed: dict[str, float] | None = None) -> None:
     """IMU k as sensor_accel instance instances[k] of device accel_devices[k], its gyro as sensor_gyro instance
     gyro_instances[k] (default: the same) of device gyro_devices[k] (default: the accelerometer's, one chip; a
-    BMI088's gyro is a die of its own, with its own ID), CAL_ACCk_ID / CAL_GYROk_ID naming them."""
+    BMI088's gyro is a die of its own, with its own ID), CAL_ACCk_ID / CAL_GYROk_ID naming them; `changed`:
+    parameters logged with other values than those the samples were corrected with."""
     gyro_devices = accel_devices if gyro_devices is None else gyro_devices
     gyro_instances = instances if gyro_instances is None else gyro_instances
     params: dict[str, float | int] = {"SENS_BOARD_ROT": 2, "TC_A_ENABLE": 0, "TC_G_ENABLE": 0}
@@ -128,4 +132,4 @@ def write_px4_log(path, board: Board, instances: tuple[int, int] = (0, 1), accel
     topics.append(("sensor_combined", 0, sensor_combined_array(board.t_us, accel, gyro)))
     topics.append(("sensor_selection", 0, sensor_selection_array(board.t_us[::100], accel_devices[0],
                                                                  gyro_devices[0])))
-    write_ulog(path, topics, parameters=params)
+    write_ulog(path, topics, parameters={**params, **(changed or {})})
