@@ -236,12 +236,17 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
 
     first_row = _with_evidence(_described(replay, identity, vehicle, vehicle_source, where, outcome), replay,
                                _first_instance(replay, settings))
-    other_rows = tuple(
-        _with_evidence(_described(other, {**identity, "recording_id": _imu_identity(identity["recording_id"],
-                                                                                      instance)},
-                                  vehicle, vehicle_source, where, outcome), other, instance)
-        for instance, other in _other_imus(path, settings, replay))
-    return dataclasses.replace(first_row, others=other_rows)
+    other_rows: list[RecordingOutcome] = []
+    for instance, other in _other_imus(path, settings, replay):
+        own = {**identity, "recording_id": _imu_identity(identity["recording_id"], instance)}
+        if isinstance(other, str):  # its replay failed: a row with the reason, never left out unsaid
+            record = HistoryRecord(**own, vehicle=vehicle, vehicle_source=vehicle_source,
+                                   sensor=_imu_name(replay, instance), status="failed", reason=other)
+            other_rows.append(outcome("failed", other, record, _line(record, where.name)))
+        else:
+            other_rows.append(_with_evidence(_described(other, own, vehicle, vehicle_source, where, outcome), other,
+                                             instance))
+    return dataclasses.replace(first_row, others=tuple(other_rows))
 
 
 def _first_instance(replay: ReplayResult, settings: ReplaySettings | None) -> int | None:
@@ -288,9 +293,20 @@ def _imu_identity(recording_id: str, instance: int) -> str:
     return hashlib.blake2b(f"{recording_id}:imu{instance}".encode(), digest_size=32).hexdigest()
 
 
-def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult) -> list[tuple[int, ReplayResult]]:
+def _imu_name(replay: ReplayResult, instance: int) -> str:
+    """A log's IMU that could not be read, named as its stream: DataFlash 'IMU instance N', ULog 'sensor_accel
+    instance N'."""
+    from ..bag.recording import Recording
+
+    recording = replay.source.recording
+    stream = "IMU" if isinstance(recording, Recording) and recording.format == "dataflash" else "sensor_accel"
+    return f"{stream} instance {instance}"
+
+
+def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
+                ) -> list[tuple[int, ReplayResult | str]]:
     """Each further IMU of an autopilot log, replayed alone (ULog sensor_accel N, DataFlash IMU N): those
-    whose device the first replay did not read. A replay that fails is left out (the first row stands)."""
+    whose device the first replay did not read; one whose replay fails, with its reason (a row of its own)."""
     from ..bag.recording import Recording
     from ..bag.replay import ReplaySettings
 
@@ -298,13 +314,14 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
     if not isinstance(recording, Recording) or recording.format not in ("ulog", "dataflash"):
         return []
     s = settings or ReplaySettings()
-    found = []
+    found: list[tuple[int, ReplayResult | str]] = []
     for instance in recording.imu_instances:
         if recording.format == "dataflash" and instance == (s.instance or 0):
             continue  # the first row's IMU
         try:
             other = _replay(path, dataclasses.replace(s, instance=instance))
-        except AccelCalibrationError:
+        except AccelCalibrationError as error:
+            found.append((instance, str(error)))
             continue
         # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
         other_id = other.source.sensor_id
