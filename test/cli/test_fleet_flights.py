@@ -14,6 +14,7 @@ from msg_tools.synthetic_imu import SensorErrors
 from helpers.flight_logs import (
     DEVICES,
     MG,
+    FilterBias,
     fly,
     sensors,
     true_in_force,
@@ -22,6 +23,8 @@ from helpers.flight_logs import (
 )
 
 STEP_MG = 5.0
+FILTER_BIASES = [FilterBias(np.array([2.0, -1.0, 4.0]) * MG, np.array([1e-3, 0.0, -5e-4])),
+                 FilterBias(np.array([-3.0, 1.0, -2.0]) * MG, np.array([0.0, 2e-3, 5e-4]))]
 
 
 def stepped(truth: SensorErrors) -> SensorErrors:
@@ -38,8 +41,8 @@ def write_fleet(root):
     for i in range(3):
         flown = truths if i < 2 else [truths[0], stepped(truths[1])]
         write_ulog_flight(root / "uavA" / f"flight_{i}.ulg", fly(flown, 40 + i), in_force)
-    for i in range(2):
-        write_dataflash_flight(root / "uavB" / f"{i:08d}.bin", fly(truths, 50 + i), in_force)
+    for i in range(2):  # ArduPilot's EKF3 logs its bias estimates
+        write_dataflash_flight(root / "uavB" / f"{i:08d}.bin", fly(truths, 50 + i), in_force, FILTER_BIASES, 60 + i)
     (root / "uavA" / "flight_9.ulg").write_bytes(b"ULog\x01\x12\x35\x01" + b"\0" * 40)
     return truths
 
@@ -69,8 +72,22 @@ def test_fleet_writes_a_row_of_evidence_per_imu_and_flight(tmp_path, capsys):
         assert list(json.loads(row.changes)) == ["bias z or scale z"]  # level ground: nothing of x or y
     assert main(["history", "--history", target]) == 1  # two or three flights an IMU: cannot tell
     out = capsys.readouterr().out
-    assert out.count(": cannot tell: ") == 4 + 4  # each IMU's ground moments and its agreement in flight
+    # Each IMU's ground moments, its agreement in flight and (uavB's DataFlash logs) its filter's bias.
+    assert out.count(": cannot tell: ") == 4 + 4 + 2
     assert out.count(": agreement with its siblings: cannot tell: ") == 4
-    assert out.count(": the filter's bias: none: ") == 4  # these logs carry no filter's estimates
+    assert out.count(": the filter's bias: cannot tell: 2 flights with evidence") == 2
+    assert out.count(": the filter's bias: none: ") == 2  # uavA's ULogs carry no estimator_sensor_bias
+    for row in good:  # in flight, each flight's row: the filter's settled bias (1 cm/s^2 as logged), the agreement
+        estimator, agreement = json.loads(row.estimator), json.loads(row.agreement)
+        if row.path.endswith(".bin"):
+            truth = FILTER_BIASES[row.imu].accel_mps2
+            assert np.all(np.abs(np.array(estimator["accel"]) - truth) < 0.6 * MG), (estimator, truth)
+        else:
+            assert "no estimator_sensor_bias topic" in estimator["reason"]
+        other = DEVICES[1 - row.imu]
+        assert agreement["against"] == f"IMU {2 - row.imu} (device {other})"
+        moved = STEP_MG * truths[1].matrix[2, 2] * (1 if row.imu == 1 else -1)
+        expected = moved if row.path.endswith("flight_2.ulg") else 0.0
+        assert abs(agreement["accel"][2] / MG - expected) < 0.3, (row.path, row.imu, agreement)
     assert "vehicle uavA IMU 2 (device 1442060): cannot tell: 3 flights with evidence" in out
     assert np.isfinite([r.z_sigma_mps2 for r in good]).all()

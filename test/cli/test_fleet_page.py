@@ -78,3 +78,48 @@ def test_a_history_without_flight_evidence_is_one_line(tmp_path, capsys):
     assert err == [f"accel-calib: error: {target}: no flight evidence of any IMU (write it with 'accel-calib fleet' "
                    "on flight logs)"]
     assert not (tmp_path / "fleet.html").exists()
+
+
+def test_the_page_shows_the_in_flight_evidence_in_a_browser(tmp_path, capsys):
+    """Beside the ground's chart, each IMU's filter bias and its agreement with its siblings, charted per
+    flight; the IMU whose filter keeps learning a bias and the one that disagrees are the moved cells."""
+    from accel_calibration.core.units import MG
+
+    from helpers.flight_series import (
+        AGREEMENT_SCATTER_MPS2,
+        AGREEMENT_SIGMA_MPS2,
+        ESTIMATOR_SCATTER_MPS2,
+        ESTIMATOR_SIGMA_MPS2,
+        axis_series,
+        with_in_flight,
+    )
+
+    flights = 20
+    fleet = []
+    for imu in range(3):
+        learning = axis_series(70 + imu, flights, ESTIMATOR_SIGMA_MPS2, ESTIMATOR_SCATTER_MPS2,
+                               change_per_flight=0.5 * MG * (imu == 1), change_from=8)
+        fleet += with_in_flight(rows("uav08", imu, z_series(80 + imu, flights)), estimator=learning,
+                                agreement=axis_series(90 + imu, flights, AGREEMENT_SIGMA_MPS2, AGREEMENT_SCATTER_MPS2),
+                                seed=imu)
+        stepping = axis_series(100 + imu, flights, AGREEMENT_SIGMA_MPS2, AGREEMENT_SCATTER_MPS2,
+                               step=3.0 * MG * (imu == 2), step_at=14)
+        fleet += with_in_flight(rows("uav09", imu, z_series(110 + imu, flights)), agreement=stepping, seed=imu)
+    target = str(tmp_path / "fleet.sqlite")
+    with open_history(target) as history:
+        history.write_evidence(fleet)
+    page = tmp_path / "fleet.html"
+    capsys.readouterr()
+    assert main(["report", "--history", target, "--output", str(page)]) == 0
+    assert "6 IMUs: 2 moved, 4 hold, 0 cannot tell" in capsys.readouterr().out
+    dom = dom_after_scripts(page)
+    # uav08: ground, filter and agreement charts; uav09 logs no filter: ground and agreement.
+    assert 'data-charts="15"' in dom
+    assert dom.count('data-kind="estimator"') == 3 and dom.count('data-kind="agreement"') == 6
+    cells = re.findall(r'<td class="status [^"]+" data-status="([^"]+)" title="vehicle (\S+) IMU (\d)', dom)
+    assert sorted(c for c in cells if c[0] == "moved") == [("moved", "uav08", "2"), ("moved", "uav09", "3")]
+    assert "vehicle uav08 IMU 2 (device 1442060): the filter keeps learning a bias: accel bias z +" in dom
+    assert "vehicle uav09 IMU 3 (device 3801122) disagrees with its siblings: accel z +" in dom
+    assert dom.count('class="flight"') == 15 * flights  # a point per flight on every chart
+    assert dom.count('class="change"') == 2
+    assert dom.count('<td class="estimator">accel ') == 3 * flights  # per flight what the filter said
