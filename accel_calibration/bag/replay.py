@@ -81,8 +81,14 @@ class ReplaySource:
     duration_s: float  # from the earliest to the latest IMU stamp
     start_ns: int | None  # the earliest IMU stamp; None without samples
     frame_id: str
-    sensor_id: str  # as the recording names the sensor (a ULog's device), "" where it does not
+    sensor_id: str  # as the recording names the sensor, for people (a ULog's "px4 device N"), "" where it does not
     recording: Recording | BagStream  # read whole, or streamed
+    accel_device_id: int | None = None  # the accelerometer's device ID, where the log says it (a bag: never)
+
+    def same_device(self, other: ReplaySource) -> bool:
+        """Both read the one accelerometer: their logs say its device ID and it is the same (names are for
+        people: two alike say nothing, two that differ may name one device)."""
+        return self.accel_device_id is not None and self.accel_device_id == other.accel_device_id
 
 
 @dataclass(frozen=True)
@@ -347,7 +353,8 @@ def _verdict(session: CalibrationSession, poses: list[Pose], recording: Recordin
     source = ReplaySource(path=str(recording.path), imu_topic=recording.stream,
                           temperature_topic=recording.temperature_stream, messages=samples, duration_s=duration,
                           start_ns=start_ns, frame_id=session.frame_id, sensor_id=recording.sensor_id,
-                          recording=recording)
+                          recording=recording,
+                          accel_device_id=recording.accel_device_id if isinstance(recording, Recording) else None)
     held = (HeldTemperatures(temperature_readings, s.session.temperature_timeout_s)
             if temperature_readings is not None and len(temperature_readings[0]) else None)
     return ReplayResult(

@@ -20,10 +20,9 @@ LOG_FORMATS = ("ulog", "dataflash")
 SET_FILE_NAME = re.compile(r"imu\d+(_dev\d+)?\.yaml")  # the names file_name gives
 
 
-def file_name(instance: int, sensor_id: str) -> str:
+def file_name(instance: int, device: int | None) -> str:
     """imu<N>_dev<ID>.yaml (imu<N>.yaml where the log names no device)."""
-    device = re.search(r"(\d+)$", sensor_id)
-    return f"imu{instance}" + (f"_dev{device.group(1)}" if device and int(device.group(1)) else "") + ".yaml"
+    return f"imu{instance}" + (f"_dev{device}" if device else "") + ".yaml"
 
 
 def _is_calibration(path: Path) -> bool:
@@ -84,11 +83,10 @@ def replay_every_imu(bag: str, settings: ReplaySettings) -> tuple[dict[int, Repl
     on that device's instance only (said), and one no IMU of the log is, one line."""
     from ..bag.recording import log_accel_devices
     from ..bag.replay import replay_bag
-    from .options import file_accel_device
 
     devices = log_accel_devices(bag, settings.format)
     instances = sorted(devices) or [0]  # none: instance 0's read says what is wrong
-    prior = None if settings.prior is None else file_accel_device(settings.prior.calibration)
+    prior = None if settings.prior is None else settings.prior.calibration.accel_device_id
     named = {n: d for n, d in devices.items() if d is not None}
     if prior is not None and named and prior not in named.values():
         listed = ", ".join(f"{d} (instance {n})" for n, d in named.items())
@@ -150,7 +148,7 @@ def run_all_imus(args: argparse.Namespace, settings: ReplaySettings) -> int:
         if replay.calibration is None or replay.result is None:
             errors.append(f"{bag}: IMU {instance}: {replay.problem}")
             continue
-        target = directory / file_name(instance, replay.source.sensor_id)
+        target = directory / file_name(instance, replay.source.accel_device_id)
         texts[target] = checked_calibration_text(replay.calibration, str(target))
         lines += [f"IMU {instance} ({replay.source.sensor_id or 'no device ID'}): {len(replay.poses)} static poses; "
                   f"{replay.result.summary()}", f"fitted to {replay.calibration.fitted_to}"]

@@ -27,16 +27,15 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                         help="PX4 .params / .ulg, ArduPilot .param / .bin")
     parser.add_argument("--instance", type=int, default=None, metavar="N",
                         help="the autopilot's sensor slot from 0 (default: PX4 the slot whose CAL_ACCn_ID is the "
-                             "calibration's sensor_id, else 0; ArduPilot 0)")
+                             "calibration's accel_device_id, else 0; ArduPilot 0)")
     return parser
 
 
-def _instance(args: argparse.Namespace, parameters: ParameterSet, sensor_id: str) -> int:
-    from ..io.autopilot_params import MAX_INSTANCES, parse_device_id
+def _instance(args: argparse.Namespace, parameters: ParameterSet, device: int | None) -> int:
+    from ..io.autopilot_params import MAX_INSTANCES
 
     if args.instance is not None:
         return int(args.instance)
-    device = parse_device_id(sensor_id)
     if parameters.autopilot == "px4" and device is not None:
         for slot in range(MAX_INSTANCES["px4"]):
             if parameters.values.get(f"CAL_ACC{slot}_ID") == float(device):
@@ -67,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
     calibration = load_calibration(args.calibration)
     parameters = read_parameters(args.parameters)
-    instance = _instance(args, parameters, calibration.sensor_id)
+    instance = _instance(args, parameters, calibration.accel_device_id)
     if not 0 <= instance < MAX_INSTANCES[parameters.autopilot]:
         raise CalibrationError(f"--instance must be 0..{MAX_INSTANCES[parameters.autopilot] - 1} for "
                                f"{parameters.autopilot}, got {instance}")

@@ -41,7 +41,7 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                              "1: CAL_ACC1_*, INS_ACC2OFFS_*) (default 0)")
     parser.add_argument("--device-id", type=int, default=None, metavar="ID",
                         help="PX4: the IMU's device ID for CAL_ACCn_ID, CAL_GYROn_ID and TC_An_ID (default: the "
-                             "calibration's sensor_id: 'ID', 'px4 device ID' or 'ardupilot accel ID')")
+                             "calibration's accel_device_id)")
     parser.add_argument("--noise", default=None, metavar="IMU.yaml",
                         help="kalibr/openvins: the noise figures, a Kalibr imu.yaml as 'accel-calib noise "
                              "--kalibr' writes it (default: the calibration's noise block and --random-walks)")
@@ -70,9 +70,7 @@ def _strict_float(text: str) -> float:
 
 def _device_id(args: argparse.Namespace, calibration: Calibration) -> int | None:
     """--device-id, else the file's; a --device-id other than the device the file names is one line."""
-    from .options import file_accel_device
-
-    named = file_accel_device(calibration)
+    named = calibration.accel_device_id
     if args.device_id is None:
         return named
     if not 0 < args.device_id < 2**32:

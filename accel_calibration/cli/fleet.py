@@ -324,8 +324,7 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
             found.append((instance, str(error)))
             continue
         # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
-        other_id = other.source.sensor_id
-        if recording.format == "dataflash" or not other_id or other_id != replay.source.sensor_id:
+        if recording.format == "dataflash" or not other.source.same_device(replay.source):
             found.append((instance, other))
     return found
 

@@ -7,13 +7,15 @@ only ever replaced whole, by an atomic rename, after everything succeeded.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
-from collections.abc import Sequence
-from typing import NoReturn
+import warnings
+from collections.abc import Iterator, Sequence
+from typing import NoReturn, TextIO
 
-from ..core.errors import AccelCalibrationError, CalibrationError
+from ..core.errors import AccelCalibrationError, CalibrationError, DeprecatedInputWarning
 
 # One module per command (add_parser, run). The fit, settings, YAML files, tables and Dask are imported
 # by the commands that use them: `--help` and a start-up cost at most twice numpy's own import
@@ -120,7 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     leaving: SystemExit | None = None
     try:
         try:
-            status = _main(argv)
+            with _older_forms_said_in_one_line():
+                status = _main(argv)
         except SystemExit as exit_:  # --help: argparse itself ignores a failed write, then exits
             leaving, status = exit_, 0
         if watched is not None:
@@ -135,6 +138,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if leaving is not None:
         raise leaving
     return status
+
+
+@contextlib.contextmanager
+def _older_forms_said_in_one_line() -> Iterator[None]:
+    """An input read in a form an older version wrote (DeprecatedInputWarning) is one line on stderr, each
+    time; any other warning as Python shows it."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: TextIO | None = None, line: str | None = None) -> None:
+            if issubclass(category, DeprecatedInputWarning):
+                print(f"{PROG}: warning: {message}", file=sys.stderr)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.simplefilter("always", DeprecatedInputWarning)
+        warnings.showwarning = show
+        yield
 
 
 def _main(argv: Sequence[str] | None) -> int:

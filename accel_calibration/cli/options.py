@@ -278,16 +278,6 @@ def replay_settings(args: argparse.Namespace) -> Any:
                           temperature_topic=args.temperature_topic, **flight_state_settings(args))
 
 
-def file_accel_device(calibration: Any) -> int | None:
-    """The accelerometer's device ID a calibration names: its accel_device_id, or (files written before it)
-    the ID in its sensor_id ('px4 device ID', 'ardupilot accel ID')."""
-    from ..io.autopilot_params import parse_device_id
-
-    if calibration.accel_device_id is not None:
-        return int(calibration.accel_device_id)
-    return parse_device_id(calibration.sensor_id)
-
-
 def instance_of_device(calibration: Any, what: str, recording: str, settings: Any) -> tuple[Any, str | None]:
     """(settings, line) to read an autopilot log as the IMU `calibration` is for (`what` names the file): the
     instance whose accelerometer is the file's device, picked and said when no --instance was given; a
@@ -297,7 +287,7 @@ def instance_of_device(calibration: Any, what: str, recording: str, settings: An
 
     from ..bag.recording import detect_format, log_accel_devices
 
-    device = file_accel_device(calibration)
+    device = calibration.accel_device_id
     kind = settings.format or detect_format(recording)
     if device is None or kind not in ("ulog", "dataflash"):
         return settings, None

@@ -102,7 +102,7 @@ def _every_imu(args: argparse.Namespace, settings: ReplaySettings) -> int:
             errors.append(f"{bag}: IMU {instance}: {result.refusal}")
             continue
         sensor = each.replay.source.sensor_id
-        target = Path(args.output) / file_name(instance, sensor)
+        target = Path(args.output) / file_name(instance, each.replay.source.accel_device_id)
         texts[target] = checked_calibration_text(_named(warmup_calibration(result.fit, each.base), each), target)
         lines += [f"IMU {instance} ({sensor or 'no device ID'}): warm-up {each.base_said}", *result.said]
     if texts:

@@ -10,6 +10,11 @@ class CalibrationError(AccelCalibrationError, ValueError):
     """core: bad input to the calibration core, or a calibration that cannot be used."""
 
 
+class DeprecatedInputWarning(UserWarning):
+    """An input in a form an older version wrote or took, still read as it meant: the front ends say it in
+    one line (the CLI: 'accel-calib: warning: ...'), with what to write instead."""
+
+
 class SettingsError(CalibrationError):
     """core: a setting (node parameter, params file entry, CLI flag) out of type or range; the message
     names the parameter as the user typed it."""

@@ -42,9 +42,6 @@ FLOAT32_MAX = 3.4028234663852886e38  # both autopilots keep REAL32 parameters
 # A decimal number as the autopilots' files write it; Python's float() also takes '1_0', 'nan', 'inf' and
 # non-ASCII digits, which no autopilot writes or reads.
 _NUMBER = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
-# A sensor_id the readers write: the device ID alone, or 'px4 device ID' (ulog_reader), 'ardupilot accel ID'
-# (dataflash); PX4 and ArduPilot encode device IDs alike (bus type, bus, address, device type).
-_DEVICE_ID = re.compile(r"(?:px4 device |ardupilot accel )?([0-9]{1,10})")
 
 
 class ParameterFileError(CalibrationError):
@@ -95,16 +92,6 @@ def _check_temperature_span(low_name: str, low: float, high_name: str, high: flo
 def parse_number(text: str) -> float | None:
     """A decimal number written as the autopilots write one, else None."""
     return float(text) if _NUMBER.fullmatch(text) else None
-
-
-def parse_device_id(sensor_id: str) -> int | None:
-    """The device ID in a calibration's sensor_id ('1310988', 'px4 device 1310988', 'ardupilot accel 1310988'),
-    a 32-bit number above 0; None when it holds none."""
-    match = _DEVICE_ID.fullmatch(sensor_id.strip())
-    if match is None:
-        return None
-    device = int(match.group(1))
-    return device if 0 < device < 2**32 else None
 
 
 def _check_instance(autopilot: str, instance: int) -> None:

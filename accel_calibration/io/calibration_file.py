@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 import os
 import stat
+import warnings
 from pathlib import Path
 from typing import Any, cast
 
@@ -40,7 +41,7 @@ import yaml
 
 from ..core.calibration import Calibration, GyroQuality, MeasuredNoise, Quality
 from ..core.dividing_head import DividingHeadTerms
-from ..core.errors import CalibrationError
+from ..core.errors import CalibrationError, DeprecatedInputWarning
 from ..core.fit_result import ParameterSource
 from ..core.temperature_models import TemperatureModel
 from ..core.units import STANDARD_GRAVITY
@@ -156,9 +157,8 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     body["created"] = c.created
     body["frame_id"] = c.frame_id
     body["sensor_id"] = c.sensor_id
-    for name in ("accel_device_id", "gyro_device_id"):
-        if getattr(c, name) is not None:
-            body[name] = int(getattr(c, name))
+    for name in ("accel_device_id", "gyro_device_id"):  # null: none known (files without the keys are older)
+        body[name] = None if getattr(c, name) is None else int(getattr(c, name))
     if c.fitted_to:
         body["fitted_to"] = c.fitted_to
     return {ROOT_KEY: body}
@@ -347,7 +347,8 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
             created=str(body.get("created", "")),
             frame_id=str(body.get("frame_id", "") or ""),
             sensor_id=str(body.get("sensor_id", "") or ""),
-            accel_device_id=body.get("accel_device_id"),  # absent from older files; checked by Calibration
+            # Checked by Calibration; a file without the key is older: its sensor_id may name the device.
+            accel_device_id=body["accel_device_id"] if "accel_device_id" in body else _older_device(body, source),
             gyro_device_id=body.get("gyro_device_id"),
             gravity_source=str(body.get("gravity_source", "") or ""),  # absent from older files
             fitted_to=str(body.get("fitted_to", "") or "")[:1024],
@@ -356,6 +357,21 @@ def calibration_from_dict(document: object, source: str = "calibration") -> Cali
         )
     except CalibrationError as error:
         raise CalibrationFileError(f"{source}: {error}") from None
+
+
+def _older_device(body: dict[str, Any], source: str) -> int | None:
+    """The device a file written before accel_device_id names in its sensor_id, as the log readers wrote it
+    then ('px4 device ID', 'ardupilot accel ID', the ID alone), said in a line (DeprecatedInputWarning);
+    None when it names none. Files written since say their device, or none, in accel_device_id."""
+    sensor_id = str(body.get("sensor_id", "") or "").strip()
+    digits = next((sensor_id[len(p):] for p in ("px4 device ", "ardupilot accel ") if sensor_id.startswith(p)),
+                  sensor_id)
+    if not (digits.isascii() and digits.isdigit() and len(digits) <= 10 and 0 < int(digits) < 2**32):
+        return None
+    warnings.warn(f"{source}: names its device in sensor_id only ({sensor_id!r}, as files written before "
+                  f"accel_device_id): read as accel_device_id {int(digits)}; save it again (or add "
+                  f"'accel_device_id: {int(digits)}') to name it so", DeprecatedInputWarning, stacklevel=2)
+    return int(digits)
 
 
 def _body(document: object, source: str) -> dict[str, Any]:

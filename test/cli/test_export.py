@@ -181,7 +181,7 @@ def test_values_outside_the_targets_range_are_refused_naming_it(target, scale, o
 
 def test_ardupilot_instances_and_px4_ids(tmp_path):
     calibration = Calibration(bias=[0.1, 0.2, 0.3], matrix=np.eye(3), gyro_bias_radps=[0.01, 0.02, 0.03],
-                              sensor_id="1310996")
+                              accel_device_id=1310996)
     save_calibration(calibration, tmp_path / "cal.yaml")
     assert main(["export", str(tmp_path / "cal.yaml"), "--to", "ardupilot", "--instance", "1",
                  "-o", str(tmp_path / "a.param")]) == 0
@@ -263,7 +263,7 @@ def test_compare_reads_the_real_ardupilot_log(tmp_path, capsys):
 
 
 def test_compare_reads_the_real_px4_logs(tmp_path, capsys):
-    save_calibration(Calibration.identity(sensor_id="1310996"), tmp_path / "cal.yaml")
+    save_calibration(Calibration.identity(accel_device_id=1310996), tmp_path / "cal.yaml")
     first = shared_path("real/px4_ulog/sample.ulg")
     assert main(["compare", str(tmp_path / "cal.yaml"), str(first)]) == 0
     out = capsys.readouterr().out
@@ -271,7 +271,7 @@ def test_compare_reads_the_real_px4_logs(tmp_path, capsys):
     second = shared_path("real/px4_ulog/sample_logging_tagged_and_default_params.ulg")
     assert main(["compare", str(tmp_path / "cal.yaml"), str(second)]) == 0
     out = capsys.readouterr().out
-    assert "instance 1" in out and "-0.0259, -0.0183, +0.0758" in out  # chosen by CAL_ACC1_ID = sensor_id
+    assert "instance 1" in out and "-0.0259, -0.0183, +0.0758" in out  # chosen by CAL_ACC1_ID = accel_device_id
 
 
 def test_compare_refuses_what_is_no_parameter_file(tmp_path, capsys):

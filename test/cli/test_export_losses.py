@@ -120,10 +120,9 @@ def test_autopilots_say_what_the_gyro_matrix_they_cannot_hold_costs(target, tmp_
     assert figure > 5.0
 
 
-@pytest.mark.parametrize("sensor_id", ["1310988", "px4 device 1310988", "ardupilot accel 1310988"])
-def test_px4_export_writes_the_accel_and_gyro_ids(sensor_id, tmp_path):
+def test_px4_export_writes_the_accel_and_gyro_ids(tmp_path):
     calibration = Calibration(bias=[0.1, 0.2, 0.3], matrix=np.eye(3), gyro_bias_radps=[0.01, 0.02, 0.03],
-                              sensor_id=sensor_id)
+                              sensor_id="px4 device 1310988", accel_device_id=1310988)
     save_calibration(calibration, tmp_path / "cal.yaml")
     assert main(["export", str(tmp_path / "cal.yaml"), "--to", "px4", "--instance", "2",
                  "-o", str(tmp_path / "p.params")]) == 0

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from accel_calibration.cli.main import main
+from accel_calibration.core.errors import DeprecatedInputWarning
 from accel_calibration.io.autopilot_params import parse_parameter_text
 from accel_calibration.io.calibration_file import load_calibration
 
@@ -108,9 +109,12 @@ def test_an_older_file_naming_its_device_in_sensor_id_only_is_matched_too(two_im
     older = tmp_path / "older.yaml"
     older.write_text("".join(line for line in imu1.read_text().splitlines(keepends=True)
                              if "device_id:" not in line))
-    assert load_calibration(older).accel_device_id is None
+    with pytest.warns(DeprecatedInputWarning, match="sensor_id only"):
+        assert load_calibration(older).accel_device_id == DEVICES[1]
     assert main(["check", str(older), str(log)]) == 0
-    assert f"sensor_accel instance 1 (device {DEVICES[1]})" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert f"sensor_accel instance 1 (device {DEVICES[1]})" in said.out
+    assert said.err.startswith("accel-calib: warning: ") and f"accel_device_id: {DEVICES[1]}" in said.err
 
 
 def test_replay_prior_of_another_device_is_refused_or_its_instance_picked(two_imu_log, tmp_path, capsys):
