@@ -52,8 +52,10 @@ def test_the_node_learns_a_warm_up_and_its_output_follows_temperature(tmp_path, 
     try:
         tester.wait_ready()
         tester.play(played(warmup_recording(truth, rng, HEATING, rate_hz=RATE_HZ)), start_ns=START_NS)
-        assert tester.spin_until(lambda: tester.diagnostics and tester.diagnostics[-1]["warmup"].startswith("ready"),
-                                 20), tester.diagnostics[-1] if tester.diagnostics else "no diagnostics"
+        def ready() -> bool:
+            return bool(tester.diagnostics) and tester.diagnostics[-1].get("warmup", "").startswith("ready")
+
+        assert tester.spin_until(ready, 20), tester.diagnostics[-1] if tester.diagnostics else "no diagnostics"
         low, high = (float(v) for v in tester.diagnostics[-1]["warmup_span_degc"].split(".."))
         assert low < 16.0 and high > 40.0, tester.diagnostics[-1]["warmup_span_degc"]
         answer = tester.call("calibrate")
