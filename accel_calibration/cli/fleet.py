@@ -232,21 +232,37 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
 
             failed = dataclasses.replace(failed, evidence=EvidenceRecord(
                 identity["recording_id"], str(where), vehicle, "", "failed", reason=reason))
-        return failed
+        # A log's first IMU refused (its logged calibration invalid, say): its other IMUs still have rows.
+        return dataclasses.replace(failed, others=_other_rows(path, settings, None, identity, vehicle,
+                                                              vehicle_source, outcome))
 
     first_row = _with_evidence(_described(replay, identity, vehicle, vehicle_source, where, outcome), replay,
                                _first_instance(replay, settings))
-    other_rows: list[RecordingOutcome] = []
-    for instance, other in _other_imus(path, settings, replay):
+    return dataclasses.replace(first_row, others=_other_rows(path, settings, replay, identity, vehicle,
+                                                             vehicle_source, outcome))
+
+
+def _other_rows(path: str, settings: ReplaySettings | None, replay: ReplayResult | None, identity: dict[str, Any],
+                vehicle: str, vehicle_source: str,
+                outcome: Callable[[str, str | None, HistoryRecord | None, str], RecordingOutcome]
+                ) -> tuple[RecordingOutcome, ...]:
+    """The rows of an autopilot log's further IMUs: each replayed alone, one that fails with its reason."""
+    from ..io.history import HistoryRecord
+
+    where = Path(path)
+    kind, others = _other_imus(path, settings, replay)
+    rows: list[RecordingOutcome] = []
+    for instance, other in others:
         own = {**identity, "recording_id": _imu_identity(identity["recording_id"], instance)}
         if isinstance(other, str):  # its replay failed: a row with the reason, never left out unsaid
+            stream = "IMU" if kind == "dataflash" else "sensor_accel"
             record = HistoryRecord(**own, vehicle=vehicle, vehicle_source=vehicle_source,
-                                   sensor=_imu_name(replay, instance), status="failed", reason=other)
-            other_rows.append(outcome("failed", other, record, _line(record, where.name)))
+                                   sensor=f"{stream} instance {instance}", status="failed", reason=other)
+            rows.append(outcome("failed", other, record, _line(record, where.name)))
         else:
-            other_rows.append(_with_evidence(_described(other, own, vehicle, vehicle_source, where, outcome), other,
-                                             instance))
-    return dataclasses.replace(first_row, others=tuple(other_rows))
+            rows.append(_with_evidence(_described(other, own, vehicle, vehicle_source, where, outcome), other,
+                                       instance))
+    return tuple(rows)
 
 
 def _first_instance(replay: ReplayResult, settings: ReplaySettings | None) -> int | None:
@@ -293,30 +309,29 @@ def _imu_identity(recording_id: str, instance: int) -> str:
     return hashlib.blake2b(f"{recording_id}:imu{instance}".encode(), digest_size=32).hexdigest()
 
 
-def _imu_name(replay: ReplayResult, instance: int) -> str:
-    """A log's IMU that could not be read, named as its stream: DataFlash 'IMU instance N', ULog 'sensor_accel
-    instance N'."""
-    from ..bag.recording import Recording
-
-    recording = replay.source.recording
-    stream = "IMU" if isinstance(recording, Recording) and recording.format == "dataflash" else "sensor_accel"
-    return f"{stream} instance {instance}"
-
-
-def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
-                ) -> list[tuple[int, ReplayResult | str]]:
-    """Each further IMU of an autopilot log, replayed alone (ULog sensor_accel N, DataFlash IMU N): those
-    whose device the first replay did not read; one whose replay fails, with its reason (a row of its own)."""
-    from ..bag.recording import Recording
+def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult | None
+                ) -> tuple[str, list[tuple[int, ReplayResult | str]]]:
+    """The log's format and each further IMU of it, replayed alone (ULog sensor_accel N, DataFlash IMU N):
+    those whose device the first replay (None: it failed) did not read; one whose replay fails, with its
+    reason (a row of its own)."""
+    from ..bag.recording import LOGS, Recording, detect_format, log_accel_devices
     from ..bag.replay import ReplaySettings
 
-    recording = replay.source.recording
-    if not isinstance(recording, Recording) or recording.format not in ("ulog", "dataflash"):
-        return []
     s = settings or ReplaySettings()
+    if replay is None:
+        try:
+            kind = s.format or detect_format(path)
+            instances = tuple(sorted(log_accel_devices(path, kind))) if kind in LOGS else ()
+        except AccelCalibrationError:  # the first replay's failure says it
+            return "", []
+    else:
+        recording = replay.source.recording
+        if not isinstance(recording, Recording) or recording.format not in LOGS:
+            return "", []
+        kind, instances = recording.format, recording.imu_instances
     found: list[tuple[int, ReplayResult | str]] = []
-    for instance in recording.imu_instances:
-        if recording.format == "dataflash" and instance == (s.instance or 0):
+    for instance in instances:
+        if kind == "dataflash" and instance == (s.instance or 0):
             continue  # the first row's IMU
         try:
             other = _replay(path, dataclasses.replace(s, instance=instance))
@@ -324,9 +339,10 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
             found.append((instance, str(error)))
             continue
         # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
-        if recording.format == "dataflash" or not other.source.same_device(replay.source):
+        other_id = other.source.sensor_id
+        if kind == "dataflash" or replay is None or not other_id or other_id != replay.source.sensor_id:
             found.append((instance, other))
-    return found
+    return kind, found
 
 
 def _described(replay: ReplayResult, identity: dict[str, Any], vehicle: str, vehicle_source: str, where: Path,

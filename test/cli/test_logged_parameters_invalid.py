@@ -65,3 +65,15 @@ def test_a_px4_scale_px4_ignores_is_undone_as_px4_applied_it_and_said(tmp_path, 
     assert "CAL_ACC0_XSCALE = 0 ignored by PX4 (it keeps scale 1 on every axis)" in said, said
     calibration = load_calibration(out)
     assert np.max(np.abs(calibration.bias - board.imus[0].truth.bias_mps2)) < 0.3 * MG
+
+
+def test_fleet_still_calibrates_the_other_imus_when_the_first_is_refused(tmp_path):
+    board = simulate(36)
+    log = tmp_path / "00000011.BIN"
+    write_ardupilot_log(log, board, changed={"INS_ACCSCAL_Z": 0.0})
+    first = calibrate_recording(str(log))
+    rows = [first, *first.others]
+    assert [r.status for r in rows] == ["failed", "calibrated"], [r.summary for r in rows]
+    assert "INS_ACCSCAL_Z = 0" in first.reason
+    assert rows[1].record.sensor == "IMU instance 1"
+    assert np.max(np.abs(np.array(rows[1].record.bias) - board.imus[1].truth.bias_mps2)) < 0.3 * MG
