@@ -150,3 +150,26 @@ def test_nan_in_the_in_flight_evidence_is_stored_as_null(tmp_path):
         (back,) = history.evidence()
     assert json.loads(back.estimator) == {"accel": [None, None, 0.01]}
     assert "NaN" not in back.estimator
+
+
+def test_a_postgresql_history_written_before_gains_the_columns_and_says_the_same(pg_url, tmp_path, capsys):
+    from sqlalchemy import create_engine, text
+
+    with open_history(pg_url) as history:
+        history.write_evidence(rows("uav11", 0, z_series(50, 12)))
+    engine = create_engine(pg_url.replace("postgresql://", "postgresql+psycopg://", 1))
+    with engine.begin() as connection:  # the table as it was before the in-flight columns
+        connection.execute(text("ALTER TABLE flight_evidence DROP COLUMN estimator, DROP COLUMN agreement"))
+    engine.dispose()
+    assert main(["history", "--history", pg_url]) == 0
+    assert "vehicle uav11 IMU 1 (device 1310988): holds: 12 flights" in capsys.readouterr().out
+    write_fleet(pg_url)
+    sqlite = str(tmp_path / "same.sqlite")
+    write_fleet(sqlite)
+    with open_history(sqlite) as history:
+        history.write_evidence(rows("uav11", 0, z_series(50, 12)))
+    said = []
+    for target in (pg_url, sqlite):
+        assert main(["history", "--history", target]) == 3
+        said.append(capsys.readouterr().out)
+    assert said[0] == said[1]
