@@ -44,6 +44,7 @@ KEEP_S = 75.0
 STEADY_S = 60.0  # still this long within STEADY_DEGC: the temperature is steady, no warm-up
 STEADY_DEGC = 0.5
 MAX_RUNS = 8  # runs (orientation x temperature level) kept; a ninth is not binned, said
+BLOCK_ROWS = 16_384
 _COLUMNS = 27  # count, sum degC, sum rate, accel sum (3) and products (9), gyro sum (3) and products (9)
 
 
@@ -223,17 +224,20 @@ class WarmupWatch:
         return self._runs[-1]
 
     def _accumulate(self, run: _Run, degc: np.ndarray, rate: np.ndarray, values: np.ndarray) -> None:
-        """Sums per bin of bin_degc, warming and cooling apart (core/warmup bins by pass)."""
-        key = np.floor(degc / self.options.bin_degc).astype(np.int64) * 2 + (rate <= -PASS_RATE)
-        centred = values - run.shift
-        accel, gyro = centred[:, :3], centred[:, 3:]
-        columns = np.hstack([np.ones((len(key), 1)), degc[:, None], rate[:, None], accel,
-                             (accel[:, :, None] * accel[:, None, :]).reshape(-1, 9), gyro,
-                             (gyro[:, :, None] * gyro[:, None, :]).reshape(-1, 9)])
-        keys, inverse = np.unique(key, return_inverse=True)
-        sums = np.stack([np.bincount(inverse, columns[:, c], len(keys)) for c in range(_COLUMNS)], axis=1)
-        for k, row in zip(keys.tolist(), sums):
-            run.bins[k] = run.bins[k] + row if k in run.bins else row
+        """Sums per bin of bin_degc, warming and cooling apart (core/warmup bins by pass), a block of
+        BLOCK_ROWS samples at a time (a minute's pose at 4 kHz is 240,000 samples)."""
+        for start in range(0, len(degc), BLOCK_ROWS):
+            block = slice(start, start + BLOCK_ROWS)
+            key = np.floor(degc[block] / self.options.bin_degc).astype(np.int64) * 2 + (rate[block] <= -PASS_RATE)
+            centred = values[block] - run.shift
+            accel, gyro = centred[:, :3], centred[:, 3:]
+            columns = np.hstack([np.ones((len(key), 1)), degc[block, None], rate[block, None], accel,
+                                 (accel[:, :, None] * accel[:, None, :]).reshape(-1, 9), gyro,
+                                 (gyro[:, :, None] * gyro[:, None, :]).reshape(-1, 9)])
+            keys, inverse = np.unique(key, return_inverse=True)
+            sums = np.stack([np.bincount(inverse, columns[:, c], len(keys)) for c in range(_COLUMNS)], axis=1)
+            for k, row in zip(keys.tolist(), sums):
+                run.bins[k] = run.bins[k] + row if k in run.bins else row
 
     # ------------------------------------------------------------------ what it says and fits
     def _binned(self, calibration: Calibration | None) -> BinnedWarmup:

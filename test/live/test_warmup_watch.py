@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from accel_calibration.core.settings import Settings
 from accel_calibration.core.warmup import WarmupRecording
@@ -34,7 +36,7 @@ def started(tmp_path, truth=None) -> tuple[LiveCalibration, LogLines]:
 
 
 def play(live: LiveCalibration, recording: WarmupRecording, readings: np.ndarray | None = None,
-         start: int = 0, stop: int | None = None, temperature: bool = True) -> None:
+         start: int = 0, stop: int | None = None, temperature: bool = True, feed_every: int = FEED_EVERY) -> None:
     """The recording as the node hands it over: each Imu message, a Temperature message every
     READING_EVERY samples (`readings`: what the register says, default the recording's), a feed every
     FEED_EVERY samples."""
@@ -48,7 +50,7 @@ def play(live: LiveCalibration, recording: WarmupRecording, readings: np.ndarray
         stream.buffer_imu(stamp, *accel[i], *gyro[i])
         if i % READING_EVERY == 0 and temperature:
             stream.take_temperature(stamp, float(temps[i]))
-        if i % FEED_EVERY == FEED_EVERY - 1:
+        if i % feed_every == feed_every - 1:
             live.feed()
     live.feed()
 
@@ -216,3 +218,27 @@ def test_memory_stays_bounded_over_a_long_warm_up(tmp_path):
     assert waiting <= (75.0 + 2.0) * RATE_HZ
     bins = sum(len(run.bins) for run in live.warmup._runs)
     assert bins <= 2 * 31 / 0.5 + 2
+
+
+SHORT = warmup_recording(two_imus()[0], np.random.default_rng(8), Heating(tau_s=60.0, minutes=2.5), rate_hz=50.0)
+
+
+def bins_of(live: LiveCalibration) -> dict[tuple[int, int], np.ndarray]:
+    return {(index, key): row for index, run in enumerate(live.warmup._runs) for key, row in run.bins.items()}
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(feed_every=st.integers(1, 3000))
+def test_the_bins_do_not_depend_on_how_the_stream_is_cut_into_feeds(tmp_path_factory, feed_every):
+    """The node's worker takes what came in every 0.2 s, however many samples that is: the same still
+    samples in the same bins (counts exactly, sums to rounding), the same span."""
+    one, _ = started(tmp_path_factory.mktemp("one"))
+    play(one, SHORT, feed_every=len(SHORT.t_ns))
+    cut, _ = started(tmp_path_factory.mktemp("cut"))
+    play(cut, SHORT, feed_every=feed_every)
+    whole, parts = bins_of(one), bins_of(cut)
+    assert whole and whole.keys() == parts.keys()
+    for key, row in whole.items():
+        assert row[0] == parts[key][0]
+        np.testing.assert_allclose(parts[key], row, rtol=1e-9, atol=1e-9)
+    assert cut.diagnostic_values()["warmup_span_degc"] == one.diagnostic_values()["warmup_span_degc"]
