@@ -10,8 +10,9 @@ import pytest
 from accel_calibration.cli.fleet import calibrate_recording
 from accel_calibration.cli.main import main
 from accel_calibration.io.calibration_file import load_calibration
+from msg_tools.dataflash_writer import FORMATS_4X, imu_records, parameter_records, write_dataflash
 
-from helpers.autopilot_logs import MG, simulate, write_ardupilot_log, write_px4_log
+from helpers.autopilot_logs import MG, START_US, logged, simulate, write_ardupilot_log, write_px4_log
 
 
 @pytest.mark.parametrize("name, value, said", [
@@ -77,3 +78,24 @@ def test_fleet_still_calibrates_the_other_imus_when_the_first_is_refused(tmp_pat
     assert "INS_ACCSCAL_Z = 0" in first.reason
     assert rows[1].record.sensor == "IMU instance 1"
     assert np.max(np.abs(np.array(rows[1].record.bias) - board.imus[1].truth.bias_mps2)) < 0.3 * MG
+
+
+def test_a_px4_scale_outside_its_range_is_refused_naming_it(tmp_path, capsys):
+    log = tmp_path / "scale5.ulg"
+    write_px4_log(log, simulate(37), changed={"CAL_ACC0_YSCALE": 5.0})
+    out = tmp_path / "cal.yaml"
+    assert main(["replay", str(log), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "CAL_ACC0_YSCALE = 5 is outside the range the autopilot accepts, 0.1..3" in err
+    assert not out.exists()
+
+
+def test_absent_parameters_are_fitted_as_logged_and_said_so(tmp_path, capsys):
+    board = simulate(38)
+    log = tmp_path / "00000012.BIN"
+    accel, gyro = logged(board.imus[0])
+    write_dataflash(log, FORMATS_4X, parameter_records(START_US - 1000, {"AHRS_ORIENTATION": 2.0})
+                    + imu_records(board.t_us, accel, gyro, board.temperature))
+    out = tmp_path / "cal.yaml"
+    assert main(["replay", str(log), "-o", str(out)]) == 0
+    assert "as logged, corrected by a calibration the log does not hold" in capsys.readouterr().out
