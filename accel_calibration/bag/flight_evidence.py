@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.errors import AccelCalibrationError
 from .correction_in_force import calibration_in_force
 from .correction_in_force import ulog_correction as _ulog_correction
 
@@ -81,7 +82,10 @@ def _ground_evidence(replay: ReplayResult) -> FlightEvidence:
     device = "" if recording.accel_device_id is None else str(recording.accel_device_id)
     correction = recording.logged_correction
     if correction is None and recording.format == "ulog":
-        correction = _ulog_correction(recording.path, recording.accel_device_id)
+        try:
+            correction = _ulog_correction(recording.path, recording.accel_device_id)
+        except AccelCalibrationError as error:  # its calibration parameters there but invalid: named
+            return _none(device, str(error))
     if correction is None:
         return _none(device, f"{name}: the log holds no calibration of this IMU (no calibration parameters for it)")
     if correction.axis_wise.has_drift:
