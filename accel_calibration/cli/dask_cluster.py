@@ -122,16 +122,18 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
             client.close()
 
 
-def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple[Any, ...]], label: str = "recordings"
-              ) -> Iterator[tuple[int, Any, str | None]]:
+def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple[Any, ...]], label: str = "recordings",
+              sizes: Sequence[int] | None = None) -> Iterator[tuple[int, Any, str | None]]:
     """Submit `function(*job)` for every job and yield (index, result, None) as each finishes, or
-    (index, None, one-line reason) when its task raised or its worker died; a progress bar counts them."""
+    (index, None, one-line reason) when its task raised or its worker died; a progress bar counts them
+    (`sizes`: what each job counts for, its recordings where a task takes a batch of them; default 1)."""
     from distributed import as_completed
     from tqdm import tqdm
 
     futures = [client.submit(function, *job, pure=False) for job in jobs]
     index_of = {future.key: i for i, future in enumerate(futures)}
-    with tqdm(total=len(futures), unit=label.rstrip("s"), desc=label, disable=None, file=sys.stderr) as bar:
+    counted = list(sizes) if sizes is not None else [1] * len(futures)
+    with tqdm(total=sum(counted), unit=label.rstrip("s"), desc=label, disable=None, file=sys.stderr) as bar:
         for future in as_completed(futures):
             i = index_of[future.key]
             try:
@@ -141,7 +143,7 @@ def run_tasks(client: Any, function: Callable[..., Any], jobs: Sequence[tuple[An
                 yield i, None, f"{type(error).__name__}: {text[0] if text else ''}"
             finally:
                 future.release()
-                bar.update(1)
+                bar.update(counted[i])
 
 
 def map_on_local_cluster(function: Callable[..., Any], jobs: Sequence[tuple[Any, ...]], workers: int,

@@ -1,10 +1,10 @@
 """accel-calib fleet: recalibrate every recording of a fleet on a Dask cluster and keep the results in
 the calibration history.
 
-Each recording is one task (the same replay as `accel-calib replay`), run on the workers of a local
-cluster started and stopped here (processes, one per core by default) or of an existing cluster
+Each recording is the same replay as `accel-calib replay`, a few recordings a task, run on the workers of a
+local cluster started and stopped here (processes, one per core by default) or of an existing cluster
 (`--scheduler tcp://HOST:PORT`). Results come back as they finish; this process is the history's one
-writer (a row per result, as it arrives). A recording that cannot be read or calibrated is reported
+writer, in batches (cli/fleet_rows.py). A recording that cannot be read or calibrated is reported
 in one line and never stops the others. The cluster is cli/dask_cluster.py's, which
 `accel-calib replay --jobs N` uses too: one way to run many.
 
@@ -16,7 +16,7 @@ import dataclasses
 import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 from ..core.errors import AccelCalibrationError, CalibrationError
 from ..core.units import MG
 from .dask_cluster import dask_client, default_workers, run_tasks
+from .fleet_rows import HistoryWriter
 from .fleet_warmups import add_arguments as add_warmup_arguments
 from .fleet_warmups import warmup_requested
 from .options import add_settings_options, replay_settings
@@ -31,7 +32,7 @@ from .options import add_settings_options, replay_settings
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
     from ..bag.replay import ReplayResult, ReplaySettings
     from ..io.flight_history import EvidenceRecord
-    from ..io.history import HistoryError, HistoryRecord
+    from ..io.history import HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 FLIGHT_LOG_SUFFIXES = (".ulg", ".bin")  # autopilot logs: each IMU's flight evidence is kept too
@@ -393,6 +394,68 @@ def _described(replay: ReplayResult, identity: dict[str, Any], vehicle: str, veh
     return outcome(status, reason, record, _line(record, where.name))
 
 
+# --- many recordings: tasks of a few each, a lost worker's recordings failed rows all the same ---------------
+
+TASK_RECORDINGS = 8  # recordings per task at most
+
+
+def calibrate_recordings(paths: Sequence[str], settings: ReplaySettings | None = None,
+                         vehicle_rule: str | None = None) -> list[RecordingOutcome]:
+    """A few recordings in one task (calibrate_recording of each): a flight log's replay is a fraction of
+    a second, and the scheduler's and the client's work per task runs on the cores the workers use."""
+    return [calibrate_recording(path, settings, vehicle_rule) for path in paths]
+
+
+def task_batches(count: int, slots: int) -> list[range]:
+    """Which recordings each task takes: up to TASK_RECORDINGS, and at least four tasks per worker thread,
+    so that the last tasks, finishing while others idle, are short."""
+    size = max(1, min(TASK_RECORDINGS, count // (4 * max(1, slots))))
+    return [range(i, min(i + size, count)) for i in range(0, count, size)]
+
+
+def lost_recording(path: str, reason: str, vehicle_rule: str | None) -> RecordingOutcome:
+    """A recording whose worker was lost (killed, out of memory): a failed row with the reason all the same,
+    identified here (its content and vehicle), so a rerun that reads it updates that row."""
+    from ..io.flight_history import EvidenceRecord
+    from ..io.history import HistoryRecord, recording_identity
+
+    where = Path(path)
+    try:
+        recording_id, size = recording_identity(where)
+        vehicle, vehicle_source = _vehicle(where, None, vehicle_rule)
+    except AccelCalibrationError as error:
+        said = f"{reason}; {error}"
+        return RecordingOutcome(path, "failed", said, None, f"failed     {said}", None, 0.0)
+    record = HistoryRecord(recording_id=recording_id, path=str(where), size_bytes=size,
+                           package_version=_package_version(), vehicle=vehicle, vehicle_source=vehicle_source,
+                           sensor="", status="failed", reason=reason)
+    evidence = None
+    if where.suffix.lower() in FLIGHT_LOG_SUFFIXES:
+        evidence = EvidenceRecord(recording_id, str(where), vehicle, "", "failed", reason=reason)
+    return RecordingOutcome(path, "failed", reason, record, _line(record, where.name), None, 0.0, evidence=evidence)
+
+
+def _outcomes(client: Any, recordings: list[str], settings: ReplaySettings, vehicle_rule: str | None, slots: int
+              ) -> Iterator[RecordingOutcome]:
+    """Every recording's outcome, as its task finishes. A task whose worker was lost is run again a recording
+    a task, so that one recording that kills its worker cannot take the others of its batch with it."""
+    batches = task_batches(len(recordings), slots)
+    jobs = [([recordings[i] for i in batch], settings, vehicle_rule) for batch in batches]
+    again: list[int] = []
+    for k, outcomes, error in run_tasks(client, calibrate_recordings, jobs, sizes=[len(b) for b in batches]):
+        if error is None:
+            yield from outcomes
+        elif len(batches[k]) > 1:
+            again.extend(batches[k])
+        else:
+            path = recordings[batches[k][0]]
+            yield lost_recording(path, f"{path}: worker lost ({error})", vehicle_rule)
+    alone = [(recordings[i], settings, vehicle_rule) for i in again]
+    for k, outcome, error in run_tasks(client, calibrate_recording, alone):
+        path = alone[k][0]
+        yield outcome if error is None else lost_recording(path, f"{path}: worker lost ({error})", vehicle_rule)
+
+
 # --- the command -----------------------------------------------------------------------------------------
 
 def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) -> argparse.ArgumentParser:
@@ -420,41 +483,6 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     return parser
 
 
-def _unwritten(outcome: RecordingOutcome, error: HistoryError) -> RecordingOutcome:
-    """A recording whose row the database refused: failed, with the database's reason, the others go on."""
-    reason = f"{outcome.path}: its row was not written ({error})"
-    return RecordingOutcome(outcome.path, "failed", reason, outcome.record, f"failed     {reason}",
-                            outcome.peak_rss_mb, outcome.elapsed_s)
-
-
-def _record_outcome(outcome: RecordingOutcome, history: Any, rows: dict[str, list[str]], counts: dict[str, int]
-                    ) -> None:
-    """One row into the history (it stands or fails alone), counted and said."""
-    from tqdm import tqdm
-
-    from ..core.text import printable_text
-    from ..io.history import HistoryError
-
-    if outcome.record is not None:
-        try:
-            history.write([outcome.record])
-            rows.setdefault(outcome.record.recording_id, []).append(outcome.path)
-        except HistoryError as history_error:
-            outcome = _unwritten(outcome, history_error)
-    if outcome.evidence is not None:
-        try:
-            history.write_evidence([outcome.evidence])
-            counts["evidence"] += outcome.evidence.status == "evidence"
-            counts["no evidence"] += outcome.evidence.status != "evidence"
-        except HistoryError as history_error:
-            tqdm.write(f"accel-calib: error: {printable_text(str(history_error))}", file=sys.stderr)
-    counts[outcome.status] += 1
-    if outcome.status == "calibrated":  # printable whatever bytes a file name holds
-        tqdm.write(printable_text(outcome.summary))
-    else:
-        tqdm.write(f"accel-calib: error: {printable_text(str(outcome.reason))}", file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
     from ..core.text import printable_text
     from ..io.history import open_history, vehicle_from_rule
@@ -474,21 +502,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"accel-calib: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:
         raise FleetError("no recordings to calibrate")
-    counts = {"calibrated": 0, "refused": 0, "failed": 0, "evidence": 0, "no evidence": 0}
-    rows: dict[str, list[str]] = {}  # recording_id -> recordings written to its row (same content: one row)
     started = time.perf_counter()
     with open_history(args.history) as history:
         workers = None if args.scheduler else min(args.workers or default_workers(), len(recordings))
+        writer = HistoryWriter(history)
         with dask_client(workers=workers, scheduler=args.scheduler) as client:
             cores = sum(client.nthreads().values()) or 1
-            jobs = [(path, settings, args.vehicle) for path in recordings]
-            for i, task_outcome, error in run_tasks(client, calibrate_recording, jobs):
-                if error is not None:  # the worker itself was lost: no row (nothing known of it)
-                    task_outcome = RecordingOutcome(recordings[i], "failed", f"{recordings[i]}: worker lost ({error})",
-                                                    None, f"failed     {recordings[i]}: worker lost ({error})", None,
-                                                    0.0)
+            for task_outcome in _outcomes(client, recordings, settings, args.vehicle, cores):
                 for outcome in (task_outcome, *task_outcome.others):  # an autopilot log: a row per IMU
-                    _record_outcome(outcome, history, rows, counts)
+                    writer.add(outcome)
+        writer.flush()
+    counts, rows = writer.counts, writer.rows
     elapsed = time.perf_counter() - started
     per_minute = 60.0 * len(recordings) / elapsed if elapsed > 0 else float("inf")
     shared = sum(len(paths) - 1 for paths in rows.values())
