@@ -490,7 +490,7 @@ def run(args: argparse.Namespace) -> int:
     if warmup_requested(args):  # the logs' warm-ups pooled per vehicle and IMU, no history rows
         from .fleet_warmups import run_warmups
 
-        return run_warmups(args)
+        return run_warmups(args, find_recordings, _vehicle)
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
     settings = replay_settings(args)

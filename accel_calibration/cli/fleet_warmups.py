@@ -14,7 +14,7 @@ import argparse
 import dataclasses
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,6 +28,9 @@ if TYPE_CHECKING:
     from ..core.warmup_pool import PoolMember
 
 SHORT_S = 60.0  # a recording shorter than this is too short to be a warm-up (say so, not "moving")
+# fleet's own (cli/fleet.py, which calls in here, so they are handed over rather than imported back):
+FindRecordings = Callable[[Sequence[str]], tuple[list[str], list[str]]]  # arguments -> (recordings, problems)
+VehicleOf = Callable[[Path, Any, "str | None"], tuple[str, str]]  # (path, its replay or None, --vehicle) -> vehicle
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -116,11 +119,11 @@ def _imu_warmup(path: str, settings: ReplaySettings, instance: int | None, devic
     return ImuWarmup(key, member, None, each.base_said, source.start_ns, names), each
 
 
-def read_log_warmups(path: str, settings: ReplaySettings, vehicle_rule: str | None) -> LogWarmups:
+def read_log_warmups(path: str, settings: ReplaySettings, vehicle_rule: str | None, vehicle_of: VehicleOf
+                     ) -> LogWarmups:
     """Every IMU of one log with its warm-up fitted alone. Runs on a worker; never raises (a log that
     cannot be read is its one-line reason), so one bad log cannot stop the others."""
     from ..bag.recording import detect_format, log_accel_devices
-    from .fleet import _vehicle
 
     where = Path(path)
     try:
@@ -136,12 +139,12 @@ def read_log_warmups(path: str, settings: ReplaySettings, vehicle_rule: str | No
         imus.append(imu)
         if vehicle is None and each is not None:
             try:
-                vehicle = _vehicle(where, each.replay, vehicle_rule)[0]
+                vehicle = vehicle_of(where, each.replay, vehicle_rule)[0]
             except AccelCalibrationError as error:
                 return LogWarmups(path, where.parent.name, (), f"failed to read: {error}")
     if vehicle is None:
         try:
-            vehicle = _vehicle(where, None, vehicle_rule)[0]
+            vehicle = vehicle_of(where, None, vehicle_rule)[0]
         except AccelCalibrationError as error:
             return LogWarmups(path, where.parent.name, (), f"failed to read: {error}")
     if not devices and imus and imus[0].member is None and imus[0].reason and not imus[0].names:
@@ -194,7 +197,7 @@ def _file_stem(vehicle: str) -> str:
 def _pooled(group: _Group, settings: ReplaySettings, directory: Path) -> tuple[list[str], list[str],
                                                                            tuple[Path, str] | None]:
     """One vehicle's IMU pooled: (lines, errors, (file, text) to write or None)."""
-    from ..core.warmup import WarmupOptions, warmup_calibration
+    from ..core.warmup import WarmupOptions, fit_warmup, warmup_calibration
     from ..core.warmup_pool import pool_warmups
     from ..io.calibration_file import checked_calibration_text
 
@@ -209,7 +212,8 @@ def _pooled(group: _Group, settings: ReplaySettings, directory: Path) -> tuple[l
     newest = max(range(len(group.imus)), key=lambda i: group.imus[i].start_ns or 0)
     members = [imu.member for imu in group.imus if imu.member is not None]
     base = members[newest].base
-    pooled = pool_warmups(members, base, WarmupOptions(), settings.session)
+    pooled = pool_warmups(members, base, lambda recordings: fit_warmup(recordings, base, WarmupOptions(),
+                                                                         settings.session))
     errors = [f"{who}: {Path(group.paths[i]).name} left out: {why}" for i, why in pooled.left_out]
     notes += [f"  {Path(group.paths[i]).name}: left out: {why}" for i, why in pooled.left_out]
     fit = pooled.result.fit
@@ -232,26 +236,26 @@ def _named(calibration: Calibration, names: dict[str, Any]) -> Calibration:
     return dataclasses.replace(calibration, **given)
 
 
-def _read_all(recordings: list[str], settings: ReplaySettings, args: argparse.Namespace) -> list[LogWarmups]:
+def _read_all(recordings: list[str], settings: ReplaySettings, args: argparse.Namespace, vehicle_of: VehicleOf
+              ) -> list[LogWarmups]:
     """Every log read on the cluster (fleet's own: --workers, --scheduler), in the order given."""
     from .dask_cluster import dask_client, default_workers, run_tasks
 
     logs: list[LogWarmups | None] = [None] * len(recordings)
     workers = None if args.scheduler else min(args.workers or default_workers(), len(recordings))
     with dask_client(workers=workers, scheduler=args.scheduler) as client:
-        jobs = [(path, settings, args.vehicle) for path in recordings]
+        jobs = [(path, settings, args.vehicle, vehicle_of) for path in recordings]
         for i, outcome, error in run_tasks(client, read_log_warmups, jobs, label="logs"):
             logs[i] = outcome if error is None else LogWarmups(
                 recordings[i], Path(recordings[i]).parent.name, (), f"failed to read: worker lost ({error})")
     return [log for log in logs if log is not None]
 
 
-def run_warmups(args: argparse.Namespace) -> int:
+def run_warmups(args: argparse.Namespace, find_recordings: FindRecordings, vehicle_of: VehicleOf) -> int:
     """fleet --warmup: 0 when every vehicle's IMU got a curve and no log failed or was left out."""
     from ..core.text import printable_text
     from ..io.output_paths import check_outputs
     from .all_imus import _is_calibration
-    from .fleet import FleetError, find_recordings
     from .options import PROG, replay_settings
 
     if args.output is None:
@@ -266,8 +270,8 @@ def run_warmups(args: argparse.Namespace) -> int:
     for problem in problems:
         print(f"{PROG}: error: {printable_text(problem)}", file=sys.stderr)
     if not recordings:
-        raise FleetError("no recordings to read warm-ups from")
-    logs = _read_all(recordings, settings, args)
+        raise CalibrationError("no recordings to read warm-ups from")
+    logs = _read_all(recordings, settings, args, vehicle_of)
     lines, errors, texts = [], [], {}
     for group in _groups(logs):
         said, wrong, written = _pooled(group, settings, Path(args.output))

@@ -9,14 +9,14 @@ removed (its turn-on bias). When the pool disagrees, the log whose leaving out m
 the one left out; two logs that disagree cannot say which of them is the stranger: refused."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from .calibration import Calibration
-from .settings import Settings
 from .units import MG
-from .warmup import WarmupFit, WarmupOptions, WarmupRecording, WarmupResult, fit_warmup
+from .warmup import WarmupFit, WarmupRecording, WarmupResult
 from .warmup_curve import BiasCurve
 
 # Beyond noise: this many sigma of the two curves together, and never less than a physical floor (what
@@ -116,21 +116,17 @@ def _ratio(found: Disagreement | None) -> float:
     return 0.0 if found is None else found.ratio
 
 
-def _fit(members: list[PoolMember], used: list[int], base: Calibration | None, options: WarmupOptions,
-         settings: Settings) -> WarmupResult:
-    return fit_warmup([members[i].recording for i in used], base, options, settings)
+FitPool = Callable[[list[WarmupRecording]], WarmupResult]  # recordings -> their pooled fit on top of `base`
 
 
-def pool_warmups(members: list[PoolMember], base: Calibration | None, options: WarmupOptions | None = None,
-                 settings: Settings | None = None) -> PooledWarmup:
-    """Every member's warm-up pooled into one curve on top of `base`; a member that disagrees beyond noise
-    left out (the one whose leaving out makes the rest agree best, again while they disagree). Never raises
-    on data: a refusal says why."""
-    options = options or WarmupOptions()
-    settings = settings or Settings()
+def pool_warmups(members: list[PoolMember], base: Calibration | None, fit_pool: FitPool) -> PooledWarmup:
+    """Every member's warm-up pooled into one curve on top of `base` (`fit_pool`: core/warmup.fit_warmup with
+    `base` and the caller's options and settings); a member that disagrees beyond noise left out (the one
+    whose leaving out makes the rest agree best, again while they disagree). Never raises on data: a
+    refusal says why."""
     used = list(range(len(members)))
     left_out: list[tuple[int, str]] = []
-    result = _fit(members, used, base, options, settings)
+    result = fit_pool([members[i].recording for i in used])
     while result.fit is not None:
         fit = result.fit
         checks = {i: disagreement(members[i], fit, base) for i in used}
@@ -149,7 +145,7 @@ def pool_warmups(members: list[PoolMember], base: Calibration | None, options: W
         trials = []
         for i in used:
             rest = [j for j in used if j != i]
-            trial = _fit(members, rest, base, options, settings)
+            trial = fit_pool([members[j].recording for j in rest])
             if trial.fit is not None:
                 trial_fit = trial.fit
                 trials.append((max(_ratio(disagreement(members[j], trial_fit, base)) for j in rest), i, trial))

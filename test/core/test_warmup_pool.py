@@ -41,7 +41,7 @@ def test_a_cold_morning_and_a_warm_afternoon_pool_over_their_joint_range():
     """They meet at 18..20.5 degC, one at its slow end, one at its fast start: tied there, each with its own
     turn-on bias (accelerometer and gyro, opposite in the two), one curve over 0..45 degC."""
     for seed, truth in enumerate(two_imus(), start=60):
-        pooled = pool_warmups(day(truth, seed), None)
+        pooled = pool_warmups(day(truth, seed), None, fit_warmup)
         fit = pooled.result.fit
         assert fit is not None and pooled.left_out == ()
         assert fit.range_degc[0] < 0.5 and fit.range_degc[1] > 44.5 and not fit.lag_seen
@@ -54,7 +54,7 @@ def test_another_sensors_warm_up_is_left_out_and_named_not_averaged_in():
     members = day(truth, 62)
     members.append(member("stranger", warmup_recording(stranger_of(truth), np.random.default_rng(63),
                                                        Heating(8.0, 38.0, tau_s=200.0, minutes=9.0), rate_hz=50.0)))
-    pooled = pool_warmups(members, None)
+    pooled = pool_warmups(members, None, fit_warmup)
     assert pooled.used == (0, 1) and [i for i, _ in pooled.left_out] == [2]
     assert "its warm-up disagrees with the other logs' (accelerometer" in pooled.left_out[0][1]
     fit = pooled.result.fit
@@ -70,6 +70,6 @@ def test_two_warm_ups_that_disagree_are_refused_not_averaged():
                                                rate_hz=50.0)),
                member("theirs", warmup_recording(stranger_of(truth), rng, Heating(12.0, 42.0, tau_s=200.0,
                                                                                    minutes=9.0), rate_hz=50.0))]
-    pooled = pool_warmups(members, None)
+    pooled = pool_warmups(members, None, fit_warmup)
     assert pooled.result.fit is None
     assert "the warm-ups of ours and theirs disagree beyond noise" in str(pooled.result.refusal)
