@@ -6,9 +6,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 
-def write_imu_bag(path, t_ns, accel, gyro, storage, frame_id="imu_link", topic="/imu/data_raw"):
+def write_imu_bag(path, t_ns, accel, gyro, storage, frame_id="imu_link", topic="/imu/data_raw", armed=None):
     """A rosbag2 of sensor_msgs/Imu written by rosbags: one message serialised by rosbags, the others
-    the same bytes with stamp, gyro and accel put in place (~4 s for 250k messages instead of ~8)."""
+    the same bytes with stamp, gyro and accel put in place (~4 s for 250k messages instead of ~8).
+    `armed`: (stamps ns, armed bools) written as std_msgs/Bool on /armed (a flight state, --armed-topic)."""
     store = get_typestore(Stores.ROS2_JAZZY)
     types = store.types
     vector = types["geometry_msgs/msg/Vector3"]
@@ -39,3 +40,8 @@ def write_imu_bag(path, t_ns, accel, gyro, storage, frame_id="imu_link", topic="
         connection = writer.add_connection(topic, "sensor_msgs/msg/Imu", typestore=store)
         for log_time, row in zip(np.asarray(t_ns, np.int64).tolist(), rows):
             writer.write(connection, log_time, row.tobytes())
+        if armed is not None:
+            state = writer.add_connection("/armed", "std_msgs/msg/Bool", typestore=store)
+            for log_time, value in zip(np.asarray(armed[0], np.int64).tolist(), armed[1]):
+                message = types["std_msgs/msg/Bool"](data=bool(value))
+                writer.write(state, log_time, bytes(store.serialize_cdr(message, "std_msgs/msg/Bool")))
