@@ -55,7 +55,7 @@ def _gravity(args: argparse.Namespace) -> tuple[float, str]:
     --gravity (any positive number: a table in other units), else the standard 1 g."""
     from ..core.gravity import given_gravity_source
 
-    located = local_gravity(args) if args.latitude is not None or args.height is not None else None
+    located = local_gravity(args) if args.latitude_deg is not None or args.height_m is not None else None
     if located is not None:
         return located
     gravity = STANDARD_GRAVITY if args.gravity is None else args.gravity

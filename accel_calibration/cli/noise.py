@@ -13,6 +13,7 @@ import numpy as np
 
 from ..bag.recording import FORMATS
 from ..core.errors import CalibrationError
+from ..core.units import AXES
 
 if TYPE_CHECKING:  # imported where used: the Allan fit needs scipy, which `accel-calib --help` does not pay for
     from ..bag.recording import Recording
@@ -139,7 +140,7 @@ def noise_table(fits: dict[str, list[NoiseFit] | None]) -> str:
             continue
         rows.append(f"{sensor}: density {DENSITY_UNITS[sensor]}, random walk {WALK_UNITS[sensor]}, "
                     f"bias instability {UNITS[sensor]} (95 % intervals)")
-        for axis, fit in zip("xyz", axes):
+        for axis, fit in zip(AXES, axes):
             n = fit.noise
             bias = _figure_text(n.bias_instability, absent="not present (no flat floor)")
             if n.bias_instability.resolved:
@@ -243,7 +244,7 @@ def _operating(args: argparse.Namespace, recording: Recording, still: tuple[int,
           f"density over {low:g}..{high:g} Hz (the vehicle's motion, below, left out), as the static density "
           "scaled by the band's ratio running / still")
     for sensor, noise in found.items():
-        for axis, fit, running, ratio in zip("xyz", fits[sensor] or [], noise.operating_density, noise.ratio):
+        for axis, fit, running, ratio in zip(AXES, fits[sensor] or [], noise.operating_density, noise.ratio):
             print(f"  {sensor[0]}{axis:6s} static {fit.noise.white_density.value:.3g}  operating {running:.3g} "
                   f"{DENSITY_UNITS[sensor]}  ratio {ratio:.2f}")
     return found
@@ -263,7 +264,7 @@ def _write_kalibr(args: argparse.Namespace, fits: dict[str, list[NoiseFit] | Non
         raise CalibrationError(f"{args.recording}: no noise measurable in the {' and '.join(silent)} (constant or "
                                "quantized samples): no figures for Kalibr's imu.yaml")
     measured = {sensor: axes for sensor, axes in fits.items() if axes is not None}
-    absent = [f"{sensor} {axis}" for sensor, axes in measured.items() for axis, f in zip("xyz", axes)
+    absent = [f"{sensor} {axis}" for sensor, axes in measured.items() for axis, f in zip(AXES, axes)
               if not f.noise.white_density.present]
     if absent:
         raise CalibrationError(f"{args.recording}: no white-noise region (-1/2 slope) in the Allan curve of "

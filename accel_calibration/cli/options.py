@@ -16,12 +16,6 @@ from ..core.units import STANDARD_GRAVITY
 PROG = "accel-calib"
 UNIT_SCALE = {"mps2": 1.0, "g": STANDARD_GRAVITY}  # a reading of 1 g is 9.80665 m/s^2 by definition
 
-# Flag -> the node's parameter it stands for. A command offers some of them (fleet: model, min_poses).
-FLAG_PARAMETERS = {"model": "model", "temperature_model": "temperature.model", "min_span": "temperature.min_span_degc",
-                   "gravity": "gravity", "latitude": "latitude_deg", "height": "height_m",
-                   "min_poses": "min_poses", "window": "static.window_s",
-                   "min_hold": "static.min_hold_s", "k_sigma": "static.k_sigma"}
-
 DEFAULT_MARGIN_S = 2.0
 # rcl's rules for a node's fully qualified name: tokens of letters, digits and underscores, none starting
 # with a digit, joined by single slashes; a leading slash optional here (the params file's keys drop it).
@@ -102,10 +96,10 @@ def add_local_gravity_options(parser: argparse.ArgumentParser) -> None:
     """Local gravity: a number, or the WGS84 normal gravity at a latitude and height (fit, replay, check)."""
     parser.add_argument("--gravity", type=float, default=None, metavar="G",
                         help=f"local gravity, m/s^2 (default {STANDARD_GRAVITY}; -p gravity:=...)")
-    parser.add_argument("--latitude", type=float, default=None, metavar="DEG",
+    parser.add_argument("--latitude", dest="latitude_deg", type=float, default=None, metavar="DEG",
                         help="local gravity from the WGS84 normal gravity at this geodetic latitude, deg "
                              "(instead of --gravity; -p latitude_deg:=...)")
-    parser.add_argument("--height", type=float, default=None, metavar="M",
+    parser.add_argument("--height", dest="height_m", type=float, default=None, metavar="M",
                         help="with --latitude: height above the WGS84 ellipsoid, m (default 0; -p height_m:=...)")
 
 
@@ -147,7 +141,7 @@ def _said_gravity(args: argparse.Namespace, sources: ParameterSources) -> dict[s
     import math
 
     defaults = {"gravity": STANDARD_GRAVITY, "height_m": 0.0}
-    flags = [(flag, {name: getattr(args, name.split("_")[0], None)}) for name, flag in GRAVITY_FLAGS.items()]
+    flags = [(flag, {name: getattr(args, name, None)}) for name, flag in GRAVITY_FLAGS.items()]
     said: dict[str, tuple[Any, str]] = {}
     for where, values in [*sources, *flags]:
         for name in GRAVITY_FLAGS:
@@ -245,25 +239,26 @@ def add_settings_options(parser: argparse.ArgumentParser, *, detector: bool, mod
         parser.add_argument("--model", choices=("six", "sphere9"), default=None, help="same as -p model:=...")
         parser.add_argument("--min-poses", type=int, default=None, help="same as -p min_poses:=...")
     if detector:
-        parser.add_argument("--temperature-model", choices=TEMPERATURE_MODELS, default=None,
+        parser.add_argument("--temperature-model", dest="temperature.model", choices=TEMPERATURE_MODELS, default=None,
                             help="same as -p temperature.model:=...")
-        parser.add_argument("--min-span", type=float, default=None,
+        parser.add_argument("--min-span", dest="temperature.min_span_degc", type=float, default=None,
                             help="same as -p temperature.min_span_degc:=...")
         add_local_gravity_options(parser)
-        parser.add_argument("--window", type=float, default=None,
+        parser.add_argument("--window", dest="static.window_s", type=float, default=None,
                             help="detector window, s (-p static.window_s:=...)")
-        parser.add_argument("--min-hold", type=float, default=None,
+        parser.add_argument("--min-hold", dest="static.min_hold_s", type=float, default=None,
                             help="shortest still interval, s (-p static.min_hold_s:=...)")
-        parser.add_argument("--k-sigma", type=float, default=None,
+        parser.add_argument("--k-sigma", dest="static.k_sigma", type=float, default=None,
                             help="detector threshold over the noise floor (-p static.k_sigma:=...)")
     add_flight_state_options(parser)
 
 
 def replay_settings(args: argparse.Namespace) -> Any:
     """ReplaySettings as the node builds its settings: defaults, then --params-file, then -p NAME:=VALUE,
-    then the flags of FLAG_PARAMETERS the command offers (add_settings_options)."""
+    then the flags standing for parameters the command offers (add_settings_options: each keeps its value
+    under the parameter's own name)."""
     from ..bag.replay import ReplaySettings
-    from ..core.settings import Settings
+    from ..core.settings import BY_NAME, Settings
 
     sources = parameter_sources(args)
     local_gravity(args, sources)  # the local g given in two places differently refused in one line first
@@ -271,9 +266,9 @@ def replay_settings(args: argparse.Namespace) -> Any:
     for _, given in sources:
         values.update(given)
     offered = vars(args)
-    for flag, name in FLAG_PARAMETERS.items():
-        if offered.get(flag) is not None:  # a flag this command does not offer is absent, not None
-            values[name] = offered[flag]
+    for name in BY_NAME:
+        if offered.get(name) is not None:  # a flag this command does not offer is absent, not None
+            values[name] = offered[name]
     return ReplaySettings(session=Settings.from_parameters(values), imu_topic=args.imu_topic,
                           temperature_topic=args.temperature_topic, **flight_state_settings(args))
 

@@ -217,9 +217,10 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError(f"--jobs must be at least 1, got {args.jobs}")
     settings = dataclasses.replace(replay_settings(args), **reader_fields(args))
     if args.prior is not None:
-        if args.temperature_model not in (None, "none"):  # the fit with a prior fits b and M alone, as fit says
+        temperature_model = getattr(args, "temperature.model")
+        if temperature_model not in (None, "none"):  # the fit with a prior fits b and M alone, as fit says
             raise CalibrationError(f"--prior fits the sphere models without a temperature model, not with "
-                                   f"--temperature-model {args.temperature_model}")
+                                   f"--temperature-model {temperature_model}")
         settings = dataclasses.replace(settings, prior=replay_prior(args.prior, settings.session),
                                        prior_path=args.prior)
     if args.warmup:

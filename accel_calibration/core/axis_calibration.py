@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from .calibration import Calibration
 from .errors import CalibrationError
-from .units import MG, STANDARD_GRAVITY
+from .units import AXES, MG, STANDARD_GRAVITY
 
 # Orientations the cost is evaluated on (a Fibonacci sphere: ~4.5 deg apart) and fitted on; temperatures
 # across the calibrated range. The worst case between grid points differs from the grid's by < 0.1 %.
@@ -247,7 +247,7 @@ def fit_axis_wise(calibration: Calibration, *, drift_order: int, drift_origin_de
             solution, *_ = np.linalg.lstsq(design, true[:, axis], rcond=None)
         s = float(solution[0])
         if not s > 0:
-            raise CalibrationError(f"axis {'xyz'[axis]}: the best scale is {s:g}, not positive")
+            raise CalibrationError(f"axis {AXES[axis]}: the best scale is {s:g}, not positive")
         scale[axis] = s
         coefficients[:, axis] = [-solution[1 + k] / s / span**k for k in range(1, order + 1)]
         offset[axis] = -solution[1] / s

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 
 from .calibration import Calibration, MeasuredNoise
 from .coverage import Face, missing_directions, missing_faces
-from .errors import CalibrationError, SettingsError
+from .errors import CalibrationError
 from .fit import FitResult, fit, pose_mean_sigma
 from .gates import QualityGates
 from .gyro_fit import GyroFitResult, fit_gyro
@@ -26,7 +26,7 @@ from .pose import Pose
 from .pose_store import PoseStore, StoreEvent
 from .prior import Prior, prior_terms
 from .refusal import OPENED_BY_POSES, Gate, Refusal
-from .settings import BY_NAME, DYNAMIC, Settings, changed
+from .settings import BY_NAME, Settings, check_run_time_change
 from .stream.detector import StaticDetector
 from .stream.feed import RecordingFeed
 from .stream.motion_recorder import MotionRecorder
@@ -99,10 +99,7 @@ class CalibrationSession:
     def update_settings(self, settings: Settings) -> None:
         """Take new values of the run-time settings (gates, auto_calibrate); the others shape the
         detector and store already built and are refused."""
-        fixed = [p.name for p in BY_NAME.values() if p.name not in DYNAMIC
-                 and changed(getattr(self.settings, p.field), getattr(settings, p.field))]
-        if fixed:
-            raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
+        check_run_time_change(self.settings, settings)
         self.gates = QualityGates.from_settings(settings)
         self.settings = settings
         self._cold_fit = None

@@ -18,6 +18,7 @@ from .fit import OutlierOptions
 from .gravity import HEIGHT_RANGE_M, LATITUDE_RANGE_DEG, given_gravity_source, normal_gravity, normal_gravity_source
 from .gyro_fit import GyroFitOptions
 from .gyro_gates import GyroGates
+from .stream.detector_batch import DetectorConfig
 from .temperature_models import TEMPERATURE_MODELS, TemperatureOptions
 from .units import STANDARD_GRAVITY
 
@@ -25,6 +26,7 @@ ONLINE_MODELS = ("six", "sphere9")
 _TEMPERATURE = TemperatureOptions()  # the temperature fit's defaults, written once (temperature_models.py)
 RELIABILITIES = ("reliable", "best_effort")
 _GYRO_GATES, _GYRO_FIT = GyroGates(), GyroFitOptions()  # the gyro fit's defaults, written once
+_DETECTOR = DetectorConfig()  # the detector's defaults, written once (core/stream/detector_batch.py)
 
 
 @dataclass(frozen=True)
@@ -115,23 +117,24 @@ PARAMETERS: tuple[Parameter, ...] = (
               "smallest span of pose temperatures to fit a temperature model, degC", 0.0, 200.0),
     Parameter("temperature.bin_degc", 5.0, "poses at one orientation but temperatures this far apart are kept apart, "
               "degC", 0.1, 100.0),
-    Parameter("static.window_s", 0.5, "static detector: sliding window, s of header time", 0.02, 10.0),
-    Parameter("static.min_hold_s", 1.0, "static detector: shortest still interval kept as a pose, s", 0.05, 600.0),
+    Parameter("static.window_s", _DETECTOR.window_s, "static detector: sliding window, s of header time", 0.02, 10.0),
+    Parameter("static.min_hold_s", _DETECTOR.min_hold_s, "static detector: shortest still interval kept as a pose, s",
+              0.05, 600.0),
     Parameter("static.accel_var_threshold", 0.0,
               "static detector: accel window variance threshold, (m/s^2)^2; 0 = k_sigma x learned noise floor",
               0.0, 1e6, zero_means_auto=True),
     Parameter("static.gyro_var_threshold", 0.0,
               "static detector: gyro window variance threshold, (rad/s)^2; 0 = learned noise floor",
               0.0, 1e6, zero_means_auto=True),
-    Parameter("static.k_sigma", 6.0, "static detector: threshold as a multiple of the noise-floor variance",
-              1.0, 1000.0),
+    Parameter("static.k_sigma", _DETECTOR.k_sigma, "static detector: threshold as a multiple of the noise-floor "
+              "variance", 1.0, 1000.0),
     Parameter("static.max_noise_mg", 15.0,
               "static detector: largest accel noise of a still window, mg rms per axis; the learned threshold never "
               "exceeds it (MEMS parts at rest: 0.5-10 mg; motor vibration in flight: 20 mg and more)", 0.1, 1000.0),
     Parameter("static.max_gyro_noise_mradps", 50.0,
               "static detector: largest gyro noise of a still window, mrad/s rms per axis (50 mrad/s = 2.9 deg/s); "
               "the learned gyro threshold never exceeds it", 0.1, 10_000.0),
-    Parameter("static.max_floor_rise", 1.5,
+    Parameter("static.max_floor_rise", _DETECTOR.max_floor_rise,
               "static detector: the learned noise floors may rise at most this factor (rms) above the quietest "
               "floor seen since start, so flight vibration is never learned as noise", 1.0, 1000.0),
     Parameter("use_calibration_in_force_as_prior", False,
@@ -200,6 +203,19 @@ def changed(before: Any, after: Any) -> bool:
     """A setting's value changed (NaN, an unset latitude, is equal to itself here)."""
     unset = isinstance(before, float) and isinstance(after, float) and math.isnan(before) and math.isnan(after)
     return not unset and bool(before != after)
+
+
+def fixed_at_start_up(name: str) -> str:
+    """The refusal of a change, while the node runs, to a setting that is not `dynamic` (it shaped what was
+    built at start: the detector, the store)."""
+    return f"{name} is fixed at start-up (read-only); restart to change it"
+
+
+def check_run_time_change(before: Settings, after: Settings) -> None:
+    """SettingsError (fixed_at_start_up) naming the first setting fixed at start-up that `after` changes."""
+    for parameter in PARAMETERS:
+        if not parameter.dynamic and changed(getattr(before, parameter.field), getattr(after, parameter.field)):
+            raise SettingsError(fixed_at_start_up(parameter.name))
 
 
 def _as_float_text(value: Any) -> str:

@@ -18,7 +18,7 @@ import numpy as np
 from ..core.change_rule import ChangeRule
 from ..core.evidence_trend import Trend, trend
 from ..core.text import printable_text
-from ..core.units import MG
+from ..core.units import AXES, MG
 
 EVIDENCE_STATUSES = ("evidence", "none", "failed")
 _TEXT_LIMITS = {"vehicle": 200, "sensor": 200, "status": 16, "device": 40, "verdict": 16, "written_at": 40}
@@ -264,7 +264,7 @@ def _in_flight_trends(rows: list[EvidenceRecord], rule: ChangeRule | None
         candidates = []
         for part, unit, per_unit, bound in (("accel", "mg", MG, None),
                                             ("gyro", "deg/s", float(np.radians(1.0)), MAX_GYRO_BIAS_CHANGE_RADPS)):
-            for axis, axis_name in enumerate("xyz"):
+            for axis, axis_name in enumerate(AXES):
                 points = [(row.flight, s[part][axis], s[f"{part}_sigma"][axis], s) for row, s in said
                           if isinstance(s.get(part), list) and isinstance(s.get(f"{part}_sigma"), list)
                           and s[part][axis] is not None and s[f"{part}_sigma"][axis] is not None]

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..core.allan import BIAS_INSTABILITY_FACTOR, Z95, NoiseFit
 from ..core.allan_model import design_columns
+from ..core.units import AXES
 
 
 def write_noise_figure(fits: dict[str, list[NoiseFit]], units: dict[str, str], path: str | Path, title: str) -> None:
@@ -20,7 +21,7 @@ def write_noise_figure(fits: dict[str, list[NoiseFit]], units: dict[str, str], p
     figure, panels = plt.subplots(1, len(fits), figsize=(6.5 * len(fits), 5), squeeze=False)
     colours = ("tab:red", "tab:green", "tab:blue")
     for panel, (sensor, axes) in zip(panels[0], fits.items()):
-        for axis, fit, colour in zip("xyz", axes, colours):
+        for axis, fit, colour in zip(AXES, axes, colours):
             band = Z95 * fit.relative_error
             panel.loglog(fit.tau_s, fit.adev, "o-", color=colour, markersize=3, label=f"{axis}")
             panel.fill_between(fit.tau_s, fit.adev * np.maximum(1 - band, 1e-3), fit.adev * (1 + band),

@@ -23,7 +23,17 @@ from rclpy.parameter import Parameter as RosParameter
 
 from ..core.calibration import Calibration
 from ..core.errors import SettingsError
-from ..core.settings import BY_NAME, PARAMETERS, RELIABILITIES, Parameter, Settings, changed, check_value
+from ..core.settings import (
+    BY_NAME,
+    PARAMETERS,
+    RELIABILITIES,
+    Parameter,
+    Settings,
+    changed,
+    check_run_time_change,
+    check_value,
+    fixed_at_start_up,
+)
 
 MIRROR_PREFIX = "calibration."
 # Parameters of the node itself (not of the session): fixed at start-up.
@@ -125,8 +135,7 @@ class NodeParameters:
             if parameter.name not in FIXED:
                 rest.append(parameter)
             elif not self._unchanged(parameter):
-                return SetParametersResult(successful=False, reason=f"{parameter.name} is fixed at start-up "
-                                           "(read-only); restart to change it"), []
+                return SetParametersResult(successful=False, reason=fixed_at_start_up(parameter.name)), []
         return None, rest
 
     def judge(self, parameters: list[RosParameter], settings: Settings) -> tuple[SetParametersResult, Settings | None]:
@@ -144,17 +153,13 @@ class NodeParameters:
             if any(p.name == name for p in NODE_PARAMETERS):
                 if self._unchanged(parameter):
                     continue
-                return SetParametersResult(successful=False, reason=f"{name} is fixed at start-up (read-only); "
-                                           "restart to change it"), None
+                return SetParametersResult(successful=False, reason=fixed_at_start_up(name)), None
             changes[name] = parameter.value
         if not changes:
             return SetParametersResult(successful=True), None
         try:
             new = Settings.from_parameters(changes, base=settings)
-            fixed = [p.name for p in PARAMETERS
-                     if not p.dynamic and changed(getattr(settings, p.field), getattr(new, p.field))]
-            if fixed:
-                raise SettingsError(f"{fixed[0]} is fixed at start-up (read-only); restart to change it")
+            check_run_time_change(settings, new)
         except SettingsError as error:
             return SetParametersResult(successful=False, reason=str(error)), None
         return SetParametersResult(successful=True), new
