@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from accel_calibration.bag.flight_evidence import log_evidence
 from accel_calibration.bag.imu_agreement import agreement, flight_means
@@ -107,3 +109,33 @@ def test_every_imu_of_the_real_logs_gets_its_in_flight_evidence_or_the_reason(sh
     assert found
     for evidence in found:
         assert reason in evidence.estimator["reason"] and reason in evidence.agreement["reason"]
+
+
+@settings(max_examples=15, deadline=None)
+@given(moved=st.integers(0, 2), offset_mg=st.floats(2.0, 10.0), sign=st.sampled_from([-1.0, 1.0]),
+       mounts=st.lists(st.tuples(*[st.floats(-0.05, 0.05)] * 3), min_size=3, max_size=3), seed=st.integers(0, 99))
+def test_of_three_imus_the_one_offset_along_the_force_is_the_one_that_disagrees(moved, offset_mg, sign, mounts, seed):
+    """Whatever each IMU's small mounting rotation, one IMU's z offset shows on it alone: it differs from
+    both siblings by the offset, and they agree with each other. Tilted in flight, the part of the offset
+    across the force is taken as a tilt by the rotation fit (at 10 degrees, up to 1 - cos 10 deg of it)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    t_ns = np.arange(12_000) * 10_000_000  # 2 min at 100 Hz
+    seconds = t_ns[:, None] / 1e9  # turns of up to 10 degrees about every axis, as a multirotor flies
+    attitude = Rotation.from_euler("xyz", np.radians(10.0) * np.sin(2 * np.pi * rng.uniform(0.05, 0.3, 3) * seconds
+                                                                    + rng.uniform(0, 2 * np.pi, 3)))
+    force = attitude.inv().apply([0.0, 0.0, 9.80665]) + rng.normal(0, 0.3, (len(t_ns), 3))
+    flying = np.ones(len(t_ns), dtype=bool)
+    imus = {}
+    for k, mount in enumerate(mounts):
+        accel = Rotation.from_rotvec(mount).apply(force) + rng.normal(0, 0.01, force.shape)
+        accel[:, 2] += sign * offset_mg * MG * (k == moved)
+        imus[k] = flight_means(f"IMU {k + 1}", t_ns, accel, None, flying)
+    said = agreement(imus)
+    for k, found in said.items():
+        assert not isinstance(found, str)
+        if k == moved:
+            assert abs(found.accel_mps2[2] / MG - sign * offset_mg) < 0.3 + 0.03 * offset_mg
+        else:
+            assert abs(found.accel_mps2[2]) / MG < 0.3 and found.against != f"IMU {moved + 1}"
