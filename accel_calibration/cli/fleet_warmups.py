@@ -102,7 +102,7 @@ def _imu_warmup(path: str, settings: ReplaySettings, instance: int | None, devic
     try:
         each = read_warmup(path, each_settings)
     except AccelCalibrationError as error:
-        reason = str(error)
+        reason = str(error).removeprefix(f"{path}: ")  # the line names the log already
         said = f"no warm-up: {reason}" if "no temperature" in reason else f"failed to read: {reason}"
         return ImuWarmup(_imu_key(instance, device, ""), None, said), None
     source = each.replay.source
@@ -129,7 +129,7 @@ def read_log_warmups(path: str, settings: ReplaySettings, vehicle_rule: str | No
     try:
         devices = log_accel_devices(path, settings.format or detect_format(path))
     except AccelCalibrationError as error:
-        devices, failed = {}, str(error)
+        devices, failed = {}, str(error).removeprefix(f"{path}: ")
     else:
         failed = ""
     imus, vehicle = [], None

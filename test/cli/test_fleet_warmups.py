@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from conftest import shared_path
 
 from accel_calibration import load_calibration
 from accel_calibration.cli.main import main
@@ -95,3 +96,14 @@ def test_fleet_warmup_bad_input_is_one_line(tmp_path):
     code, err = run_main(["fleet", tmp_path / "broken.ulg", "--warmup", "-o", tmp_path / "curves", "--workers", "1"])
     assert code == 1 and "Traceback" not in err, err
     assert "broken.ulg: failed to read" in err and not (tmp_path / "curves").exists()
+
+
+def test_a_real_log_without_a_temperature_says_why_in_one_line(tmp_path, capsys):
+    """PX4's sample.ulg logs no IMU temperature (and no sensor_accel, only sensor_combined): its line says why
+    there is no curve, one error line, exit 1, nothing written."""
+    code = main(["fleet", str(shared_path("real/px4_ulog/sample.ulg")), "--warmup", "-o", str(tmp_path / "curves"),
+                 "--workers", "1"])
+    printed, err = capsys.readouterr()
+    assert_one_error_line(code, err, "no warm-up in any of its 1 log(s)")
+    assert "no curve, none of its 1 log(s) holds a warm-up\n  sample.ulg: no warm-up: no temperature stream" in printed
+    assert not (tmp_path / "curves").exists()
