@@ -377,7 +377,7 @@ class LiveCalibration:
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
         calibration, gyro_kept = self._keeping_gyro(verdict)
-        warmed, warmup_line = self.warmup.added(calibration, self.session.gates)
+        warmed, warmup_line = self.warmup.added(calibration, self.session.gates, self.session.store.poses)
         calibration = warmed or calibration
         applied, saved = self._apply(calibration, verdict.result)
         if not applied:

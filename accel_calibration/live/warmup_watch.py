@@ -11,7 +11,8 @@ start a run of their own (it is tied to the others only where their temperatures
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,7 +22,6 @@ from ..core.gates import QualityGates
 from ..core.pose import Pose
 from ..core.stream.temperature_filter import TemperatureFilter
 from ..core.warmup import (
-    GAP_S,
     ORIENTATION_DEG,
     PASS_RATE,
     BinnedWarmup,
@@ -43,12 +43,12 @@ RATE_WINDOW_S = 10.0  # the heating rate (warming or cooling pass) over this muc
 KEEP_S = 75.0
 STEADY_S = 60.0  # still this long within STEADY_DEGC: the temperature is steady, no warm-up
 STEADY_DEGC = 0.5
-MAX_RUNS = 8  # runs (orientation x temperature level) kept; a ninth is not binned, said
+MAX_RUNS = 8  # runs (orientation x temperature level) kept; beyond, the one of fewest samples is dropped, said
 BLOCK_ROWS = 16_384
 _COLUMNS = 27  # count, sum degC, sum rate, accel sum (3) and products (9), gyro sum (3) and products (9)
 
 
-@dataclass
+@dataclass(eq=False)
 class _Run:
     """One orientation at one temperature level: its bins' sums about `shift` (numerically safe)."""
 
@@ -84,7 +84,7 @@ class WarmupWatch:
         self.jumps: list[str] = []
         self.still_binned = 0
         self.still_without_temperature = 0
-        self.runs_not_kept = 0
+        self.runs_dropped = 0
 
     # ------------------------------------------------------------------ what comes in
     def add_readings(self, stamps_ns: np.ndarray, degc: np.ndarray) -> None:
@@ -176,8 +176,6 @@ class WarmupWatch:
         for level in np.unique(epoch[known]).tolist():
             rows = known & (epoch == level)
             run = self._run_for(int(level), direction, values[rows][0], int(t[rows][0]))
-            if run is None:
-                continue
             run.end_ns = int(t[rows][-1])
             self._accumulate(run, degc[rows], rate[rows], values[rows])
             self.still_binned += int(np.count_nonzero(rows))
@@ -207,19 +205,19 @@ class WarmupWatch:
                 rate[at] = (degc[at] - before) / window
         return degc, rate, epoch
 
-    def _run_for(self, epoch: int, direction: np.ndarray, first: np.ndarray, start_ns: int) -> _Run | None:
-        """The run these samples belong to: the one they continue (no gap: one still stretch, whatever
-        the drift does to gravity's direction), else one at their orientation and temperature level
-        (core/warmup joins a stretch at one orientation after a motion alike: one turn-on), else a new one."""
+    def _run_for(self, epoch: int, direction: np.ndarray, first: np.ndarray, start_ns: int) -> _Run:
+        """The run these samples belong to: the one at their orientation (within ORIENTATION_DEG of its
+        latest samples: a bias drifting over a long warm-up turns gravity's direction slowly, a turn of the
+        sensor does not) and temperature level (core/warmup joins a stretch at one orientation after a
+        motion alike: one turn-on), else a new one; beyond MAX_RUNS the run of fewest samples gives way."""
         for run in self._runs:
-            continues = start_ns - run.end_ns <= GAP_S * 1e9
-            if run.epoch == epoch and (continues or float(np.dot(run.direction, direction))
-                                       > np.cos(np.radians(ORIENTATION_DEG))):
-                run.direction = direction  # the latest: a bias drifting over a long warm-up turns it slowly
+            if run.epoch == epoch and float(np.dot(run.direction, direction)) > np.cos(np.radians(ORIENTATION_DEG)):
+                run.direction = direction
                 return run
         if len(self._runs) >= MAX_RUNS:
-            self.runs_not_kept += 1
-            return None
+            counts = [sum(row[0] for row in run.bins.values()) for run in self._runs]
+            del self._runs[int(np.argmin(counts))]
+            self.runs_dropped += 1
         self._runs.append(_Run(epoch, direction, first.copy(), start_ns, start_ns))
         return self._runs[-1]
 
@@ -276,8 +274,9 @@ class WarmupWatch:
                 if row[0] >= self.options.min_bin_samples]
         return (min(degc), max(degc)) if degc else None
 
-    def fit(self, calibration: Calibration | None) -> WarmupResult:
-        return fit_binned_warmup(self._binned(calibration), calibration, self.options)
+    def fit(self, calibration: Calibration | None, reference_degc: float | None = None) -> WarmupResult:
+        options = self.options if reference_degc is None else replace(self.options, reference_degc=reference_degc)
+        return fit_binned_warmup(self._binned(calibration), calibration, options)
 
     def _seconds(self, stamp_ns: int) -> float:
         return (stamp_ns - (self._origin_ns if self._origin_ns is not None else stamp_ns)) * 1e-9
@@ -308,8 +307,8 @@ class WarmupWatch:
                      "new level a run of its own)")
         elif self.readings_off_trend:
             text += f"; {self.readings_off_trend} temperature readings off the trend left out"
-        if self.runs_not_kept:
-            text += f"; still samples of {self.runs_not_kept} more orientations or levels not kept (at most {MAX_RUNS})"
+        if self.runs_dropped:
+            text += f"; {self.runs_dropped} short still runs dropped (of other orientations: {MAX_RUNS} are kept)"
         return text
 
     def still_binned_s(self) -> float:
@@ -329,10 +328,12 @@ class WarmupWatch:
         """Whether there is a warm-up to speak of: temperature readings came (else /calibrate says nothing of it)."""
         return self.readings > 0
 
-    def added(self, calibration: Calibration | None, gates: QualityGates) -> tuple[Calibration | None, str]:
+    def added(self, calibration: Calibration | None, gates: QualityGates, poses: Sequence[Pose] = ()
+              ) -> tuple[Calibration | None, str]:
         """`calibration` (None: the raw output) with the warm-up's curves as its temperature model, and the
         /calibrate answer's line on it; None and the reason when none is added (and "" when nothing was
-        collected: no warm-up to speak of)."""
+        collected: no warm-up to speak of). `poses`: those `calibration` was fitted from: its bias is theirs
+        at their mean temperature, where the curves are zero (else its own reference, else the middle)."""
         if not self.collected():
             return None, ""
         if not self._runs:
@@ -340,7 +341,7 @@ class WarmupWatch:
         if calibration is not None and calibration.temperature is not None and calibration.temperature.kind != "spline":
             return None, _line(f"the calibration has a {calibration.temperature.kind} temperature model (poses at "
                                "several temperatures); the warm-up's curves are not added")
-        result = self.fit(calibration)
+        result = self.fit(calibration, _poses_degc(calibration, poses))
         if result.fit is None:
             return None, _line(result.refusal or "warm-up: no curve")
         added = warmup_calibration(result.fit, calibration)
@@ -353,6 +354,16 @@ class WarmupWatch:
         return added, (f"warmup: {{added: true, range_degc: [{low:.2f}, {high:.2f}], reference_degc: "
                        f"{result.fit.reference_degc:.2f}, bins: {result.fit.bins}, held_flat_outside: true, "
                        f"said: {yaml_quoted(said)}}}")
+
+
+def _poses_degc(calibration: Calibration | None, poses: Sequence[Pose]) -> float | None:
+    """Where a calibration fitted from `poses` holds: its own reference temperature, else the poses' mean
+    temperature (their median: the many orientations held at one temperature decide the bias, not a few poses
+    held while it warmed), None when neither is known."""
+    if calibration is not None and calibration.reference_temperature_degc is not None:
+        return calibration.reference_temperature_degc
+    degc = [pose.temperature_degc for pose in poses if pose.temperature_degc is not None]
+    return float(np.median(degc)) if degc else None
 
 
 def _line(reason: str) -> str:

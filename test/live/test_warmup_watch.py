@@ -12,9 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from accel_calibration.core.settings import Settings
+from accel_calibration.core.units import MG, STANDARD_GRAVITY
 from accel_calibration.core.warmup import WarmupRecording
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
 from accel_calibration.live.calibration_work import LiveCalibration
+from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
 
 from helpers.session_doors import LogLines
 from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_recording
@@ -87,7 +89,7 @@ def test_a_still_warm_up_is_learned_and_calibrate_applies_its_curves_within_1_5_
         assert accel_mg < 1.5 and gyro_mradps < 0.3, (accel_mg, gyro_mradps)
     # Uncorrected, the same sensor moves by tens of mg and mrad/s over the range.
     drift = truth.accel_drift(inside)
-    assert np.ptp(drift, axis=0).max() / 9.80665e-3 > 20.0
+    assert np.ptp(drift, axis=0).max() / MG > 20.0
 
 
 def test_too_little_span_calibrates_as_before_and_says_why_no_temperature_model(tmp_path):
@@ -242,3 +244,39 @@ def test_the_bins_do_not_depend_on_how_the_stream_is_cut_into_feeds(tmp_path_fac
         assert row[0] == parts[key][0]
         np.testing.assert_allclose(parts[key], row, rtol=1e-9, atol=1e-9)
     assert cut.diagnostic_values()["warmup_span_degc"] == one.diagnostic_values()["warmup_span_degc"]
+
+
+def test_on_top_of_the_poses_fit_the_curves_are_zero_where_the_poses_were(tmp_path):
+    """Turned through 16 orientations at 30 degC, then still while it warms to 44 degC: /calibrate fits the
+    poses and adds the warm-up's curves, zero where the poses were (their bias is the bias there: the poses'
+    median temperature), so the correction at any orientation and temperature is the poses' fit's at theirs."""
+    truth = two_imus()[0]
+    rng = np.random.default_rng(9)
+    c, poses_degc = truth.calibration, 30.0
+    errors = SensorErrors(bias_mps2=c.bias + truth.accel_drift(np.array([poses_degc]))[0], matrix=c.matrix,
+                          noise_mps2=0.02, gyro_noise_radps=1e-3,
+                          gyro_bias_radps=c.gyro_bias_radps + truth.gyro_drift(np.array([poses_degc]))[0])
+    turned = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.5, move_s=1.0, rate_hz=RATE_HZ, seed=9,
+                          temperature_degc=poses_degc).samples()
+    warm = warmup_recording(truth, rng, Heating(start_degc=poses_degc, tau_s=150.0, minutes=8.0), rate_hz=RATE_HZ)
+    live, _ = started(tmp_path)
+    play(live, WarmupRecording(turned.t_ns, turned.accel_raw, turned.gyro_raw, turned.temperature_degc))
+    play(live, WarmupRecording(warm.t_ns + turned.t_ns[-1] + 10**9, warm.accel_mps2, warm.gyro_radps,
+                               warm.temperature_degc))
+    success, answer = live.calibrate()
+    assert success, answer
+    said = yaml.safe_load(answer)
+    assert said["model"] == "sphere9" and said["warmup"]["added"] is True, answer
+    assert abs(said["warmup"]["reference_degc"] - poses_degc) < 0.5, said["warmup"]
+    calibration = live.store.calibration
+    poses_fit = calibration.replace(temperature=None)
+    true = STANDARD_GRAVITY * np.vstack([np.eye(3), -np.eye(3), spread_orientations(8, rng)[0].apply(np.eye(3))])
+    at_poses = true @ np.linalg.inv(c.matrix).T + c.bias + truth.accel_drift(np.array([poses_degc]))
+    worst_mg = worst_mradps = 0.0
+    for degc in np.linspace(*said["warmup"]["range_degc"], 12):
+        raw = true @ np.linalg.inv(c.matrix).T + c.bias + truth.accel_drift(np.array([degc]))
+        moved = calibration.apply(raw, np.full(len(raw), degc)) - poses_fit.apply(at_poses)
+        worst_mg = max(worst_mg, np.abs(moved).max() / MG)
+        gyro_raw = c.gyro_bias_radps + truth.gyro_drift(np.array([degc]))
+        worst_mradps = max(worst_mradps, np.abs(calibration.apply_gyro(gyro_raw, np.array([degc]))).max() * 1e3)
+    assert worst_mg < 1.5 and worst_mradps < 0.3, (worst_mg, worst_mradps)
