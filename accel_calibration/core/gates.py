@@ -11,9 +11,8 @@ from .calibration import Calibration
 from .coverage import NextOrientation, ParameterSigma, SigmaBounds, next_orientation, parameter_sigmas, worst
 from .errors import CalibrationError
 from .fit import FitResult
-from .plausibility import GYRO_SCALE_BAND, bias_scale_refusal, loadable_part
+from .plausibility import GYRO_SCALE_BAND, MAX_BIAS_MPS2, SCALE_BAND, bias_scale_refusal, loadable_part
 from .refusal import Gate, Refusal
-from .settings import Settings
 
 
 @dataclass(frozen=True)
@@ -21,15 +20,18 @@ class QualityGates:
     """What a fit must meet before it is applied (by /calibrate, automatically, or by replay). Each
     refusal names the gate: `poses`, `fit`, `residual`, `sigma`, `bias`, `scale`. Which faces were
     seen does not matter, only how well the poses pin every parameter down (`sigma`): the refusal
-    names the loosest parameter and the orientation that would pin it down most."""
+    names the loosest parameter and the orientation that would pin it down most.
+
+    The defaults of the node's gate parameters (core/settings.py reads them from here): `Settings.quality_gates`
+    gives the gates of a session's settings."""
 
     min_poses: int = 12
     max_residual_rms_mg: float = 15.0  # a MEMS part's pose means fit the sphere to a few mg
-    max_bias_sigma_mg: float = 5.0  # the bias must be known this well
-    max_scale_sigma_ppm: float = 5000.0  # ~5 mg at 1 g, like the bias bound
-    max_misalignment_sigma_mrad: float = 5.0  # ~5 mg at 1 g
-    max_bias_mps2: float = 2.0  # plausibility: MEMS zero-g offsets are below ~150 mg
-    scale_band: tuple[float, float] = (0.9, 1.1)  # plausibility: gain of each axis (row norm of M)
+    max_bias_sigma_mg: float = SigmaBounds.bias_mg  # the bias must be known this well
+    max_scale_sigma_ppm: float = SigmaBounds.scale_ppm  # ~5 mg at 1 g, like the bias bound
+    max_misalignment_sigma_mrad: float = SigmaBounds.misalignment_mrad  # ~5 mg at 1 g
+    max_bias_mps2: float = MAX_BIAS_MPS2  # plausibility (core/plausibility.py)
+    scale_band: tuple[float, float] = SCALE_BAND  # plausibility: gain of each axis (row norm of M)
     gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND  # the gyro's (gyro.scale_min, gyro.scale_max)
 
     def __post_init__(self) -> None:
@@ -43,14 +45,6 @@ class QualityGates:
         lo, hi = self.scale_band
         if not (0 < lo < 1 < hi):
             raise CalibrationError(f"scale_min < 1 < scale_max must hold, got {lo!r}, {hi!r}")
-
-    @classmethod
-    def from_settings(cls, settings: Settings) -> QualityGates:
-        return cls(min_poses=settings.min_poses, max_residual_rms_mg=settings.max_residual_rms_mg,
-                   max_bias_sigma_mg=settings.max_bias_sigma_mg, max_scale_sigma_ppm=settings.max_scale_sigma_ppm,
-                   max_misalignment_sigma_mrad=settings.max_misalignment_sigma_mrad,
-                   max_bias_mps2=settings.max_bias_mps2, scale_band=(settings.scale_min, settings.scale_max),
-                   gyro_scale_band=(settings.gyro_scale_min, settings.gyro_scale_max))
 
     @property
     def sigma_bounds(self) -> SigmaBounds:

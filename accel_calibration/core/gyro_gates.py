@@ -10,7 +10,7 @@ import numpy as np
 
 from .errors import CalibrationError
 from .gyro_fit import GyroFitResult, refused_text, turn_advice, unobserved_axes
-from .plausibility import GYRO_SCALE_BAND
+from .plausibility import GYRO_SCALE_BAND, gains_outside
 from .refusal import GyroGate, GyroRefusal
 from .units import AXES
 
@@ -91,10 +91,7 @@ def sigma_gate(result: GyroFitResult, max_scale_ppm: float, max_misalignment_mra
 def scale_gate(result: GyroFitResult, scale_band: tuple[float, float]) -> GyroRefusal | None:
     if result.matrix is None:
         return GyroRefusal(GyroGate.SCALE, "no gyro matrix")
-    lo, hi = scale_band
-    gains = np.linalg.norm(result.matrix, axis=1)
-    outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
+    outside = gains_outside(result.matrix, scale_band)
     if outside:
-        return GyroRefusal(GyroGate.SCALE, f"correction gain {', '.join(outside)} outside {lo:g}..{hi:g} "
-                           "(gyro.scale_min..gyro.scale_max; is the gyro in rad/s?)")
+        return GyroRefusal(GyroGate.SCALE, f"{outside} (gyro.scale_min..gyro.scale_max; is the gyro in rad/s?)")
     return None

@@ -19,6 +19,10 @@ MAX_GYRO_BIAS_RADPS = 1.0
 # MEMS gyro scale errors are a few percent. The one band of the gyro's gain, `gyro.scale_min`..`gyro.scale_max`:
 # the gyro gate's default (core/gyro_gates.GyroGates) and what a reader checks a file against.
 GYRO_SCALE_BAND = (0.9, 1.1)
+# The accelerometer's plausibility bounds (max_bias_mps2, scale_min..scale_max), the gates' defaults and what a
+# reader checks a file against: MEMS zero-g offsets are below ~150 mg, gains within a few percent.
+MAX_BIAS_MPS2 = 2.0
+SCALE_BAND = (0.9, 1.1)
 # Beyond any MEMS part's operating range (-40..125 degC); also keeps the polynomial in floating range.
 PLAUSIBLE_TEMPERATURE_DEGC = (-100.0, 200.0)
 # An entry this far from the structure's zero is a hand edit or another model, not rounding.
@@ -70,12 +74,17 @@ def bias_scale_refusal(bias: np.ndarray, matrix: np.ndarray, max_bias_mps2: floa
     worst_bias = float(np.max(np.abs(bias)))
     if not worst_bias <= max_bias_mps2:
         return Refusal(Gate.BIAS, f"|b| {worst_bias:.4g} m/s^2{where} above the plausible {max_bias_mps2:g} m/s^2")
-    lo, hi = scale_band
-    gains = np.linalg.norm(matrix, axis=1)  # correction gain of each axis (row of M)
+    outside = gains_outside(matrix, scale_band, where)
+    return None if outside is None else Refusal(Gate.SCALE, outside)
+
+
+def gains_outside(matrix: np.ndarray, band: tuple[float, float], where: str = "") -> str | None:
+    """The correction gain of each axis (row norm of M, the accelerometer's or the gyro's) outside `band`,
+    said; None when every one is within (a NaN is outside). The one check of an axis gain against its band."""
+    lo, hi = band
+    gains = np.linalg.norm(matrix, axis=1)
     outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
-    if outside:
-        return Refusal(Gate.SCALE, f"correction gain {', '.join(outside)}{where} outside {lo:g}..{hi:g}")
-    return None
+    return f"correction gain {', '.join(outside)}{where} outside {lo:g}..{hi:g}" if outside else None
 
 
 def effective_terms(calibration: Calibration, temperatures_degc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,8 +138,8 @@ def _temperature_block(text: str) -> Refusal:
     return Refusal(Gate.PLAUSIBILITY, text, part=TEMPERATURE_BLOCK)
 
 
-def plausibility_refusal(calibration: Calibration, *, max_bias_mps2: float = 2.0,
-                          scale_band: tuple[float, float] = (0.9, 1.1),
+def plausibility_refusal(calibration: Calibration, *, max_bias_mps2: float = MAX_BIAS_MPS2,
+                          scale_band: tuple[float, float] = SCALE_BAND,
                           max_gyro_bias_radps: float = MAX_GYRO_BIAS_RADPS,
                           gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> Refusal | None:
     """None when the calibration may be put in force, else the first refusal: the bias or scale gate's when
@@ -182,12 +191,7 @@ def implausible_text(refusal: Refusal) -> str:
 
 def gyro_gain_outside(calibration: Calibration, gyro_scale_band: tuple[float, float] = GYRO_SCALE_BAND) -> str | None:
     """The gyro matrix's axis gains outside gyro.scale_min..gyro.scale_max, said; None when within (or none)."""
-    if calibration.gyro_matrix is None:
-        return None
-    lo, hi = gyro_scale_band
-    gains = np.linalg.norm(calibration.gyro_matrix, axis=1)
-    outside = [f"{AXES[i]} {g:.4f}" for i, g in enumerate(gains) if not lo <= g <= hi]
-    return f"correction gain {', '.join(outside)} outside {lo:g}..{hi:g}" if outside else None
+    return None if calibration.gyro_matrix is None else gains_outside(calibration.gyro_matrix, gyro_scale_band)
 
 
 def without_gyro(calibration: Calibration) -> Calibration:

@@ -18,7 +18,6 @@ from .calibration import Calibration, MeasuredNoise
 from .coverage import Face, missing_directions, missing_faces
 from .errors import CalibrationError
 from .fit import FitResult, fit, pose_mean_sigma
-from .gates import QualityGates
 from .gyro_fit import GyroFitResult, fit_gyro
 from .models import parameter_count
 from .plausibility import implausible_text
@@ -74,7 +73,7 @@ class CalibrationSession:
     def __init__(self, settings: Settings | None = None):
         settings = settings if settings is not None else Settings()
         self.settings = settings
-        self.gates = QualityGates.from_settings(settings)
+        self.gates = settings.quality_gates
         self._stream = StreamSide(settings)
         self.store = PoseStore(merge_angle_deg=settings.merge_angle_deg, capacity=settings.max_poses,
                                temperature_bin_degc=settings.temperature_bin_degc,
@@ -100,7 +99,7 @@ class CalibrationSession:
         """Take new values of the run-time settings (gates, auto_calibrate); the others shape the
         detector and store already built and are refused."""
         check_run_time_change(self.settings, settings)
-        self.gates = QualityGates.from_settings(settings)
+        self.gates = settings.quality_gates
         self.settings = settings
         self._cold_fit = None
         self._gyro_fit = None

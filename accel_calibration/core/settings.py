@@ -12,9 +12,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from .coverage import SigmaBounds
 from .errors import SettingsError
 from .fit import OutlierOptions
+from .gates import QualityGates
 from .gravity import HEIGHT_RANGE_M, LATITUDE_RANGE_DEG, given_gravity_source, normal_gravity, normal_gravity_source
 from .gyro_fit import GyroFitOptions
 from .gyro_gates import GyroGates
@@ -27,6 +27,7 @@ _TEMPERATURE = TemperatureOptions()  # the temperature fit's defaults, written o
 RELIABILITIES = ("reliable", "best_effort")
 _GYRO_GATES, _GYRO_FIT = GyroGates(), GyroFitOptions()  # the gyro fit's defaults, written once
 _DETECTOR = DetectorConfig()  # the detector's defaults, written once (core/stream/detector_batch.py)
+_GATES = QualityGates()  # the quality gates' defaults, written once (core/gates.py, core/plausibility.py)
 
 
 @dataclass(frozen=True)
@@ -59,15 +60,16 @@ PARAMETERS: tuple[Parameter, ...] = (
     Parameter("sensor_id", "", "identity of the sensor, written into the calibration file"),
     Parameter("auto_calibrate", False, "apply (and save) a new fit by itself once it passes the quality gates",
               dynamic=True),
-    Parameter("min_poses", 12, "quality gate: poses needed before a fit may be applied", 6, 1000, dynamic=True),
-    Parameter("max_residual_rms_mg", 15.0, "quality gate: largest residual rms of a fit that may be applied, mg",
-              0.01, 1000.0, dynamic=True),
-    Parameter("max_bias_sigma_mg", 5.0, "quality gate: largest bias uncertainty (1 sigma) that may be applied, mg",
-              0.001, 1000.0, dynamic=True),
-    Parameter("max_scale_sigma_ppm", SigmaBounds.scale_ppm,
+    Parameter("min_poses", _GATES.min_poses, "quality gate: poses needed before a fit may be applied", 6, 1000,
+              dynamic=True),
+    Parameter("max_residual_rms_mg", _GATES.max_residual_rms_mg,
+              "quality gate: largest residual rms of a fit that may be applied, mg", 0.01, 1000.0, dynamic=True),
+    Parameter("max_bias_sigma_mg", _GATES.max_bias_sigma_mg,
+              "quality gate: largest bias uncertainty (1 sigma) that may be applied, mg", 0.001, 1000.0, dynamic=True),
+    Parameter("max_scale_sigma_ppm", _GATES.max_scale_sigma_ppm,
               "quality gate: largest scale-factor uncertainty (1 sigma, of the axis' gain) that may be applied, ppm "
               "(5000 ppm is 5 mg at 1 g)", 0.1, 1e6, dynamic=True),
-    Parameter("max_misalignment_sigma_mrad", SigmaBounds.misalignment_mrad,
+    Parameter("max_misalignment_sigma_mrad", _GATES.max_misalignment_sigma_mrad,
               "quality gate: largest misalignment uncertainty (1 sigma) that may be applied, mrad (5 mrad is ~5 mg "
               "at 1 g)", 0.001, 1000.0, dynamic=True),
     Parameter("outlier_threshold_mg", OutlierOptions.threshold_mg,
@@ -78,11 +80,12 @@ PARAMETERS: tuple[Parameter, ...] = (
               "robust fit: a pose is left out only when its residual is beyond this many sigmas of what the other "
               "poses' scatter predicts for it (as improbable as k Gaussian sigmas, allowing for their degrees of "
               "freedom)", 2.0, 1000.0, dynamic=True),
-    Parameter("max_bias_mps2", 2.0, "plausibility gate: largest |bias| per axis, m/s^2", 0.001, 100.0, dynamic=True),
-    Parameter("scale_min", 0.9, "plausibility gate: smallest correction gain per axis (row norm of M)", 0.01, 0.999,
-              dynamic=True),
-    Parameter("scale_max", 1.1, "plausibility gate: largest correction gain per axis (row norm of M)", 1.001, 100.0,
-              dynamic=True),
+    Parameter("max_bias_mps2", _GATES.max_bias_mps2, "plausibility gate: largest |bias| per axis, m/s^2", 0.001,
+              100.0, dynamic=True),
+    Parameter("scale_min", _GATES.scale_band[0], "plausibility gate: smallest correction gain per axis (row norm of M)",
+              0.01, 0.999, dynamic=True),
+    Parameter("scale_max", _GATES.scale_band[1], "plausibility gate: largest correction gain per axis (row norm of M)",
+              1.001, 100.0, dynamic=True),
     Parameter("merge_angle_deg", 5.0, "a new pose within this angle of a held one (same temperature bin) refines it",
               0.1, 45.0),
     Parameter("merge_tolerance_mg", 0.5,
@@ -329,6 +332,14 @@ class Settings:
             parameter = BY_NAME[name]
             changes[parameter.field] = check_value(parameter, value)
         return replace(base or cls(), **changes)
+
+    @property
+    def quality_gates(self) -> QualityGates:
+        return QualityGates(min_poses=self.min_poses, max_residual_rms_mg=self.max_residual_rms_mg,
+                            max_bias_sigma_mg=self.max_bias_sigma_mg, max_scale_sigma_ppm=self.max_scale_sigma_ppm,
+                            max_misalignment_sigma_mrad=self.max_misalignment_sigma_mrad,
+                            max_bias_mps2=self.max_bias_mps2, scale_band=(self.scale_min, self.scale_max),
+                            gyro_scale_band=(self.gyro_scale_min, self.gyro_scale_max))
 
     @property
     def outliers(self) -> OutlierOptions:

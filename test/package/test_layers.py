@@ -165,7 +165,7 @@ def test_the_node_is_wiring_only_of_at_most_250_lines():
 # The core modules that compose the parts and so read Settings whole (docs/maintaining.md, "A parameter");
 # every other core module takes its own option object.
 READ_SETTINGS_WHOLE = {"core.settings", "core.session", "core.stream.stream_side", "core.stream.screening",
-                       "core.gates", "core.warmup"}
+                       "core.warmup"}
 
 
 def test_only_the_composing_core_modules_read_settings_whole():

@@ -77,3 +77,25 @@ def test_every_flag_standing_for_a_parameter_keeps_its_value_under_the_parameter
     import accel_calibration.cli.options as options
 
     assert not hasattr(options, "FLAG_PARAMETERS")  # no table from flags to parameters
+
+
+GATE_PARAMETERS = ("min_poses", "max_residual_rms_mg", "max_bias_sigma_mg", "max_scale_sigma_ppm",
+                   "max_misalignment_sigma_mrad", "max_bias_mps2", "scale_min", "scale_max")
+
+
+def test_the_gates_parameters_default_to_the_gates_own_defaults():
+    from accel_calibration.core.gates import QualityGates
+
+    assert Settings().quality_gates == QualityGates()
+    settings_text = sources()["core/settings.py"]
+    for name in GATE_PARAMETERS:  # read from the gates', not written again
+        assert not re.search(rf'Parameter\("{name}", [0-9]', settings_text), name
+    defaults = [name for name, text in sources().items()
+                if re.search(r"max_bias_mps2: float = [0-9]|scale_band: tuple\[float, float\] = \(", text)]
+    assert defaults == ["core/plausibility.py"] or defaults == [], defaults
+
+
+def test_an_axis_gain_outside_its_band_is_judged_in_one_place():
+    judged = [name for name, text in sources().items() if 'f"correction gain {' in text]
+    assert judged == ["core/plausibility.py"]
+    assert sources()["core/plausibility.py"].count('f"correction gain {') == 1
