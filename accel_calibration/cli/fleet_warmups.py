@@ -25,7 +25,8 @@ if TYPE_CHECKING:
     from ..bag.replay import ReplaySettings
     from ..bag.warmup_replay import WarmupInput
     from ..core.calibration import Calibration
-    from ..core.warmup_pool import PoolMember
+    from ..core.warmup import WarmupRecording, WarmupResult
+    from ..core.warmup_pool import PooledWarmup, PoolMember
 
 SHORT_S = 60.0  # a recording shorter than this is too short to be a warm-up (say so, not "moving")
 # fleet's own (cli/fleet.py, which calls in here, so they are handed over rather than imported back):
@@ -57,7 +58,6 @@ class ImuWarmup:
     member: PoolMember | None
     reason: str | None
     base_said: str = ""
-    start_ns: int | None = None
     names: dict[str, Any] = dataclasses.field(default_factory=dict)  # Calibration fields naming the sensor
 
 
@@ -116,7 +116,7 @@ def _imu_warmup(path: str, settings: ReplaySettings, instance: int | None, devic
     if result.fit is None:
         return ImuWarmup(key, None, _no_warmup(each, result.refusal or "")), each
     member = PoolMember(Path(path).name, each.recording, result.fit, each.base)
-    return ImuWarmup(key, member, None, each.base_said, source.start_ns, names), each
+    return ImuWarmup(key, member, None, each.base_said, names), each
 
 
 def read_log_warmups(path: str, settings: ReplaySettings, vehicle_rule: str | None, vehicle_of: VehicleOf
@@ -197,8 +197,7 @@ def _file_stem(vehicle: str) -> str:
 def _pooled(group: _Group, settings: ReplaySettings, directory: Path) -> tuple[list[str], list[str],
                                                                            tuple[Path, str] | None]:
     """One vehicle's IMU pooled: (lines, errors, (file, text) to write or None)."""
-    from ..core.warmup import WarmupOptions, fit_warmup, warmup_calibration
-    from ..core.warmup_pool import pool_warmups
+    from ..core.warmup import warmup_calibration
     from ..io.calibration_file import checked_calibration_text
 
     who = f"{group.vehicle} IMU {group.key or '-'}"
@@ -208,12 +207,9 @@ def _pooled(group: _Group, settings: ReplaySettings, directory: Path) -> tuple[l
         unread = not group.key and all(why.startswith("failed") for _, why in group.not_used)
         return [f"{who}: no curve, none of its {logs} log(s) holds a warm-up", *notes], \
             [] if unread else [f"{who}: no warm-up in any of its {logs} log(s)"], None  # unread: said once
-    # The curve goes on top of the calibration in force in the newest log: the one the vehicle flies with.
-    newest = max(range(len(group.imus)), key=lambda i: group.imus[i].start_ns or 0)
-    members = [imu.member for imu in group.imus if imu.member is not None]
+    members = [imu.member for imu in group.imus if imu.member is not None]  # every one of group.imus has one
+    pooled, newest = _pool(members, settings)
     base = members[newest].base
-    pooled = pool_warmups(members, base, lambda recordings: fit_warmup(recordings, base, WarmupOptions(),
-                                                                         settings.session))
     errors = [f"{who}: {Path(group.paths[i]).name} left out: {why}" for i, why in pooled.left_out]
     notes += [f"  {Path(group.paths[i]).name}: left out: {why}" for i, why in pooled.left_out]
     fit = pooled.result.fit
@@ -228,6 +224,25 @@ def _pooled(group: _Group, settings: ReplaySettings, directory: Path) -> tuple[l
              f"warm-up {group.imus[newest].base_said} of {Path(group.paths[newest]).name}",
              *(f"  {line}" for line in fit.describe()[1:]), *notes]
     return lines, errors, (target, checked_calibration_text(calibration, target))
+
+
+def _pool(members: list[PoolMember], settings: ReplaySettings) -> tuple[PooledWarmup, int]:
+    """The members pooled on top of the calibration in force in the last log used (as given; a directory's by
+    name, as autopilots number their logs; a log's own stamps count from boot): the one the vehicle flies
+    with. Returns the pool and which member's calibration it is on top of."""
+    from ..core.warmup import WarmupOptions, fit_warmup
+    from ..core.warmup_pool import PooledWarmup, pool_warmups
+
+    def fit_on(base: Calibration | None) -> Callable[[list[WarmupRecording]], WarmupResult]:
+        return lambda recordings: fit_warmup(recordings, base, WarmupOptions(), settings.session)
+
+    last = len(members) - 1
+    pooled = pool_warmups(members, members[last].base, fit_on(members[last].base))
+    if pooled.result.fit is not None and last not in pooled.used:  # the last log left out: the last one used
+        last = pooled.used[-1]
+        refit = fit_on(members[last].base)([members[i].recording for i in pooled.used])
+        pooled = PooledWarmup(refit, pooled.used, pooled.left_out)
+    return pooled, last
 
 
 def _named(calibration: Calibration, names: dict[str, Any]) -> Calibration:

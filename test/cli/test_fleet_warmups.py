@@ -64,6 +64,7 @@ def test_fleet_pools_a_cold_morning_and_a_warm_afternoon_per_imu_by_device(tmp_p
         assert accel_mg <= 1.5 and gyro_mradps <= 0.3, (accel_mg, gyro_mradps)
         line = next(line for line in printed.splitlines() if line.startswith(f"vehicle7 IMU dev{device}:"))
         assert f"{low:.1f}..{high:.1f} degC from 2 of 4 log(s) (morning.bin, afternoon.ulg)" in line
+        assert line.endswith("of afternoon.ulg")  # the last log used (the stranger after it left out)
         assert f"vehicle7 IMU dev{device}: stranger.ulg left out: its warm-up disagrees" in err
     assert printed.count("parked.bin: no warm-up: temperature steady") == 2
     assert printed.count("stranger.ulg: left out: its warm-up disagrees with the other logs'") == 2
