@@ -7,8 +7,9 @@ in force (the filter subtracts it from the corrected samples).
   gyro_bias[3] (rad/s), gyro_bias_variance[3], gyro_bias_valid, gyro_bias_stable: per device ID.
 - ArduPilot DataFlash EKF3 `XKF2` AX, AY, AZ (stored as int16 of 100 x m/s^2, format `c`, which pymavlink
   scales back to m/s^2) and `XKF1` GX, GY, GZ (int16 of 100 x deg/s, `c`: deg/s after pymavlink), per core
-  `C`; EKF2 `NKF2` AZbias (int8 of 100 x m/s^2, format `b`: cm/s^2 as read) and `NKF1` GX, GY, GZ. A core
-  runs on the IMU of its place among the set bits of EK3_IMU_MASK (EK2_IMU_MASK), default 3: core 0 on
+  `C`; EKF2 `NKF2` AZbias (int8 of 100 x m/s^2, format `b`: cm/s^2 as read) and `NKF1` GX, GY, GZ. Before
+  ArduPilot 4.1 a core had types of its own and no `C`: core 0 XKF1/XKF2, core 1 XKF6/XKF7 (NKF alike). A
+  core runs on the IMU of its place among the set bits of EK3_IMU_MASK (EK2_IMU_MASK), default 3: core 0 on
   IMU 0, core 1 on IMU 1. ArduPilot logs no variance of these: the estimate's wander over the settled
   stretch and its logged resolution stand for it.
 
@@ -145,17 +146,21 @@ def ardupilot_biases(path: str, flight_state: FlightState | None) -> dict[int, E
     """{IMU instance: its settled bias} from EKF3's XKF2/XKF1, else EKF2's NKF2/NKF1, or why there is none."""
     from .dataflash import scan_messages
 
-    found, params = scan_messages(Path(path), ["XKF1", "XKF2", "NKF1", "NKF2"])
+    found, params = scan_messages(Path(path), [f"{p}{n}" for p in ("XKF", "NKF") for n in (1, 2, 6, 7)])
     name = Path(path).name
     ekf3 = bool(found.get("XKF2") or found.get("XKF1"))
     if not ekf3 and not (found.get("NKF2") or found.get("NKF1")):
         return f"{name}: the log has no EKF3 XKF1/XKF2 or EKF2 NKF1/NKF2 records (the filter's bias estimates)"
-    accel_kind, gyro_kind, mask = ("XKF2", "XKF1", "EK3_IMU_MASK") if ekf3 else ("NKF2", "NKF1", "EK2_IMU_MASK")
-    imus = core_imus(params, mask)
+    prefix, mask = ("XKF", "EK3_IMU_MASK") if ekf3 else ("NKF", "EK2_IMU_MASK")
+    # ArduPilot 4.1 on: every core in XKF1/XKF2 with its core field C; before: core 0 in XKF1/XKF2, core 1 in
+    # types of its own, XKF6/XKF7 (NKF likewise), no core field.
+    with_core = any("C" in row for row in found.get(f"{prefix}1", []) + found.get(f"{prefix}2", []))
     out: dict[int, EstimatedBias] = {}
-    for core, imu in enumerate(imus):
-        accel = _ardupilot_part(found.get(accel_kind, []), core, flight_state, ekf3, accel=True)
-        gyro = _ardupilot_part(found.get(gyro_kind, []), core, flight_state, ekf3, accel=False)
+    for core, imu in enumerate(core_imus(params, mask)):
+        first = 1 if with_core else 1 + 5 * core
+        accel_kind, gyro_kind = f"{prefix}{first + 1}", f"{prefix}{first}"
+        accel = _ardupilot_part(_of_core(found.get(accel_kind, []), core, with_core), flight_state, ekf3, accel=True)
+        gyro = _ardupilot_part(_of_core(found.get(gyro_kind, []), core, with_core), flight_state, ekf3, accel=False)
         if accel is None and gyro is None:
             continue
         source = f"ArduPilot {'EKF3' if ekf3 else 'EKF2'} {accel_kind}/{gyro_kind} core {core}"
@@ -166,9 +171,12 @@ def ardupilot_biases(path: str, flight_state: FlightState | None) -> dict[int, E
     return out
 
 
-def _ardupilot_part(rows: list[dict[str, float]], core: int, flight_state: FlightState | None, ekf3: bool,
-                    accel: bool) -> tuple[tuple[float, float, float], tuple[float, float, float], int] | None:
-    mine = [r for r in rows if int(r.get("C", 0)) == core]
+def _of_core(rows: list[dict[str, Any]], core: int, with_core: bool) -> list[dict[str, Any]]:
+    return [r for r in rows if int(r.get("C", -1)) == core] if with_core else rows
+
+
+def _ardupilot_part(mine: list[dict[str, Any]], flight_state: FlightState | None, ekf3: bool, accel: bool
+                    ) -> tuple[tuple[float, float, float], tuple[float, float, float], int] | None:
     if not mine:
         return None
     t_ns = np.array([int(r["TimeUS"]) for r in mine], dtype=np.int64) * 1000

@@ -114,21 +114,37 @@ EKF_FORMATS = {
 }
 
 
-def ekf_records(flight: FlightLog, biases: list[FilterBias], seed: int, ekf: int = 3) -> list[tuple[int, tuple]]:
-    """(TimeUS, record) of XKF1/XKF2 (ekf=3) or NKF1/NKF2 (ekf=2) per core, core k on IMU k, as logged."""
+# Before ArduPilot 4.1 a core had message types of its own, without a core field: core 0 in XKF1/XKF2 (NKF1/NKF2),
+# core 1 in XKF6/XKF7 (NKF6/NKF7), as in ../shared/data/real/ardupilot/test.BIN.
+EKF_FORMATS_OLD = {
+    **{name: ("QccCfffffffccce", "TimeUS,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH")
+       for name in ("XKF1", "XKF6", "NKF1", "NKF6")},
+    **{name: ("QccccchhhhhhB", "TimeUS,AX,AY,AZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,MI") for name in ("XKF2", "XKF7")},
+    **{name: ("QbccccchhhhhhB", "TimeUS,AZbias,GSX,GSY,GSZ,VWN,VWE,MN,ME,MD,MX,MY,MZ,MI") for name in ("NKF2", "NKF7")},
+}
+
+
+def ekf_records(flight: FlightLog, biases: list[FilterBias], seed: int, ekf: int = 3, old_style: bool = False
+                ) -> list[tuple[int, tuple]]:
+    """(TimeUS, record) of XKF1/XKF2 (ekf=3) or NKF1/NKF2 (ekf=2) per core, core k on IMU k, as logged;
+    `old_style`: two cores in types of their own (XKF6/XKF7 for core 1), no core field."""
     out = []
-    first, second = ("XKF1", "XKF2") if ekf == 3 else ("NKF1", "NKF2")
+    prefix = "XKF" if ekf == 3 else "NKF"
     for core, bias in enumerate(biases):
+        first, second = (f"{prefix}{1 + 5 * core}", f"{prefix}{2 + 5 * core}") if old_style else \
+            (f"{prefix}1", f"{prefix}2")
+        which = () if old_style else (core,)
         t_us, accel, gyro, _, _ = filter_estimates(flight, bias, seed + core)
         for t, a, g in zip(t_us, accel, gyro):
             gx, gy, gz = (int(round(100 * np.degrees(v))) for v in g)
-            out.append((int(t), (first, (int(t), core, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, gx, gy, gz, 0))))
+            out.append((int(t), (first, (int(t), *which, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, gx, gy, gz, 0))))
             if ekf == 3:
                 ax, ay, az = (int(round(100 * v)) for v in a)
-                out.append((int(t), (second, (int(t), core, ax, ay, az, 0, 0, 0, 0, 0, 0, 0, 0, 0.0, 0.0, 0.0))))
+                tail = (0,) if old_style else (0.0, 0.0, 0.0)  # MI, or IDX, IDY, IS
+                out.append((int(t), (second, (int(t), *which, ax, ay, az, 0, 0, 0, 0, 0, 0, 0, 0, *tail))))
             else:
                 az = int(round(100 * a[2]))
-                out.append((int(t), (second, (int(t), core, az, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))))
+                out.append((int(t), (second, (int(t), *which, az, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))))
     return out
 
 
@@ -195,7 +211,7 @@ def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce], biases: 
 
 
 def write_dataflash_flight(path, flight: FlightLog, in_force: list[InForce], biases: list[FilterBias] | None = None,
-                           seed: int = 0, ekf: int = 3) -> None:
+                           seed: int = 0, ekf: int = 3, old_style: bool = False) -> None:
     """IMU records per instance (corrected by INS_ACCnOFFS/SCAL, as ArduPilot logs them), PARM with the
     devices' INS_ACCn_ID, ARM and EV records; with `biases`, the filter's records (EKF3 XKF1/XKF2, or EKF2
     NKF1/NKF2), core k on IMU k."""
@@ -220,7 +236,7 @@ def write_dataflash_flight(path, flight: FlightLog, in_force: list[InForce], bia
     if biases:
         params_mask = (1 << len(biases)) - 1
         records.append((START_US - 1000, ("PARM", (START_US - 1000, f"EK{ekf}_IMU_MASK", float(params_mask)))))
-        records += ekf_records(flight, biases, seed, ekf)
-        formats.update(EKF_FORMATS)
+        records += ekf_records(flight, biases, seed, ekf, old_style)
+        formats.update(EKF_FORMATS_OLD if old_style else EKF_FORMATS)
     records.sort(key=lambda r: r[0])
     write_dataflash(path, formats, [r for _, r in records])
