@@ -108,3 +108,22 @@ def test_a_real_log_without_a_temperature_says_why_in_one_line(tmp_path, capsys)
     assert_one_error_line(code, err, "no warm-up in any of its 1 log(s)")
     assert "no curve, none of its 1 log(s) holds a warm-up\n  sample.ulg: no warm-up: no temperature stream" in printed
     assert not (tmp_path / "curves").exists()
+
+
+def test_a_log_in_motion_throughout_says_moving(tmp_path, capsys):
+    """Two minutes turning at 0.5 rad/s while the temperature rises 10 degC: no still stretch, said so."""
+    from accel_calibration.bag.csv_stream import samples_csv_text
+
+    t = np.arange(0.0, 120.0, 0.01)
+    angle = 0.5 * t
+    accel = 9.80665 * np.column_stack([np.zeros_like(t), np.sin(angle), np.cos(angle)])
+    accel += np.random.default_rng(45).normal(0.0, 0.04, accel.shape)
+    gyro = np.tile([0.5, 0.0, 0.0], (len(t), 1))
+    (tmp_path / "rover").mkdir()
+    (tmp_path / "rover" / "turning.csv").write_text(samples_csv_text(np.round(t * 1e9).astype(np.int64), accel, gyro,
+                                                                     20.0 + t / 12.0))
+    code = main(["fleet", str(tmp_path / "rover" / "turning.csv"), "--warmup", "-o", str(tmp_path / "curves"),
+                 "--workers", "1"])
+    printed, err = capsys.readouterr()
+    assert_one_error_line(code, err, "no warm-up in any of its 1 log(s)")
+    assert "turning.csv: no warm-up: moving, no still stretch with a temperature" in printed
