@@ -21,13 +21,14 @@ def calibration_in_force(correction: LoggedCorrection) -> Calibration:
                        sensor_id=correction.names)
 
 
-def ulog_correction(path: str, device: int | None) -> LoggedCorrection | None:
-    """PX4's CAL_ACCn slot of this device from the parameters the log starts with (a sensor_accel instance is
-    logged raw: the correction is not undone on read, and is looked up here)."""
+def ulog_correction(path: str, device: int | None, gyro_device: int | None = None) -> LoggedCorrection | None:
+    """PX4's CAL_ACCn slot of this device (and CAL_GYROn of `gyro_device`, when given) from the parameters the
+    log starts with (a sensor_accel instance is logged raw: the correction is not undone on read, and is looked
+    up here)."""
     from pyulog import ULog
 
     from .logged_correction import px4_correction
 
     log = ULog(path, [], parse_header_only=True)  # the parameters the log starts with are in its definitions
     params = {str(k): float(v) for k, v in log.initial_parameters.items()}
-    return px4_correction(params, device, None, path)
+    return px4_correction(params, device, gyro_device, path)

@@ -80,7 +80,8 @@ def _no_flight(name: str, flight_state: Any) -> str | None:
 
 
 def _flight_means(path: str, devices: dict[int, int | None]) -> tuple[dict[int, Any], Any]:
-    """Each IMU's per-second means in flight, its calibration in force applied (the log's own)."""
+    """Each IMU's per-second means in flight, its calibration in force applied (the log's own offsets and
+    scales; a gyro's offsets)."""
     from .correction_in_force import calibration_in_force, ulog_correction
     from .estimator_bias import in_flight
     from .imu_agreement import flight_means
@@ -95,11 +96,14 @@ def _flight_means(path: str, devices: dict[int, int | None]) -> tuple[dict[int, 
         flight_state = flight_state or recording.flight_state
         correction = recording.logged_correction
         if correction is None and recording.format == "ulog":
-            correction = ulog_correction(path, recording.accel_device_id)
+            correction = ulog_correction(path, recording.accel_device_id, recording.gyro_device_id)
         accel = recording.accel_mps2 if correction is None else calibration_in_force(correction).apply(
             recording.accel_mps2)
+        gyro = recording.gyro_radps
+        if gyro is not None and correction is not None and correction.gyro_offset_radps is not None:
+            gyro = gyro - correction.gyro_offset_radps  # the gyro offsets in force (PX4, ArduPilot alike)
         name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
-        means[instance] = flight_means(name, recording.t_ns, accel, recording.gyro_radps,
+        means[instance] = flight_means(name, recording.t_ns, accel, gyro,
                                        in_flight(recording.t_ns, recording.flight_state))
     return means, flight_state
 

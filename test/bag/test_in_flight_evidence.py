@@ -80,6 +80,16 @@ def test_an_imu_that_disagrees_is_named_and_its_siblings_agree(tmp_path):
         assert abs(sibling["accel"][2]) / MG < 0.2 and sibling["against"] != f"IMU 2 (device {ALL_DEVICES[1]})"
 
 
+def test_gyros_are_compared_after_their_calibration_in_force(tmp_path):
+    """Each gyro's own output off by its CAL_GYROn offset (0.5 deg/s apart), the offsets in force: they agree."""
+    truths = sensors(81)
+    offsets = [np.radians([0.5, -0.3, 0.2]), np.radians([-0.2, 0.4, -0.3])]
+    path = tmp_path / "gyros.ulg"
+    write_ulog_flight(path, fly(truths, 82), [true_in_force(t) for t in truths], gyro_offsets=offsets)
+    for evidence in log_evidence(str(path)):
+        assert np.all(np.abs(evidence.agreement["gyro"]) < np.radians(0.005)), evidence.agreement
+
+
 def test_agreement_sees_a_gyro_offset_after_the_rotation_between_imus():
     rng = np.random.default_rng(5)
     t_ns = np.arange(60_000) * 2_000_000  # 2 min at 500 Hz, all in flight

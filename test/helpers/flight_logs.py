@@ -177,9 +177,10 @@ def _logged(raw: np.ndarray, in_force: InForce) -> np.ndarray:
 
 
 def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce], biases: list[FilterBias] | None = None,
-                      seed: int = 0) -> None:
+                      seed: int = 0, gyro_offsets: list[np.ndarray] | None = None) -> None:
     """sensor_accel per IMU (its own output, as PX4 logs it), sensor_combined (IMU 0 corrected), CAL_ACCn_*,
-    vehicle_status and vehicle_land_detected; with `biases`, estimator_sensor_bias per IMU (one filter each)."""
+    vehicle_status and vehicle_land_detected; with `biases`, estimator_sensor_bias per IMU (one filter each);
+    with `gyro_offsets`, each gyro's own output is off by its offset and CAL_GYROn_xOFF in force says it."""
     params: dict[str, float | int] = {"SENS_BOARD_ROT": 0, "TC_A_ENABLE": 0, "TC_G_ENABLE": 0}
     topics = []
     for k, calibration in enumerate(in_force):
@@ -191,7 +192,10 @@ def write_ulog_flight(path, flight: FlightLog, in_force: list[InForce], biases: 
         topics.append(("sensor_accel", k, sensor_triplet_array(flight.t_us, flight.raw[k], ALL_DEVICES[k],
                                                                flight.temperature)))
     for k in range(len(in_force)):
-        topics.append(("sensor_gyro", k, sensor_triplet_array(flight.t_us, flight.gyro, ALL_DEVICES[k],
+        offset = np.zeros(3) if gyro_offsets is None else gyro_offsets[k]
+        for axis, name in enumerate("XYZ"):
+            params[f"CAL_GYRO{k}_{name}OFF"] = float(offset[axis])
+        topics.append(("sensor_gyro", k, sensor_triplet_array(flight.t_us, flight.gyro + offset, ALL_DEVICES[k],
                                                               flight.temperature)))
     topics.append(("sensor_combined", 0, sensor_combined_array(flight.t_us, _logged(flight.raw[0], in_force[0]),
                                                                flight.gyro)))
