@@ -159,7 +159,7 @@ def write_long_logs(tmp: Path, seconds: float) -> list[Path]:
     logs.RATE_HZ, logs.GROUND_S, logs.FLIGHT_S = 1000.0, 10.0, seconds - 20.0
     logs.DEVICES = (1310988, 1442060, 2162700)
     try:
-        truths = sensors(7)  # one per device: three
+        truths = [*sensors(7), *sensors(8)][:3]  # one per device
         flight = fly(truths, 7)
         in_force = [true_in_force(t) for t in truths]
         paths = [tmp / "hour.ulg", tmp / "hour.bin"]

@@ -30,12 +30,14 @@ from .fleet_warmups import warmup_requested
 from .options import add_settings_options, replay_settings
 
 if TYPE_CHECKING:  # imported where used: the CLI's start-up does not pay for the history module
+    from ..bag.flight_evidence_bag import GivenCalibration
     from ..bag.replay import ReplayResult, ReplaySettings
     from ..io.flight_history import EvidenceRecord
     from ..io.history import HistoryRecord
 
 RECORDING_SUFFIXES = (".mcap", ".db3", ".ulg", ".csv")
 FLIGHT_LOG_SUFFIXES = (".ulg", ".bin")  # autopilot logs: each IMU's flight evidence is kept too
+BAG_SUFFIXES = (".mcap", ".db3")  # and bags' (a rosbag2 directory, or one of its storage files)
 METADATA_VEHICLE_KEYS = ("vehicle", "vehicle_id", "robot", "robot_name")
 DEFAULT_HISTORY = "calibrations.sqlite"
 
@@ -190,10 +192,11 @@ def _line(record: HistoryRecord, name: str) -> str:
             f"bias {bias} mg, scale {scale}")
 
 
-def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehicle_rule: str | None = None
-                        ) -> RecordingOutcome:
+def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehicle_rule: str | None = None,
+                        given: GivenCalibration | None = None) -> RecordingOutcome:
     """Replay one recording and describe it for the history. Runs on a worker; never raises (the reason
-    of any failure is the outcome's, one line), so one bad recording cannot stop a fleet."""
+    of any failure is the outcome's, one line), so one bad recording cannot stop a fleet. `given`: the
+    calibration in force of a bag's IMU (a bag carries none; an autopilot log's is its own)."""
     from ..io.history import HistoryRecord, recording_identity
 
     started = time.perf_counter()
@@ -228,7 +231,7 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
         record = HistoryRecord(**identity, vehicle=vehicle, vehicle_source=vehicle_source, sensor="",
                                status="failed", reason=reason)
         failed = outcome("failed", reason, record, _line(record, where.name))
-        if where.suffix.lower() in FLIGHT_LOG_SUFFIXES:  # a flight log that fails is an evidence row too
+        if keeps_evidence(where):  # a flight log that fails is an evidence row too
             from ..io.flight_history import EvidenceRecord
 
             failed = dataclasses.replace(failed, evidence=EvidenceRecord(
@@ -238,7 +241,7 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
                                                               vehicle_source, outcome))
 
     first_row = _with_evidence(_described(replay, identity, vehicle, vehicle_source, where, outcome), replay,
-                               _first_instance(replay, settings))
+                               _first_instance(replay, settings), given)
     return dataclasses.replace(first_row, others=_other_rows(path, settings, replay, identity, vehicle,
                                                              vehicle_source, outcome))
 
@@ -283,17 +286,28 @@ def _first_instance(replay: ReplayResult, settings: ReplaySettings | None) -> in
     return next((n for n, device in devices.items() if device == recording.accel_device_id), None)
 
 
-def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | None) -> RecordingOutcome:
-    """An autopilot log's row with its IMU's flight evidence (bag/flight_evidence.py), keyed as the row."""
+def keeps_evidence(where: Path) -> bool:
+    """A recording whose IMUs get flight evidence rows: an autopilot log, a bag (a row even when it fails)."""
+    return where.suffix.lower() in FLIGHT_LOG_SUFFIXES + BAG_SUFFIXES or _is_bag_directory(where)
+
+
+def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | None,
+                   given: GivenCalibration | None = None) -> RecordingOutcome:
+    """An autopilot log's or a bag's row with its IMU's flight evidence (bag/flight_evidence.py), keyed as
+    the row."""
     from ..bag.flight_evidence import evidence_of
+    from ..bag.flight_evidence_bag import is_bag
     from ..bag.recording import LOGS, Recording
     from ..io.flight_history import evidence_record
 
     recording = replay.source.recording
-    if row.record is None or not isinstance(recording, Recording) or recording.format not in LOGS:
+    log = isinstance(recording, Recording) and recording.format in LOGS
+    # A bag that calibrated is a calibration session, its row the calibration: a flight is not one.
+    flight_bag = is_bag(replay) and row.status != "calibrated"
+    if row.record is None or not (log or flight_bag):
         return row
     try:
-        evidence = evidence_of(replay)
+        evidence = evidence_of(replay, given)
     except AccelCalibrationError as error:  # its parameters unreadable: a row with the reason
         from ..bag.flight_evidence import FlightEvidence
 
@@ -400,10 +414,11 @@ TASK_RECORDINGS = 8  # recordings per task at most
 
 
 def calibrate_recordings(paths: Sequence[str], settings: ReplaySettings | None = None,
-                         vehicle_rule: str | None = None) -> list[RecordingOutcome]:
+                         vehicle_rule: str | None = None, given: GivenCalibration | None = None
+                         ) -> list[RecordingOutcome]:
     """A few recordings in one task (calibrate_recording of each): a flight log's replay is a fraction of
     a second, and the scheduler's and the client's work per task runs on the cores the workers use."""
-    return [calibrate_recording(path, settings, vehicle_rule) for path in paths]
+    return [calibrate_recording(path, settings, vehicle_rule, given) for path in paths]
 
 
 def task_batches(count: int, slots: int) -> list[range]:
@@ -430,17 +445,17 @@ def lost_recording(path: str, reason: str, vehicle_rule: str | None) -> Recordin
                            package_version=_package_version(), vehicle=vehicle, vehicle_source=vehicle_source,
                            sensor="", status="failed", reason=reason)
     evidence = None
-    if where.suffix.lower() in FLIGHT_LOG_SUFFIXES:
+    if keeps_evidence(where):
         evidence = EvidenceRecord(recording_id, str(where), vehicle, "", "failed", reason=reason)
     return RecordingOutcome(path, "failed", reason, record, _line(record, where.name), None, 0.0, evidence=evidence)
 
 
-def _outcomes(client: Any, recordings: list[str], settings: ReplaySettings, vehicle_rule: str | None, slots: int
-              ) -> Iterator[RecordingOutcome]:
+def _outcomes(client: Any, recordings: list[str], settings: ReplaySettings, vehicle_rule: str | None, slots: int,
+              given: GivenCalibration | None) -> Iterator[RecordingOutcome]:
     """Every recording's outcome, as its task finishes. A task whose worker was lost is run again a recording
     a task, so that one recording that kills its worker cannot take the others of its batch with it."""
     batches = task_batches(len(recordings), slots)
-    jobs = [([recordings[i] for i in batch], settings, vehicle_rule) for batch in batches]
+    jobs = [([recordings[i] for i in batch], settings, vehicle_rule, given) for batch in batches]
     again: list[int] = []
     for k, outcomes, error in run_tasks(client, calibrate_recordings, jobs, sizes=[len(b) for b in batches]):
         if error is None:
@@ -450,7 +465,7 @@ def _outcomes(client: Any, recordings: list[str], settings: ReplaySettings, vehi
         else:
             path = recordings[batches[k][0]]
             yield lost_recording(path, f"{path}: worker lost ({error})", vehicle_rule)
-    alone = [(recordings[i], settings, vehicle_rule) for i in again]
+    alone = [(recordings[i], settings, vehicle_rule, given) for i in again]
     for k, outcome, error in run_tasks(client, calibrate_recording, alone):
         path = alone[k][0]
         yield outcome if error is None else lost_recording(path, f"{path}: worker lost ({error})", vehicle_rule)
@@ -479,8 +494,22 @@ def add_parser(commands: argparse._SubParsersAction[argparse.ArgumentParser]) ->
                              "(named group 'vehicle', else the first group, else the match; default: the "
                              "recording's metadata, else the folder holding it)")
     add_settings_options(parser, detector=False)
+    parser.add_argument("--calibration", default=None, metavar="CAL.yaml",
+                        help="the calibration in force of the bags' IMU, which a bag does not carry: their still "
+                             "moments are checked against it (default: against the nominal sensor); an autopilot "
+                             "log's is read from the log")
     add_warmup_arguments(parser)  # fleet --warmup -o DIR: cli/fleet_warmups.py
     return parser
+
+
+def _given_calibration(path: str | None) -> GivenCalibration | None:
+    """fleet --calibration: loaded before any work (a bad file is one line, nothing run)."""
+    if path is None:
+        return None
+    from ..bag.flight_evidence_bag import GivenCalibration
+    from ..io.calibration_file import load_calibration
+
+    return GivenCalibration(load_calibration(path), str(Path(path).expanduser().resolve()))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -494,6 +523,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise CalibrationError(f"--workers must be at least 1, got {args.workers}")
     settings = replay_settings(args)
+    given = _given_calibration(args.calibration)
     recordings, problems = find_recordings(args.recordings)
     if args.vehicle is not None:  # the rule tried on every path here, before any work (each within a time limit)
         for path in recordings:
@@ -508,7 +538,7 @@ def run(args: argparse.Namespace) -> int:
         writer = HistoryWriter(history)
         with dask_client(workers=workers, scheduler=args.scheduler) as client:
             cores = sum(client.nthreads().values()) or 1
-            for task_outcome in _outcomes(client, recordings, settings, args.vehicle, cores):
+            for task_outcome in _outcomes(client, recordings, settings, args.vehicle, cores, given):
                 for outcome in (task_outcome, *task_outcome.others):  # an autopilot log: a row per IMU
                     writer.add(outcome)
         writer.flush()
