@@ -145,17 +145,26 @@ class WarmupWatch:
             self._origin_ns = int(t_ns[0])
         self._chunks.append((np.asarray(t_ns, np.int64), np.asarray(accel_mps2, float),
                              np.asarray(gyro_radps, float)))
-        newest = int(t_ns[-1])
-        cutoff = max(newest - int(KEEP_S * 1e9), self._binned_until)
-        self._chunks = [chunk for chunk in self._chunks if chunk[0][-1] > cutoff]
-        oldest = newest - int((KEEP_S + RATE_WINDOW_S + self._timeout_s) * 1e9)
-        self._history = [entry for entry in self._history if entry[0][-1] >= oldest] or self._history[-1:]
-        self._off_trend = [stamp for stamp in self._off_trend if stamp >= oldest]
 
     def add_still(self, poses: list[Pose]) -> None:
-        """The detector's still intervals: their samples not binned yet go into the bins."""
+        """The detector's still intervals (after each feed, none too): their samples not binned yet go into
+        the bins; then what no interval can still claim is let go."""
         for pose in sorted(poses, key=lambda p: p.start_ns):
             self._bin_interval(pose)
+        self._prune()
+
+    def _prune(self) -> None:
+        """Samples binned, or older than KEEP_S; readings older than the rate window and the timeout before
+        the oldest sample kept (its temperature and heating rate read them)."""
+        if not self._chunks:
+            return
+        newest = int(self._chunks[-1][0][-1])
+        cutoff = max(newest - int(KEEP_S * 1e9), self._binned_until)
+        self._chunks = [chunk for chunk in self._chunks if chunk[0][-1] > cutoff]
+        first = int(self._chunks[0][0][0]) if self._chunks else newest
+        oldest = first - int((RATE_WINDOW_S + self._timeout_s) * 1e9)
+        self._history = [entry for entry in self._history if entry[0][-1] >= oldest] or self._history[-1:]
+        self._off_trend = [stamp for stamp in self._off_trend if stamp >= oldest]
 
     # ------------------------------------------------------------------ binning
     def _bin_interval(self, pose: Pose) -> None:
@@ -197,12 +206,11 @@ class WarmupWatch:
         degc[fresh], epoch[fresh] = values[held[fresh]], levels[held[fresh]]
         for level in np.unique(epoch[fresh]).tolist():
             at, mine = epoch == level, levels == level
-            span_s = (int(stamps[mine][-1]) - int(stamps[mine][0])) * 1e-9
-            window = min(RATE_WINDOW_S, span_s)
-            if window >= 1.0:
-                seconds = (stamps[mine] - stamps[mine][0]) * 1e-9
-                before = np.interp((t[at] - stamps[mine][0]) * 1e-9 - window, seconds, values[mine])
-                rate[at] = (degc[at] - before) / window
+            # Over the readings before each sample only: the rate must not depend on what came after it.
+            since = (t[at] - stamps[mine][0]) * 1e-9
+            window = np.minimum(RATE_WINDOW_S, since)
+            before = np.interp(since - window, (stamps[mine] - stamps[mine][0]) * 1e-9, values[mine])
+            rate[at] = np.where(window >= 1.0, (degc[at] - before) / np.maximum(window, 1.0), 0.0)
         return degc, rate, epoch
 
     def _run_for(self, epoch: int, direction: np.ndarray, first: np.ndarray, start_ns: int) -> _Run:
