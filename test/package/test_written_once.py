@@ -99,3 +99,24 @@ def test_an_axis_gain_outside_its_band_is_judged_in_one_place():
     judged = [name for name, text in sources().items() if 'f"correction gain {' in text]
     assert judged == ["core/plausibility.py"]
     assert sources()["core/plausibility.py"].count('f"correction gain {') == 1
+
+
+def test_each_detector_parameter_is_the_detectors_setting_of_the_same_name():
+    """`static.NAME` is the detector's NAME (no table renames it); only the two noise ceilings, given in mg
+    and mrad/s, are converted (the detector knows no unit)."""
+    import dataclasses
+
+    from accel_calibration.core.stream.stream_side import detector_config
+
+    detector = {f.name for f in dataclasses.fields(DetectorConfig)}
+    static = [p for p in PARAMETERS if p.name.startswith("static.")]
+    assert {p.name for p in static if p.name.removeprefix("static.") not in detector} == {
+        "static.max_noise_mg", "static.max_gyro_noise_mradps"}
+    settings = Settings.from_parameters({"static.window_s": 0.4, "static.min_hold_s": 2.5, "static.k_sigma": 7.0,
+                                         "static.max_floor_rise": 2.0, "static.accel_var_threshold": 0.01})
+    config = detector_config(settings)
+    for parameter in static:
+        name = parameter.name.removeprefix("static.")
+        if name in detector:
+            assert getattr(config, name) == (getattr(settings, parameter.field) or None), name
+    assert config.accel_noise_ceiling == pytest.approx(settings.static_max_noise_mg * 9.80665e-3)

@@ -4,12 +4,12 @@ cuts a recording into parts and hands each to `take`; the session composes it wi
 fit, gates, verdict)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from ..pose import Pose
-from ..settings import Settings
+from ..settings import PARAMETERS, Settings
 from ..units import MG
 from .detector import DISCARD, RESTART, StaticDetector
 from .detector_batch import DetectorConfig
@@ -23,14 +23,16 @@ PLAUSIBLE_GRAVITY = (0.5, 1.5)
 
 
 def detector_config(settings: Settings) -> DetectorConfig:
-    """The detector's settings from the session's."""
+    """The detector's settings from the session's, by one rule: the parameter `static.NAME` is the detector's
+    NAME (0 for a threshold: learned, None); the noise ceilings, in mg and mrad/s as people give them, go to
+    the detector (which knows no unit) in SI."""
+    detector = {f.name for f in fields(DetectorConfig)}
+    named = {p.name.removeprefix("static."): getattr(settings, p.field) for p in PARAMETERS
+             if p.name.startswith("static.") and p.name.removeprefix("static.") in detector}
+    for threshold in ("accel_var_threshold", "gyro_var_threshold"):
+        named[threshold] = named[threshold] or None
     return DetectorConfig(
-        window_s=settings.static_window_s,
-        min_hold_s=settings.static_min_hold_s,
-        accel_var_threshold=settings.static_accel_var_threshold or None,
-        gyro_var_threshold=settings.static_gyro_var_threshold or None,
-        k_sigma=settings.static_k_sigma,
-        max_floor_rise=settings.static_max_floor_rise,
+        **named,
         accel_noise_ceiling=settings.static_max_noise_mg * MG,
         gyro_noise_ceiling=settings.static_max_gyro_noise_mradps * 1e-3,
         floor_min_magnitude=0.05 * settings.gravity,  # not a dead sensor's zeros (a stream in g is 0.1 g)
