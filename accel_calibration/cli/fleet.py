@@ -354,8 +354,7 @@ def _other_imus(path: str, settings: ReplaySettings | None, replay: ReplayResult
             found.append((instance, str(error)))
             continue
         # A ULog's first row is sensor_combined: the selected device, which one of these instances is.
-        other_id = other.source.sensor_id
-        if kind == "dataflash" or replay is None or not other_id or other_id != replay.source.sensor_id:
+        if kind == "dataflash" or replay is None or not other.source.same_device(replay.source):
             found.append((instance, other))
     return kind, found
 
