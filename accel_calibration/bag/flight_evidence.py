@@ -22,7 +22,6 @@ from .correction_in_force import ulog_correction as _ulog_correction
 if TYPE_CHECKING:
     from ..core.check import CheckResult
     from ..core.pose import Pose
-    from .flight_evidence_bag import GivenCalibration
     from .replay import ReplayResult
 
 Z_GROUP = "bias z or scale z"  # what level ground sees of the z axis (check's name for it)
@@ -59,18 +58,13 @@ def _none(device: str, reason: str, in_force: str = "", poses: int = 0) -> Fligh
     return FlightEvidence(device, poses, in_force, "none", reason=reason)
 
 
-def evidence_of(replay: ReplayResult, given: GivenCalibration | None = None) -> FlightEvidence:
+def evidence_of(replay: ReplayResult) -> FlightEvidence:
     """The evidence of one IMU from its replay (bag/replay.replay_bag of a ULog instance or the selected
     sensor_combined, or a DataFlash IMU instance): its still moments on the ground, then what the log says of
-    it in flight; never raises for what the log lacks: the reason says it. A rosbag2's: flight_evidence_bag.py
-    (`given`: the calibration in force a bag does not carry)."""
+    it in flight; never raises for what the log lacks: the reason says it. A rosbag2's: flight_evidence_bag.py."""
     import dataclasses
 
-    from .flight_evidence_bag import bag_evidence, is_bag
     from .in_flight_evidence import in_flight_of
-
-    if is_bag(replay):
-        return bag_evidence(replay, given)
 
     ground = _ground_evidence(replay)
     estimator, agreement = in_flight_of(replay.source.recording)

@@ -296,7 +296,7 @@ def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | 
     """An autopilot log's or a bag's row with its IMU's flight evidence (bag/flight_evidence.py), keyed as
     the row."""
     from ..bag.flight_evidence import evidence_of
-    from ..bag.flight_evidence_bag import is_bag
+    from ..bag.flight_evidence_bag import bag_evidence, is_bag
     from ..bag.recording import LOGS, Recording
     from ..io.flight_history import evidence_record
 
@@ -307,7 +307,7 @@ def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | 
     if row.record is None or not (log or flight_bag):
         return row
     try:
-        evidence = evidence_of(replay, given)
+        evidence = bag_evidence(replay, given) if flight_bag else evidence_of(replay)
     except AccelCalibrationError as error:  # its parameters unreadable: a row with the reason
         from ..bag.flight_evidence import FlightEvidence
 

@@ -8,10 +8,24 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-if TYPE_CHECKING:
-    from .fleet import RecordingOutcome
+
+class RecordingOutcome(Protocol):
+    """What this writer reads of cli/fleet.RecordingOutcome (named here: fleet imports this module)."""
+
+    @property
+    def path(self) -> str: ...
+    @property
+    def status(self) -> str: ...  # calibrated | refused | failed
+    @property
+    def reason(self) -> str | None: ...
+    @property
+    def record(self) -> Any: ...  # io/history.HistoryRecord, or None
+    @property
+    def summary(self) -> str: ...
+    @property
+    def evidence(self) -> Any: ...  # io/flight_history.EvidenceRecord, or None
 
 BATCH_ROWS = 256  # outcomes held at most before they are written
 BATCH_S = 2.0  # nor held longer than this once the first of them arrived
@@ -119,4 +133,6 @@ def _unwritten(outcome: RecordingOutcome, error: Exception) -> RecordingOutcome:
     import dataclasses
 
     reason = f"{outcome.path}: its row was not written ({error})"
-    return dataclasses.replace(outcome, status="failed", reason=reason, summary=f"failed     {reason}", others=())
+    unwritten: RecordingOutcome = dataclasses.replace(outcome, status="failed", reason=reason,  # type: ignore[type-var]
+                                                      summary=f"failed     {reason}", others=())
+    return unwritten

@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from accel_calibration.bag.flight_evidence import Z_GROUP, evidence_of
+from accel_calibration.bag.flight_evidence import Z_GROUP
 from accel_calibration.bag.flight_evidence_bag import NO_FLIGHT_STATE, NOMINAL, GivenCalibration
+from accel_calibration.bag.flight_evidence_bag import bag_evidence as evidence_of
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
 from accel_calibration.core.calibration import Calibration
 from msg_tools.synthetic_imu import SensorErrors
