@@ -77,6 +77,17 @@ def file_status(level: Level, text: str) -> tuple[Level, str]:
             "uncalibrated: raw passes through" if level == WARN else f"calibration file unusable: {text}")
 
 
+NO_NOISE_VALUES = {"accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
+
+
+def work_values(still: bool, calibration_path: Path, watch: str, prior_unchecked: str, pose_being_held: str,
+                noise: dict[str, str], warmup: dict[str, str]) -> dict[str, str]:
+    """The work's diagnostic values, one set of keys from the node's start on."""
+    return {"detector_state": "still" if still else "moving", "calibration_file": str(calibration_path),
+            "calibration_watch": watch, "prior_unchecked": prior_unchecked, "pose_being_held": pose_being_held,
+            **noise, **warmup}
+
+
 def diagnostic_values(stream: dict[str, str], work: dict[str, str]) -> dict[str, str]:
     """The stream side's values and the work's, in the diagnostics' order."""
     merged = {**stream, **work}
@@ -175,17 +186,11 @@ class LiveCalibration:
 
     def values(self) -> dict[str, str]:
         """The work's diagnostic values (the stream side has its own: diagnostic_values merges them)."""
-        return {
-            "detector_state": "still" if self.still else "moving",
-            "calibration_file": str(self.store.path),
-            "calibration_watch": self.watch.state.text,
-            "prior_unchecked": self.prior_unchecked,
-            "pose_being_held": "" if self._held is None else (
-                f"counted: {nearest_face(self._held.accel_mps2)}, {self._held.duration_s:.1f} s still (/calibrate fits "
-                "it; a pose of its own once the sensor moves)"),
-            **self._noise_values(),
-            **self.warmup.values(self.still),
-        }
+        held = "" if self._held is None else (
+            f"counted: {nearest_face(self._held.accel_mps2)}, {self._held.duration_s:.1f} s still (/calibrate fits "
+            "it; a pose of its own once the sensor moves)")
+        return work_values(self.still, self.store.path, self.watch.state.text, self.prior_unchecked, held,
+                           self._noise_values(), self.warmup.values(self.still))
 
     def diagnostic_values(self) -> dict[str, str]:
         """In one process: both sides' values."""
@@ -211,7 +216,7 @@ class LiveCalibration:
         if noise is None and self.store.calibration is not None:
             noise, source = self.store.calibration.noise, "calibration file"
         if noise is None:
-            return {"accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
+            return dict(NO_NOISE_VALUES)
         gyro = noise.gyro_density
         return {"accel_noise_density": f"{noise.accel_density:.3e} m/s^2/sqrt(Hz)",
                 "gyro_noise_density": "" if gyro is None else f"{gyro:.3e} rad/s/sqrt(Hz)",
@@ -420,6 +425,6 @@ def starting_snapshot(settings: Settings, calibration_path: Path, calibrate_serv
     from the node's own opening of the file."""
     session = CalibrationSession(settings)
     progress = session.progress(None, calibrate_service)
-    values = {"detector_state": "moving", "calibration_file": str(calibration_path), "calibration_watch": "",
-              "accel_noise_density": "", "gyro_noise_density": "", "noise_source": "not yet measured"}
-    return WorkSnapshot(status, progress, pose_map(session, None, progress), values, {})
+    values = work_values(False, calibration_path, "", "", "", dict(NO_NOISE_VALUES),
+                         WarmupWatch(settings.temperature_timeout_s).values(False))
+    return WorkSnapshot(status, progress, pose_map(session, None, progress), values, session.counters.as_dict())
