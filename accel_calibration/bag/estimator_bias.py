@@ -87,11 +87,12 @@ def _flag(data: Mapping[str, np.ndarray], name: str, rows: int) -> np.ndarray:
     return np.asarray(data[name], dtype=bool) if name in data else np.ones(rows, dtype=bool)
 
 
-def px4_biases(path: str, flight_state: FlightState | None) -> dict[int, EstimatedBias] | str:
-    """{accelerometer device ID: its settled bias} from `estimator_sensor_bias`, or why there is none."""
+def px4_biases(path: str, flight_state: FlightState | None, log: Any = None) -> dict[int, EstimatedBias] | str:
+    """{accelerometer device ID: its settled bias} from `estimator_sensor_bias`, or why there is none; `log`:
+    the log already read with that topic among others."""
     from .ulog_reader import _load
 
-    log = _load(Path(path), ["estimator_sensor_bias"])
+    log = _load(Path(path), ["estimator_sensor_bias"]) if log is None else log
     found = [d for d in log.data_list if d.name == "estimator_sensor_bias" and len(d.data["timestamp"])]
     name = Path(path).name
     if not found:

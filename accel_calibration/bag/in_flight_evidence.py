@@ -49,12 +49,18 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
     """Per IMU instance of the log: its estimator's bias and its agreement, read once (keyed by the file's
     size and time too, so a log rewritten in place is read again)."""
     from ..core.errors import AccelCalibrationError
-    from .recording import log_accel_devices
+    from .recording import detect_format, log_accel_devices
 
     del size, mtime_ns  # the cache's key only
+    log = None
     try:
-        devices = log_accel_devices(path)
-        means, flight_state = _flight_means(path, devices)
+        if detect_format(path) == "ulog":
+            log, devices, means, flight_state = _ulog_flight_means(path)
+            if not devices:  # sensor_combined alone: its selected IMU, as replay reads it
+                means, flight_state = _flight_means(path, devices)
+        else:
+            devices = log_accel_devices(path)
+            means, flight_state = _flight_means(path, devices)
     except AccelCalibrationError as error:
         reason = {"reason": str(error)}
         return {0: reason}, {0: reason}, {0: None}
@@ -62,7 +68,7 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
     no_flight = _no_flight(Path(path).name, flight_state)
     if no_flight is not None:
         return {k: {"reason": no_flight} for k in devices}, {k: {"reason": no_flight} for k in devices}, devices
-    estimators = _estimators(path, devices, flight_state)
+    estimators = _estimators(path, devices, flight_state, log)
     try:
         agreements = _agreements(path, means)
     except (np.linalg.LinAlgError, ValueError) as error:  # degenerate seconds (a dead IMU's zeros): its reason
@@ -108,7 +114,63 @@ def _flight_means(path: str, devices: dict[int, int | None]) -> tuple[dict[int, 
     return means, flight_state
 
 
-def _estimators(path: str, devices: dict[int, int | None], flight_state: Any) -> dict[int, Said]:
+def _ulog_flight_means(path: str) -> tuple[Any, dict[int, int | None], dict[int, Any], Any]:
+    """A ULog read once for all of it (its sensor_accel and sensor_gyro instances, the flight state, the
+    filter's bias): (the log, {instance: device}, each IMU's per-second means in flight, the flight state).
+    Each gyro's means are taken on its own stamps (the seconds line up; no interpolation)."""
+    from .correction_in_force import calibration_in_force
+    from .estimator_bias import in_flight
+    from .flight_sources import ULOG_TOPICS, ulog_flight_state
+    from .imu_agreement import flight_means
+    from .logged_correction import px4_correction
+    from .ulog_reader import ACCEL, GYRO, VEHICLE_IMU, _datasets, _device_id, _load, _xyz, paired_gyro
+
+    log = _load(Path(path), [ACCEL, GYRO, VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS])
+    accels = {d.multi_id: d for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
+    devices = {n: _device_id(d.data) for n, d in accels.items()}
+    if not accels:
+        return log, {}, {}, ulog_flight_state(log)
+    flight_state = ulog_flight_state(log)
+    params = {str(k): float(v) for k, v in log.initial_parameters.items()}
+    means = {}
+    for instance, dataset in accels.items():
+        data, device = dataset.data, devices[instance]
+        t_ns = np.asarray(data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"],
+                          dtype=np.int64) * 1000
+        gyro_set = paired_gyro(log, instance, device)
+        correction = px4_correction(params, device, None if gyro_set is None else _device_id(gyro_set.data), path)
+        accel = _xyz(data, ("x", "y", "z"))
+        if correction is not None:
+            accel = calibration_in_force(correction).apply(accel)
+        gyro = gyro_t_ns = None
+        if gyro_set is not None:
+            g = gyro_set.data
+            gyro_t_ns = np.asarray(g["timestamp_sample"] if "timestamp_sample" in g else g["timestamp"],
+                                   dtype=np.int64) * 1000
+            gyro = _xyz(g, ("x", "y", "z"))
+            if correction is not None and correction.gyro_offset_radps is not None:
+                gyro = gyro - correction.gyro_offset_radps
+        name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
+        means[instance] = flight_means(name, t_ns, accel, None, in_flight(t_ns, flight_state))
+        if gyro is not None and gyro_t_ns is not None:  # the gyro's means, taken as flight_means takes any triple
+            means[instance] = with_gyro(means[instance], flight_means(name, gyro_t_ns, gyro, None,
+                                                                     in_flight(gyro_t_ns, flight_state)))
+    return log, devices, means, flight_state
+
+
+def with_gyro(accel: Any, gyro: Any) -> Any:
+    """The accelerometer's per-second means with the gyro's (taken on the gyro's stamps) over its seconds."""
+    import dataclasses
+
+    at = np.searchsorted(gyro.blocks, accel.blocks).clip(0, max(len(gyro.blocks) - 1, 0))
+    rates = np.full_like(accel.accel_mps2, np.nan)
+    if len(gyro.blocks):
+        found = gyro.blocks[at] == accel.blocks
+        rates[found] = gyro.accel_mps2[at[found]]
+    return dataclasses.replace(accel, gyro_radps=rates)
+
+
+def _estimators(path: str, devices: dict[int, int | None], flight_state: Any, log: Any = None) -> dict[int, Said]:
     from ..core.errors import AccelCalibrationError
     from .estimator_bias import ardupilot_biases, px4_biases
     from .recording import detect_format
@@ -116,7 +178,7 @@ def _estimators(path: str, devices: dict[int, int | None], flight_state: Any) ->
     name = Path(path).name
     try:
         if detect_format(path) == "ulog":
-            by_device = px4_biases(path, flight_state)
+            by_device = px4_biases(path, flight_state, log)
             found = by_device if isinstance(by_device, str) else {
                 k: by_device[d] for k, d in devices.items() if d is not None and d in by_device}
         else:
