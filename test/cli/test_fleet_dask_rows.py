@@ -55,3 +55,19 @@ def test_a_failed_log_is_a_row_and_a_rerun_updates_the_same_rows_on_two_workers(
     assert len(bags) == 2 and all(r.status == "evidence" for r in bags)
     for row in bags:  # the calibration given is the truth: it holds, within 0.1 mg
         assert row.in_force.endswith("uavB.yaml (calibration file)") and abs(row.z_mps2) < 0.1 * MG
+
+
+def test_a_log_whose_worker_died_is_a_failed_row_keyed_as_its_reading_would_be(tmp_path):
+    """A worker lost (killed, out of memory) on a log: the command identifies the log itself, so the row is the
+    one a later run that reads it updates."""
+    from accel_calibration.cli.fleet import calibrate_recording, lost_recording
+
+    truths = sensors(72)
+    log = tmp_path / "uavC" / "log_0.ulg"
+    log.parent.mkdir()
+    write_ulog_flight(log, fly(truths, 90), [true_in_force(t) for t in truths])
+    lost = lost_recording(str(log), f"{log}: worker lost (KilledWorker: ...)", None)
+    read = calibrate_recording(str(log))
+    assert lost.status == "failed" and "worker lost" in lost.reason
+    assert lost.record.recording_id == read.record.recording_id and lost.record.vehicle == "uavC"
+    assert lost.evidence.status == "failed" and lost.evidence.recording_id == read.evidence.recording_id
