@@ -75,9 +75,11 @@ def _records(args: argparse.Namespace) -> tuple[list[HistoryRecord], list[Eviden
         records = history.records(vehicle=args.vehicle, sensor=args.sensor)
         unreadable = history.unreadable
         evidence = history.evidence(vehicle=args.vehicle, sensor=args.sensor)
-    if unreadable:
-        print(f"accel-calib: warning: {name}: {len(unreadable)} row{'s' if len(unreadable) != 1 else ''} "
-              f"not as accel_calibration writes them, left out (first: {unreadable[0]})", file=sys.stderr)
+        unreadable_evidence = history.unreadable_evidence
+    for what, rows in (("", unreadable), ("flight evidence ", unreadable_evidence)):
+        if rows:
+            print(f"accel-calib: warning: {name}: {len(rows)} {what}row{'s' if len(rows) != 1 else ''} "
+                  f"not as accel_calibration writes them, left out (first: {rows[0]})", file=sys.stderr)
     if not records and not evidence:
         which = " ".join(f"{k} {v}" for k, v in (("vehicle", args.vehicle), ("sensor", args.sensor)) if v)
         raise CalibrationError(f"{name}: no recordings{' of ' + which if which else ''}")

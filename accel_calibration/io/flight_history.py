@@ -115,9 +115,39 @@ def _finite(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
+_EVIDENCE_KINDS = {f.name: str(f.type) for f in fields(EvidenceRecord)}
+_JSON_OBJECTS = ("changes", "estimator", "agreement")
+
+
 def evidence_from_row(values: dict[str, Any]) -> EvidenceRecord:
-    known = {f.name for f in fields(EvidenceRecord)}
-    return EvidenceRecord(**{k: v for k, v in values.items() if k in known})
+    """A row as an EvidenceRecord, each value checked against its field's type: a row another program wrote
+    off the schema (text where a number belongs, a JSON column that is no object) raises ValueError, one line."""
+    row: dict[str, Any] = {}
+    for name, value in values.items():
+        kind = _EVIDENCE_KINDS.get(name)
+        if kind is None or value is None:
+            row[name] = value
+            continue
+        if "int" in kind and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ValueError(f"{name} is not an integer: {str(value)[:30]!r}")
+        if "float" in kind:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"{name} is not a number: {str(value)[:30]!r}")
+            value = float(value)
+        if kind.startswith("str") and not isinstance(value, str):
+            value = str(value)
+        if name in _JSON_OBJECTS:
+            try:
+                parsed = json.loads(value)
+            except ValueError:
+                raise ValueError(f"{name} is not JSON: {value[:30]!r}") from None
+            if not isinstance(parsed, dict):
+                raise ValueError(f"{name} is not a JSON object: {value[:30]!r}")
+        row[name] = value
+    for name in ("path", "vehicle", "sensor", "status"):
+        if row.get(name) is None:
+            raise ValueError(f"{name} is missing")
+    return EvidenceRecord(**{k: v for k, v in row.items() if k in _EVIDENCE_KINDS})
 
 
 def evidence_record(evidence: Any, recording_id: str, path: str, vehicle: str, sensor: str, imu: int | None,

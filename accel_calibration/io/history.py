@@ -292,6 +292,7 @@ class History:
         # As the user wrote it, every credential hidden (user:***@, ?password=***), a socket path unquoted.
         self.name = unquote(masked_url(self.target)) if "://" in self.target else self.target
         self.unreadable: list[str] = []  # rows records() left out: "recording_id: why", one each
+        self.unreadable_evidence: list[str] = []  # the same of evidence()
         url = _url(self.target)
         self._metadata, self._info, self._table, self._evidence = _tables()
         try:
@@ -513,7 +514,14 @@ class History:
                 rows = connection.execute(query).mappings().all()
         except SQLAlchemyError as error:
             raise HistoryError(f"{self.name}: cannot read the flight evidence ({_one_line(error)})") from None
-        return [evidence_from_row(dict(row)) for row in rows]
+        out = []
+        self.unreadable_evidence = []
+        for row in rows:
+            try:
+                out.append(evidence_from_row(dict(row)))
+            except (ValueError, TypeError) as error:
+                self.unreadable_evidence.append(f"{printable_text(str(row.get('recording_id')))[:40]}: {error}")
+        return out
 
     def close(self) -> None:
         self.engine.dispose()

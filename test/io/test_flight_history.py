@@ -111,3 +111,23 @@ def test_a_recalibration_restarts_the_series(tmp_path, capsys):
         history.write_evidence(series)
     assert main(["history", "--history", target]) == 1
     assert "IMU 1 (device 1310988): cannot tell: 5 flights with evidence" in capsys.readouterr().out
+
+
+def test_an_evidence_row_another_program_wrote_off_the_schema_is_left_out_and_said(tmp_path, capsys):
+    """SQLite keeps text in a REAL column: such a row is left out with one warning line, the rest judged."""
+    import sqlite3
+
+    target = tmp_path / "hostile.sqlite"
+    write_fleet(str(target))
+    with sqlite3.connect(target) as connection:
+        connection.execute("UPDATE flight_evidence SET z_mps2 = 'lots' WHERE rowid = "
+                           "(SELECT rowid FROM flight_evidence WHERE vehicle = 'uav08' LIMIT 1)")
+        connection.execute("UPDATE flight_evidence SET estimator = '{not json' WHERE rowid = "
+                           "(SELECT rowid FROM flight_evidence WHERE vehicle = 'uav08' LIMIT 1 OFFSET 1)")
+    capsys.readouterr()
+    assert main(["history", "--history", str(target), "--vehicle", "uav08"]) == 0
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    warnings = [line for line in captured.err.splitlines() if "accel-calib: warning:" in line]
+    assert len(warnings) == 1 and "2 flight evidence rows" in warnings[0], captured.err
+    assert len([line for line in captured.out.splitlines() if ": holds: " in line]) == 2
