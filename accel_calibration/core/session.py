@@ -336,6 +336,18 @@ class CalibrationSession:
             return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
         return self._passed(result, left_out)
 
+    def verdict_of(self, poses: Sequence[Pose]) -> Verdict:
+        """The verdict on `poses` as given, neither stored nor cached: e.g. the poses with a warm-up's drift
+        taken off, so that those held while the sensor warmed count at the temperature the others were."""
+        if len(poses) < parameter_count(self.model):
+            return Verdict.refused(Refusal(Gate.POSES, f"have {len(poses)} poses, need {parameter_count(self.model)}"))
+        result = self._fit(poses, None)
+        refusal = self.gates.check(result)
+        left_out = "".join(f"; {o.describe(o.index + 1)}" for o in result.outliers)
+        if result.calibration is None or refusal is not None:
+            return Verdict.refused(refusal or Refusal(Gate.FIT, f"no fit from {len(poses)} poses"), left_out, result)
+        return self._passed(result, left_out)
+
     def moved_text(self) -> str | None:
         """Why the poses held cannot be fitted together: the watch saw the calibration in force move and some
         were found before it (a fit would average the sensor before and after the move, with a sigma that

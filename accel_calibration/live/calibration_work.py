@@ -31,7 +31,7 @@ from ..core.watch import CalibrationWatch
 from .calibration_store import ERROR, OK, WARN, CalibrationStore, Level
 from .per_message import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
-from .warmup_watch import WarmupWatch
+from .warmup_watch import WarmupWatch, poses_at_reference
 
 __all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "diagnostic_values",
            "file_status", "open_calibration_file", "starting_snapshot"]
@@ -363,6 +363,26 @@ class LiveCalibration:
         self._log.info(f"{self._calibrate_service}: the warm-up's temperature curves applied, {saved}")
         return True, f"poses: {yaml_quoted(not_calibrated)}\n{line}\nsaved: {saved}"
 
+    def _warmed_refit(self, verdict: Verdict, poses: list[Pose]) -> tuple[Verdict, tuple[Calibration, str]] | None:
+        """With a warm-up collected: the poses refitted as at the curves' reference temperature (the drift
+        of those held while it warmed taken off) and the curves on top, when that passes; None otherwise. The
+        curves come from the poses' own fit, or from the raw output when the poses as they are failed (a
+        warm-up's drift fitted as a scale can fail the gates)."""
+        if not self.warmup.collected():
+            return None
+        base = self._keeping_gyro(verdict)[0] if verdict.success and verdict.calibration is not None else None
+        warmed, _ = self.warmup.added(base, self.session.gates, poses)
+        at_reference = None if warmed is None else poses_at_reference(warmed, poses)
+        if at_reference is None:
+            return None
+        again = self.session.verdict_of(at_reference)
+        if not again.success or again.result is None or again.calibration is None:
+            return None
+        rewarmed, line = self.warmup.added(self._keeping_gyro(again)[0], self.session.gates, at_reference)
+        if rewarmed is None:
+            return None
+        return again, (rewarmed, line[:-1] + ", poses_refitted_at_reference: true}" if line.endswith("}") else line)
+
     def calibrate(self) -> tuple[bool, str]:
         """/calibrate's job: every sample up to the call counts, and the pose being held right now."""
         self.feed()
@@ -375,6 +395,11 @@ class LiveCalibration:
         self.watch.add(last)
         self.refresh_progress()
         self._say_moved()
+        poses = [*self.session.store.poses, *([] if self._held is None else [self._held])]
+        warmed_fit = self._warmed_refit(verdict, poses)
+        warmed: Calibration | None = None
+        if warmed_fit is not None:
+            verdict, (warmed, warmup_line) = warmed_fit
         if not verdict.success or verdict.result is None or verdict.calibration is None:
             message = f"not calibrated ({verdict.message}); {self.store.kept()}"
             if self.warmup.collected():
@@ -382,7 +407,8 @@ class LiveCalibration:
             self._log.warning(f"{self._calibrate_service}: {message}")
             return False, message
         calibration, gyro_kept = self._keeping_gyro(verdict)
-        warmed, warmup_line = self.warmup.added(calibration, self.session.gates, self.session.store.poses)
+        if warmed_fit is None:
+            warmed, warmup_line = self.warmup.added(calibration, self.session.gates, poses)
         calibration = warmed or calibration
         applied, saved = self._apply(calibration, verdict.result)
         if not applied:
