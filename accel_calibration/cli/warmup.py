@@ -10,6 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from ..core.errors import CalibrationError
 from ..core.warmup import WarmupOptions, fit_warmup, warmup_calibration
 
@@ -17,6 +19,7 @@ if TYPE_CHECKING:
     from ..bag.replay import ReplaySettings
     from ..bag.warmup_replay import WarmupInput
     from ..core.calibration import Calibration
+    from ..core.warmup import WarmupResult
 
 # The replay outputs a warm-up does not make (a corrected copy, a report and a pose table of a warm-up
 # are replay's without --warmup).
@@ -46,8 +49,15 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
     check_output_places([("--output", args.output)])
     read = [read_warmup(bag, settings, progress=len(args.bags) == 1) for bag in args.bags]
     first = read[0]
-    result = fit_warmup([each.recording for each in read], first.base,
-                        WarmupOptions(), settings.session)
+    result, base_said = fit_warmup([each.recording for each in read], first.base,
+                                   WarmupOptions(), settings.session), first.base_said
+    if settings.prior is None and len(read) == 1:
+        refitted = refit_poses_under_curves(first, settings)
+        if refitted is not None:
+            result, base = refitted
+            first = dataclasses.replace(first, base=base)
+            base_said = (f"on top of the calibration its {len(first.replay.poses)} poses fit, refitted with the "
+                         "warm-up's drift taken off the poses held while it warmed")
     lines = [_source_line(bag, each) for bag, each in zip(args.bags, read)]
     if result.fit is None:
         print("\n".join(lines + list(result.said)))
@@ -56,13 +66,48 @@ def run_warmup(args: argparse.Namespace, settings: object) -> int:
         said = f" (the detector: {found_none[0]})" if len(found_none) == len(read) else ""
         raise CalibrationError(f"{_names(args.bags)}: {result.refusal}{said}")
     calibration = _named(warmup_calibration(result.fit, first.base), first)
-    lines += [f"warm-up {first.base_said}", *result.said]
+    lines += [f"warm-up {base_said}", *result.said]
     if args.output:
         text = checked_calibration_text(calibration, args.output)
         write_text_atomically(args.output, text)
         lines.append(f"written {args.output}")
     print("\n".join(lines))
     return 0
+
+
+REFITS = 3
+
+
+def refit_poses_under_curves(read: WarmupInput, settings: ReplaySettings
+                             ) -> tuple[WarmupResult, Calibration] | None:
+    """The recording's poses refitted with the warm-up's drift taken off (those held while it warmed count at
+    the curves' reference, not as a scale), and the curves fitted again on top, zero where the poses were
+    held (their median temperature); None when no pose drifted or the refit does not pass. Also when the poses
+    as they were failed the gates: the curves are fitted on the raw output first."""
+    from ..core.session import CalibrationSession
+    from ..core.warmup_poses import poses_at_reference
+
+    poses = read.replay.poses
+    degc = [pose.temperature_degc for pose in poses if pose.temperature_degc is not None]
+    if not degc or (read.base is not None and read.replay.calibration is None):
+        return None  # curves on the log's calibration in force: no poses' fit to put right
+    options = WarmupOptions(reference_degc=float(np.median(degc)))
+    base, result = read.base, fit_warmup([read.recording], read.base, options, settings.session)
+    refitted = None
+    for _ in range(REFITS):  # the curves are fitted in the corrected frame: again once the poses' fit moved
+        if result.fit is None:
+            break
+        at_reference = poses_at_reference(warmup_calibration(result.fit, base), poses)
+        if at_reference is None:
+            break
+        again = CalibrationSession(settings.session).verdict_of(at_reference)
+        if not again.success or again.calibration is None:
+            break
+        base = again.calibration if read.base is None else read.base.replace(bias=again.calibration.bias,
+                                                                              matrix=again.calibration.matrix)
+        result = fit_warmup([read.recording], base, options, settings.session)
+        refitted = None if result.fit is None else (result, base)
+    return refitted
 
 
 def _named(calibration: Calibration, each: WarmupInput) -> Calibration:

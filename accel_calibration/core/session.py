@@ -338,7 +338,13 @@ class CalibrationSession:
 
     def verdict_of(self, poses: Sequence[Pose]) -> Verdict:
         """The verdict on `poses` as given, neither stored nor cached: e.g. the poses with a warm-up's drift
-        taken off, so that those held while the sensor warmed count at the temperature the others were."""
+        taken off, so that those held while the sensor warmed count at the temperature the others were. Put
+        through a store of their own first: those that now agree at one orientation merge into one pose."""
+        store = self.store.copy()
+        store.clear()
+        for pose in poses:
+            store.add(pose)
+        poses = store.poses
         if len(poses) < parameter_count(self.model):
             return Verdict.refused(Refusal(Gate.POSES, f"have {len(poses)} poses, need {parameter_count(self.model)}"))
         result = self._fit(poses, None)

@@ -27,11 +27,12 @@ from ..core.pose import Pose
 from ..core.pose_map import PoseMap, PoseStatus, holes, pose_map
 from ..core.session import CalibrationSession, Progress, Verdict
 from ..core.settings import Settings
+from ..core.warmup_poses import poses_at_reference
 from ..core.watch import CalibrationWatch
 from .calibration_store import ERROR, OK, WARN, CalibrationStore, Level
 from .per_message import LOG_THROTTLE_S, LiveStream, Log, imu_ring, temperature_ring
 from .sample_ring import SampleRing
-from .warmup_watch import WarmupWatch, poses_at_reference
+from .warmup_watch import WarmupWatch
 
 __all__ = ["LOG_THROTTLE_S", "LiveCalibration", "Log", "StreamLink", "WorkSnapshot", "diagnostic_values",
            "file_status", "open_calibration_file", "starting_snapshot"]

@@ -364,32 +364,6 @@ class WarmupWatch:
                        f"said: {yaml_quoted(said)}}}")
 
 
-# A pose whose drift from the curves' reference is below this is taken as it is (noise, not drift).
-POSE_DRIFT_MPS2 = 0.1e-3 * 9.80665
-
-
-def poses_at_reference(warmed: Calibration, poses: Sequence[Pose]) -> list[Pose] | None:
-    """`poses` as the sensor would have given them at the curves' reference temperature (the warm-up's drift
-    between a pose's mean temperature and the reference taken off its mean), or None when none drifted: the
-    poses held while it warmed are poses too, and a sphere fit of them as they are takes the drift for a
-    scale and a misalignment (one orientation held over 30 degC of warming weighs as many poses)."""
-    model = warmed.temperature
-    if model is None or model.kind != "spline":
-        return None
-    reference = np.array([model.reference_degc])
-    drift_ref, scale_ref = model.bias_and_scale(reference)
-    out, moved = [], False
-    for pose in poses:
-        if pose.temperature_degc is None:
-            out.append(pose)
-            continue
-        drift, scale = model.bias_and_scale(np.array([pose.temperature_degc]))
-        shifted = warmed.bias + drift_ref[0] + (pose.accel_mps2 - warmed.bias - drift[0]) * scale_ref[0] / scale[0]
-        moved = moved or bool(np.max(np.abs(shifted - pose.accel_mps2)) > POSE_DRIFT_MPS2)
-        out.append(replace(pose, accel_mps2=shifted))
-    return out if moved else None
-
-
 def _poses_degc(calibration: Calibration | None, poses: Sequence[Pose]) -> float | None:
     """Where a calibration fitted from `poses` holds: its own reference temperature, else the poses' mean
     temperature (their median: the many orientations held at one temperature decide the bias, not a few poses
