@@ -12,7 +12,14 @@ from accel_calibration.cli.main import main
 
 from helpers.autopilot_logs import write_ardupilot_log, write_px4_log
 from helpers.one_line import assert_one_error_line, run_main
-from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_board, warmup_recording
+from helpers.warmup_sessions import (
+    Heating,
+    temperature_errors,
+    turned_then_warmed,
+    two_imus,
+    warmup_board,
+    warmup_recording,
+)
 
 
 def write_csv(path, recording, every: int = 10) -> None:
@@ -149,19 +156,13 @@ def test_poses_held_while_it_warmed_are_refitted_at_the_reference(tmp_path, caps
     (63 mg); refitted with the drift taken off, the correction at every orientation and temperature is within
     4 mg of the truth."""
     from accel_calibration.core.units import MG, STANDARD_GRAVITY
-    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+    from msg_tools.synthetic_imu import spread_orientations
 
     truth = two_imus()[0]
-    rng = np.random.default_rng(seed)
-    c, held_degc = truth.calibration, 30.0
-    errors = SensorErrors(bias_mps2=c.bias + truth.accel_drift(np.array([held_degc]))[0], matrix=c.matrix,
-                          noise_mps2=0.02, gyro_noise_radps=1e-3,
-                          gyro_bias_radps=c.gyro_bias_radps + truth.gyro_drift(np.array([held_degc]))[0])
-    turned = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.5, move_s=1.0, rate_hz=100.0, seed=seed,
-                          temperature_degc=held_degc).samples()
-    warm = warmup_recording(truth, rng, Heating(start_degc=held_degc, tau_s=150.0, minutes=8.0), rate_hz=100.0)
-    both = type(warm)(np.concatenate([turned.t_ns, warm.t_ns + turned.t_ns[-1] + 10**9]),
-                      np.vstack([turned.accel_raw, warm.accel_mps2]), np.vstack([turned.gyro_raw, warm.gyro_radps]),
+    c = truth.calibration
+    turned, warm, rng = turned_then_warmed(truth, seed)
+    both = type(warm)(np.concatenate([turned.t_ns, warm.t_ns]), np.vstack([turned.accel_mps2, warm.accel_mps2]),
+                      np.vstack([turned.gyro_radps, warm.gyro_radps]),
                       np.concatenate([turned.temperature_degc, warm.temperature_degc]))
     write_csv(tmp_path / "turned_then_warmed.csv", both)
     out = tmp_path / "out.yaml"

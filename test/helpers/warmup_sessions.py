@@ -235,3 +235,25 @@ def px4_applied(params: dict[str, float], slot: int, raw: np.ndarray, gyro_raw: 
             values *= np.array([params[name] for name in scale_names])
         out.append(values)
     return out[0], out[1]
+
+
+def turned_then_warmed(truth: WarmupTruth, seed: int, held_degc: float = 30.0,
+                       rate_hz: float = 100.0) -> tuple[WarmupRecording, WarmupRecording, np.random.Generator]:
+    """A person's 16 orientations at `held_degc` (2.5 s each), then the sensor still and level while it
+    warms for 8 minutes from there: (the turns, the warm-up starting 1 s after them, the generator after
+    both, for the checks' own orientations)."""
+    from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+
+    rng = np.random.default_rng(seed)
+    c = truth.calibration
+    assert c.gyro_bias_radps is not None
+    errors = SensorErrors(bias_mps2=c.bias + truth.accel_drift(np.array([held_degc]))[0], matrix=c.matrix,
+                          noise_mps2=0.02, gyro_noise_radps=1e-3,
+                          gyro_bias_radps=c.gyro_bias_radps + truth.gyro_drift(np.array([held_degc]))[0])
+    turned = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.5, move_s=1.0, rate_hz=rate_hz, seed=seed,
+                          temperature_degc=held_degc).samples()
+    warm = warmup_recording(truth, rng, Heating(start_degc=held_degc, tau_s=150.0, minutes=8.0), rate_hz=rate_hz)
+    turns = WarmupRecording(turned.t_ns, turned.accel_raw, turned.gyro_raw, turned.temperature_degc)
+    later = WarmupRecording(warm.t_ns + turned.t_ns[-1] + 10**9, warm.accel_mps2, warm.gyro_radps,
+                            warm.temperature_degc)
+    return turns, later, rng

@@ -16,10 +16,10 @@ from accel_calibration.core.units import MG, STANDARD_GRAVITY
 from accel_calibration.core.warmup import WarmupRecording
 from accel_calibration.io.calibration_file import load_calibration, save_calibration
 from accel_calibration.live.calibration_work import LiveCalibration
-from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
+from msg_tools.synthetic_imu import spread_orientations
 
 from helpers.session_doors import LogLines
-from helpers.warmup_sessions import Heating, temperature_errors, two_imus, warmup_recording
+from helpers.warmup_sessions import Heating, temperature_errors, turned_then_warmed, two_imus, warmup_recording
 
 RATE_HZ = 100.0
 READING_EVERY = 10  # a temperature message per 10 samples (10 Hz)
@@ -251,18 +251,11 @@ def test_on_top_of_the_poses_fit_the_curves_are_zero_where_the_poses_were(tmp_pa
     poses and adds the warm-up's curves, zero where the poses were (their bias is the bias there: the poses'
     median temperature), so the correction at any orientation and temperature is the poses' fit's at theirs."""
     truth = two_imus()[0]
-    rng = np.random.default_rng(9)
     c, poses_degc = truth.calibration, 30.0
-    errors = SensorErrors(bias_mps2=c.bias + truth.accel_drift(np.array([poses_degc]))[0], matrix=c.matrix,
-                          noise_mps2=0.02, gyro_noise_radps=1e-3,
-                          gyro_bias_radps=c.gyro_bias_radps + truth.gyro_drift(np.array([poses_degc]))[0])
-    turned = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.5, move_s=1.0, rate_hz=RATE_HZ, seed=9,
-                          temperature_degc=poses_degc).samples()
-    warm = warmup_recording(truth, rng, Heating(start_degc=poses_degc, tau_s=150.0, minutes=8.0), rate_hz=RATE_HZ)
+    turned, warm, rng = turned_then_warmed(truth, 9, poses_degc)
     live, _ = started(tmp_path)
-    play(live, WarmupRecording(turned.t_ns, turned.accel_raw, turned.gyro_raw, turned.temperature_degc))
-    play(live, WarmupRecording(warm.t_ns + turned.t_ns[-1] + 10**9, warm.accel_mps2, warm.gyro_radps,
-                               warm.temperature_degc))
+    play(live, turned)
+    play(live, warm)
     success, answer = live.calibrate()
     assert success, answer
     said = yaml.safe_load(answer)
@@ -290,18 +283,11 @@ def test_poses_held_while_it_warmed_count_at_the_reference_not_as_a_scale(tmp_pa
     are applied: 63 mg); refitted with the curves' drift taken off, the correction at every orientation and
     temperature is within 2 mg of the truth."""
     truth = two_imus()[0]
-    rng = np.random.default_rng(seed)
-    c, poses_degc = truth.calibration, 30.0
-    errors = SensorErrors(bias_mps2=c.bias + truth.accel_drift(np.array([poses_degc]))[0], matrix=c.matrix,
-                          noise_mps2=0.02, gyro_noise_radps=1e-3,
-                          gyro_bias_radps=c.gyro_bias_radps + truth.gyro_drift(np.array([poses_degc]))[0])
-    turned = SyntheticImu(errors, spread_orientations(16, rng), dwell_s=2.5, move_s=1.0, rate_hz=RATE_HZ, seed=seed,
-                          temperature_degc=poses_degc).samples()
-    warm = warmup_recording(truth, rng, Heating(start_degc=poses_degc, tau_s=150.0, minutes=8.0), rate_hz=RATE_HZ)
+    c = truth.calibration
+    turned, warm, rng = turned_then_warmed(truth, seed)
     live, _ = started(tmp_path)
-    play(live, WarmupRecording(turned.t_ns, turned.accel_raw, turned.gyro_raw, turned.temperature_degc))
-    play(live, WarmupRecording(warm.t_ns + turned.t_ns[-1] + 10**9, warm.accel_mps2, warm.gyro_radps,
-                               warm.temperature_degc))
+    play(live, turned)
+    play(live, warm)
     success, answer = live.calibrate()
     said = yaml.safe_load(answer)
     assert success and said["model"] == "sphere9" and said["warmup"]["poses_refitted_at_reference"] is True, answer
