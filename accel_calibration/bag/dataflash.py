@@ -1,4 +1,5 @@
-"""ArduPilot DataFlash `.bin` logs as sample arrays for the calibration session, read with pymavlink.
+"""ArduPilot DataFlash `.bin` logs as sample arrays for the calibration session, read block by block with
+numpy (dataflash_records.py; pymavlink, which makes a Python object of every record, is the tests' reference).
 
 - `IMU` records: TimeUS (us since boot), AccX..Z (m/s^2), GyrX..Z (rad/s), T (degC). A log of today has one
   IMU message type with an instance field `I`; older logs (ArduPilot before 4.0) have IMU, IMU2, IMU3 for
@@ -8,24 +9,25 @@
   autopilot's own calibration in force while logging. ArduPilot logs IMU values already corrected by it
   (offsets subtracted, then scaled), so a calibration fitted to them is what would change on top of it.
 
-Errors are `DataflashError` (one line naming the file); pymavlink's prints are kept off stdout/stderr, its C
-indexer's too (io/captured_output.py), and a log it had to skip damage in is refused.
-`write_dataflash` writes a minimal log in the documented format (tests, benchmarks).
+Errors are `DataflashError` (one line naming the file); a log with bytes that are no record where
+pymavlink would skip them is refused. `read_dataflash(..., ground_margin_s=...)` keeps only the samples on
+the ground (and a border of each flight), for a long log's still moments in bounded memory.
 """
 from __future__ import annotations
 
 import os
-import struct
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.flight_state import FlightState
-from ..io.captured_output import captured_output, damage_said
-from .bag_io import BagError, read_head
+from .bag_io import read_head
+from .dataflash_records import IMU_TYPES as IMU_TYPES  # re-exported: the older logs' per-instance IMU types
+from .dataflash_records import DataflashError as DataflashError  # re-exported: the error of every DataFlash read
+from .dataflash_records import RecordReader, read_records
 from .flight_sources import dataflash_flight_state
 from .logged_correction import LoggedCorrection, ardupilot_correction
 
@@ -35,13 +37,6 @@ if TYPE_CHECKING:
 HEAD = b"\xa3\x95"
 FMT_ID = 0x80
 MAGIC = HEAD + bytes([FMT_ID])  # every DataFlash log starts with the FMT record of FMT itself (or another)
-IMU_TYPES = ("IMU", "IMU2", "IMU3")  # the older logs' per-instance types
-
-
-class DataflashError(BagError):
-    """A DataFlash log that cannot give accelerometer samples: one line naming the file."""
-
-
 @dataclass(frozen=True)
 class AutopilotCalibration:
     """ArduPilot's accelerometer calibration of one instance as its parameters were logged: the IMU records
@@ -77,6 +72,8 @@ class DataflashSamples:
     imu_instances: tuple[int, ...] = ()  # every IMU instance the log holds
     accel_device_id: int | None = None  # INS_ACC_ID, INS_ACC2_ID, ... of the instance read, where logged
     gyro_device_id: int | None = None  # INS_GYR_ID, INS_GYR2_ID, ...
+    samples_read: int = 0  # IMU records of this instance in the whole log (a ground-only read keeps fewer)
+    first_last_ns: tuple[int, int] | None = None  # the first and last stamps of them
 
 
 def _parameter_names(instance: int) -> tuple[str, str, str]:
@@ -108,114 +105,150 @@ def _device_ids(params: Mapping[str, float], instance: int) -> tuple[int | None,
     return devices[0], devices[1]
 
 
-@dataclass
-class _Scan:
-    rows: list[tuple[Any, ...]]  # pymavlink's message fields of the instance wanted (it ships no types)
-    instances: set[int]
-    arm: list[tuple[int, int]]
-    events: list[tuple[int, int]]
-    params: dict[str, float]
-    bytes_read: int
+IMU_COLUMNS = ("AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ")
 
 
-def _scan(path: Path, wanted: int | None) -> _Scan:
-    """The IMU records of instance `wanted` (None: none kept), every instance seen, ARM and EV, the parameters;
-    one DataflashError line for a log pymavlink cannot read or had to skip damage in."""
-    from pymavlink import DFReader
-
+def _check_head(path: Path) -> None:
     head = read_head(path, lambda stream: stream.read(len(MAGIC)), DataflashError, "a .bin file")
     if head[:2] != HEAD:
         raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
-    scan = _Scan([], set(), [], [], {}, 0)
-    failure: str | None = None
-    try:
-        with captured_output() as chatter:
-            log = DFReader.DFReader_binary(str(path), zero_time_base=False)
-            try:
-                while True:
-                    message = log.recv_match(type=[*IMU_TYPES, "ARM", "EV"])
-                    if message is None:
-                        break
-                    kind = message.get_type()
-                    if kind == "EV":
-                        scan.events.append((int(message.TimeUS), int(message.Id)))
-                    elif kind == "ARM":
-                        scan.arm.append((int(message.TimeUS), int(message.ArmState)))
-                    else:
-                        number = int(getattr(message, "I", 0)) if kind == "IMU" else IMU_TYPES.index(kind)
-                        scan.instances.add(number)
-                        if number == wanted:
-                            scan.rows.append((message.TimeUS, message.AccX, message.AccY, message.AccZ,
-                                              message.GyrX, message.GyrY, message.GyrZ, getattr(message, "T", np.nan)))
-                scan.params = dict(log.params)
-                scan.bytes_read = log.data_len
-            finally:
-                log.close()
-    except (AttributeError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError) as error:
-        failure = f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})"
-    except OSError as error:
-        failure = f"{path}: cannot read ({error.strerror or error})"
-    except Exception as error:  # noqa: BLE001 - pymavlink raises bare Exception on a bad FMT record
-        failure = f"{path}: unreadable DataFlash log ({str(error)[:80]})"
-    damage = damage_said(chatter)
-    if damage is not None:  # what pymavlink skipped explains any failure that followed
-        raise DataflashError(f"{path}: {damage}")
-    if failure is not None:
-        raise DataflashError(failure)
-    return scan
+
+
+def _instance_rows(block: Mapping[str, np.ndarray], wanted: int) -> np.ndarray | None:
+    """The IMU records of instance `wanted` in one block: today's IMU by its field I, or IMU/IMU2/IMU3."""
+    today = block.get("IMU")
+    if today is not None and "I" in (today.dtype.names or ()):
+        mine: np.ndarray = today[today["I"] == wanted]
+        return mine
+    if wanted < len(IMU_TYPES):
+        return block.get(IMU_TYPES[wanted])
+    return None
+
+
+@dataclass
+class _ImuRead:
+    """The samples of one IMU instance gathered block by block (those `keep` keeps, every one without it),
+    and how many the whole log held of it, from when to when."""
+
+    path: Path
+    wanted: int
+    keep: Callable[[np.ndarray], np.ndarray] | None = None
+    stamps: list[np.ndarray] = field(default_factory=list)
+    values: list[np.ndarray] = field(default_factory=list)  # (n, 7): AccX..Z, GyrX..Z (as logged), T
+    read: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+    def add(self, block: Mapping[str, np.ndarray]) -> None:
+        rows = _instance_rows(block, self.wanted)
+        if rows is None or not len(rows):
+            return
+        t_ns = _stamps_ns(self.path, rows["TimeUS"], "IMU")
+        self.read += len(rows)
+        self.first_ns = int(t_ns[0]) if self.first_ns is None else self.first_ns
+        self.last_ns = int(t_ns[-1])
+        if self.keep is not None:
+            kept = self.keep(t_ns)
+            rows, t_ns = rows[kept], t_ns[kept]
+        temperature = rows["T"] if "T" in (rows.dtype.names or ()) else np.full(len(rows), np.nan)
+        self.stamps.append(t_ns)
+        self.values.append(np.column_stack([*(rows[c] for c in IMU_COLUMNS), temperature]).astype(float))
 
 
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
     """{IMU instance: its accelerometer's device ID (INS_ACC_ID, ...), None where not logged} of the log."""
-    scan = _scan(Path(path), None)
-    return {n: _device_ids(scan.params, n)[0] for n in sorted(scan.instances)}
+    _check_head(Path(path))
+    log = read_records(path, [])
+    return {n: _device_ids(log.params, n)[0] for n in log.imu_instances}
 
 
-def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
-                   ) -> DataflashSamples:
-    """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read."""
+def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None,
+                   ground_margin_s: float | None = None) -> DataflashSamples:
+    """`instance`: the IMU instance to read (default 0). `progress`: a tqdm bar counting bytes read.
+    `ground_margin_s`: keep only the samples a read for the still moments on the ground needs
+    (FlightState.ground_kept with that margin: the ground and a border of each flight), read block by
+    block after a first pass over the flight state (ARM, EV): memory follows the time on the ground, not
+    the log's length. `samples_read` and `first_last_ns` still count the whole log's samples."""
     path = Path(path)
     wanted = 0 if instance is None else instance
-    scan = _scan(path, wanted)
-    rows, params = scan.rows, scan.params
+    _check_head(path)
+    imu = _ImuRead(path, wanted)
+    if ground_margin_s is None:  # one pass: the IMU records and the flight state together
+        reader = RecordReader(path, [*IMU_TYPES, "ARM", "EV"])
+        small: dict[str, list[np.ndarray]] = {"ARM": [], "EV": []}
+        for block in _progressed(reader, progress):
+            imu.add(block)
+            for kind, pieces in small.items():
+                if kind in block:
+                    pieces.append(block[kind])
+        flight = _flight_state(path, *(np.concatenate(p) if p else None for p in small.values()))
+    else:
+        states = read_records(path, ["ARM", "EV"])
+        flight = _flight_state(path, states.records.get("ARM"), states.records.get("EV"))
+        margin = float(ground_margin_s)
+        imu.keep = lambda t_ns: flight.ground_kept(t_ns, margin)
+        reader = RecordReader(path, IMU_TYPES)
+        for block in _progressed(reader, progress):
+            imu.add(block)
+    return _samples(path, imu, reader, flight)
+
+
+def _progressed(reader: RecordReader, progress: ProgressBar | None) -> Iterator[dict[str, np.ndarray]]:
+    done = 0
+    for block in reader.blocks():
+        if progress is not None:
+            progress.update(reader.bytes_read - done)
+            done = reader.bytes_read
+        yield block
     if progress is not None:
-        progress.update(scan.bytes_read)
-    if not rows:
-        if not scan.instances:
+        progress.update(reader.bytes_read - done)
+
+
+def _samples(path: Path, imu: _ImuRead, reader: RecordReader, flight: FlightState) -> DataflashSamples:
+    wanted, params, instances = imu.wanted, reader.params, reader.imu_instances
+    if not imu.read:
+        if not instances:
             raise DataflashError(f"{path}: no accelerometer data (IMU records) in this DataFlash log")
         raise DataflashError(f"{path}: no IMU instance {wanted}; the log has instance(s) "
-                             f"{', '.join(map(str, sorted(scan.instances)))}")
-    table = np.array(rows, dtype=float)
-    t_ns = _stamps_ns(path, [row[0] for row in rows], "IMU")
+                             f"{', '.join(map(str, instances))}")
+    t_ns = np.concatenate(imu.stamps)
+    table = np.concatenate(imu.values) if imu.values else np.zeros((0, 7))
+    imu.stamps.clear()
+    imu.values.clear()
     temperature = None
     temperature_stream = None
-    if np.any(np.isfinite(table[:, 7])):
-        temperature = (t_ns.copy(), table[:, 7].copy())
+    if np.any(np.isfinite(table[:, 6])):
+        temperature = (t_ns.copy(), table[:, 6].copy())
         temperature_stream = f"IMU instance {wanted} T"
-    flight = dataflash_flight_state(_series(path, scan.arm, "ARM"), _series(path, scan.events, "EV"))
     accel_device, gyro_device = _device_ids(params, wanted)
     sensor_id = f"ardupilot accel {accel_device}" if accel_device else ""
-    return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 1:4].copy(), table[:, 4:7].copy(), temperature,
+    assert imu.first_ns is not None and imu.last_ns is not None
+    return DataflashSamples(f"IMU instance {wanted}", t_ns, table[:, 0:3].copy(), table[:, 3:6].copy(), temperature,
                             temperature_stream, sensor_id, flight, autopilot_calibration(params, wanted),
-                            ardupilot_correction(params, wanted, str(path)), tuple(sorted(scan.instances)),
-                            accel_device, gyro_device)
+                            ardupilot_correction(params, wanted, str(path)), instances, accel_device, gyro_device,
+                            samples_read=imu.read, first_last_ns=(imu.first_ns, imu.last_ns))
 
 
-def _series(path: Path, pairs: list[tuple[int, int]], what: str) -> tuple[np.ndarray, np.ndarray] | None:
-    if not pairs:
-        return None
-    return _stamps_ns(path, [p[0] for p in pairs], what), np.array([p[1] for p in pairs], dtype=np.int64)
+def _flight_state(path: Path, arm: np.ndarray | None, events: np.ndarray | None) -> FlightState:
+    """From the ARM (TimeUS, ArmState) and EV (TimeUS, Id) records; a type without those fields says nothing."""
+    def series(rows: np.ndarray | None, value: str, what: str) -> tuple[np.ndarray, np.ndarray] | None:
+        if rows is None or not len(rows) or not {"TimeUS", value} <= set(rows.dtype.names or ()):
+            return None
+        return _stamps_ns(path, rows["TimeUS"], what), rows[value].astype(np.int64)
+
+    return dataflash_flight_state(series(arm, "ArmState", "ARM"), series(events, "Id", "EV"))
 
 
-def _stamps_ns(path: Path, stamps_us: list[Any], what: str) -> np.ndarray:
+def _stamps_ns(path: Path, stamps_us: np.ndarray, what: str) -> np.ndarray:
     """Logged TimeUS (uint64 us) as int64 ns, or one DataflashError where the ns would wrap."""
     from .ulog_reader import MAX_STAMP_US
 
-    top = max((int(v) for v in stamps_us), default=0)
-    if top > MAX_STAMP_US or min((int(v) for v in stamps_us), default=0) < 0:
+    stamps = np.asarray(stamps_us)
+    if len(stamps) and (stamps.astype(np.uint64) > MAX_STAMP_US).any():
+        top = int(stamps.astype(np.uint64).max())
         raise DataflashError(f"{path}: {what} TimeUS reaches {top} us, beyond the {MAX_STAMP_US} us (292 years) a "
                              "nanosecond stamp holds: a corrupt log")
-    return np.array([int(v) for v in stamps_us], dtype=np.int64) * 1000
+    return stamps.astype(np.int64) * 1000
 
 
 def correction_on_top_mg(matrix: np.ndarray, bias_mps2: np.ndarray, gravity: float, points: int = 4000) -> float:
@@ -232,29 +265,9 @@ def correction_on_top_mg(matrix: np.ndarray, bias_mps2: np.ndarray, gravity: flo
     return float(np.max(np.linalg.norm(moved, axis=1)) / (gravity / 1000.0))
 
 
-def scan_messages(path: Path, kinds: list[str]) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
-    """Every record of the given types as {field: value} (pymavlink's scaling of its format characters
-    applied), and the log's parameters; one DataflashError line for a log pymavlink cannot read."""
-    from pymavlink import DFReader
-
-    head = read_head(path, lambda stream: stream.read(len(MAGIC)), DataflashError, "a .bin file")
-    if head[:2] != HEAD:
-        raise DataflashError(f"{path}: not an ArduPilot DataFlash log (no DataFlash header)")
-    found: dict[str, list[dict[str, Any]]] = {}
-    try:
-        with captured_output() as chatter:
-            log = DFReader.DFReader_binary(str(path), zero_time_base=False)
-            try:
-                while (message := log.recv_match(type=kinds)) is not None:
-                    found.setdefault(message.get_type(), []).append(message.to_dict())
-                params = {str(k): float(v) for k, v in log.params.items()}
-            finally:
-                log.close()
-    except OSError as error:
-        raise DataflashError(f"{path}: cannot read ({error.strerror or error})") from None
-    except Exception as error:  # noqa: BLE001 - pymavlink raises bare Exception on a bad FMT record
-        raise DataflashError(f"{path}: unreadable DataFlash log ({type(error).__name__}: {str(error)[:80]})") from None
-    damage = damage_said(chatter)
-    if damage is not None:
-        raise DataflashError(f"{path}: {damage}")
-    return found, params
+def scan_messages(path: Path, kinds: list[str]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Every record of the given types as a structured array of its fields (pymavlink's scaling of its
+    format characters applied), and the log's parameters; one DataflashError line for a damaged log."""
+    _check_head(Path(path))
+    log = read_records(path, kinds)
+    return log.records, log.params

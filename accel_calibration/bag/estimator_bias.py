@@ -149,19 +149,19 @@ def ardupilot_biases(path: str, flight_state: FlightState | None) -> dict[int, E
 
     found, params = scan_messages(Path(path), [f"{p}{n}" for p in ("XKF", "NKF") for n in (1, 2, 6, 7)])
     name = Path(path).name
-    ekf3 = bool(found.get("XKF2") or found.get("XKF1"))
-    if not ekf3 and not (found.get("NKF2") or found.get("NKF1")):
+    ekf3 = bool(len(found.get("XKF2", ())) or len(found.get("XKF1", ())))
+    if not ekf3 and not (len(found.get("NKF2", ())) or len(found.get("NKF1", ()))):
         return f"{name}: the log has no EKF3 XKF1/XKF2 or EKF2 NKF1/NKF2 records (the filter's bias estimates)"
     prefix, mask = ("XKF", "EK3_IMU_MASK") if ekf3 else ("NKF", "EK2_IMU_MASK")
     # ArduPilot 4.1 on: every core in XKF1/XKF2 with its core field C; before: core 0 in XKF1/XKF2, core 1 in
     # types of its own, XKF6/XKF7 (NKF likewise), no core field.
-    with_core = any("C" in row for row in found.get(f"{prefix}1", []) + found.get(f"{prefix}2", []))
+    with_core = any("C" in (found[kind].dtype.names or ()) for kind in (f"{prefix}1", f"{prefix}2") if kind in found)
     out: dict[int, EstimatedBias] = {}
     for core, imu in enumerate(core_imus(params, mask)):
         first = 1 if with_core else 1 + 5 * core
         accel_kind, gyro_kind = f"{prefix}{first + 1}", f"{prefix}{first}"
-        accel = _ardupilot_part(_of_core(found.get(accel_kind, []), core, with_core), flight_state, ekf3, accel=True)
-        gyro = _ardupilot_part(_of_core(found.get(gyro_kind, []), core, with_core), flight_state, ekf3, accel=False)
+        accel = _ardupilot_part(_of_core(found.get(accel_kind), core, with_core), flight_state, ekf3, accel=True)
+        gyro = _ardupilot_part(_of_core(found.get(gyro_kind), core, with_core), flight_state, ekf3, accel=False)
         if accel is None and gyro is None:
             continue
         source = f"ArduPilot {'EKF3' if ekf3 else 'EKF2'} {accel_kind}/{gyro_kind} core {core}"
@@ -172,23 +172,27 @@ def ardupilot_biases(path: str, flight_state: FlightState | None) -> dict[int, E
     return out
 
 
-def _of_core(rows: list[dict[str, Any]], core: int, with_core: bool) -> list[dict[str, Any]]:
-    return [r for r in rows if int(r.get("C", -1)) == core] if with_core else rows
+def _of_core(rows: np.ndarray | None, core: int, with_core: bool) -> np.ndarray | None:
+    """The records of one core (structured, as dataflash_records reads them)."""
+    if rows is None or not with_core:
+        return rows
+    return rows[rows["C"] == core] if "C" in (rows.dtype.names or ()) else rows[:0]
 
 
-def _ardupilot_part(mine: list[dict[str, Any]], flight_state: FlightState | None, ekf3: bool, accel: bool
+def _ardupilot_part(mine: np.ndarray | None, flight_state: FlightState | None, ekf3: bool, accel: bool
                     ) -> tuple[tuple[float, float, float], tuple[float, float, float], int] | None:
-    if not mine:
+    if mine is None or not len(mine):
         return None
-    t_ns = np.array([int(r["TimeUS"]) for r in mine], dtype=np.int64) * 1000
+    t_ns = mine["TimeUS"].astype(np.int64) * 1000
     if accel and ekf3:
-        values = np.array([[r["AX"], r["AY"], r["AZ"]] for r in mine], dtype=float)  # m/s^2 (pymavlink's `c`)
+        values = np.column_stack([mine[c] for c in ("AX", "AY", "AZ")]).astype(float)  # m/s^2 (`c` scaled on read)
         resolution = XKF_RESOLUTION_MPS2
     elif accel:  # EKF2 estimates the z bias alone; as logged: cm/s^2 (format `b`, not scaled on read)
-        values = np.array([[np.nan, np.nan, r["AZbias"] / 100.0] for r in mine], dtype=float)
+        values = np.column_stack([np.full(len(mine), np.nan), np.full(len(mine), np.nan),
+                                  mine["AZbias"] / 100.0]).astype(float)
         resolution = XKF_RESOLUTION_MPS2
     else:
-        values = np.radians(np.array([[r["GX"], r["GY"], r["GZ"]] for r in mine], dtype=float))  # deg/s as read
+        values = np.radians(np.column_stack([mine[c] for c in ("GX", "GY", "GZ")]).astype(float))  # deg/s as read
         resolution = XKF_GYRO_RESOLUTION_RADPS
     usable = np.ones(len(mine), dtype=bool)
     flying = in_flight(t_ns, flight_state)
