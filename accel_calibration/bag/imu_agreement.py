@@ -46,20 +46,50 @@ class Agreement:
                 "gyro_sigma": self.gyro_sigma_radps}
 
 
+class SecondSums:
+    """Per-second sums of a triple over the samples in flight, added a piece at a time (a log read a block at
+    a time): a few numbers per second kept, never the samples."""
+
+    def __init__(self) -> None:
+        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (blocks, counts, sums (K, 3))
+
+    def add(self, t_ns: np.ndarray, values: np.ndarray, flying: np.ndarray) -> None:
+        t = np.asarray(t_ns, dtype=np.int64)[flying]
+        if not len(t):
+            return
+        chosen = np.asarray(values, dtype=float)[flying]
+        blocks, where = np.unique(t // BLOCK_NS, return_inverse=True)
+        self._parts.append(_summed(blocks, where, np.ones(len(t)), chosen))
+
+    def means(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the seconds' indices, their means (K, 3)), the pieces' sums of one second added together."""
+        if not self._parts:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        blocks, where = np.unique(np.concatenate([p[0] for p in self._parts]), return_inverse=True)
+        _, counts, sums = _summed(blocks, where, np.concatenate([p[1] for p in self._parts]),
+                                  np.concatenate([p[2] for p in self._parts]))
+        means: np.ndarray = sums / counts[:, None]
+        return blocks, means
+
+
+def _summed(blocks: np.ndarray, where: np.ndarray, counts: np.ndarray, values: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    summed = np.column_stack([np.bincount(where, values[:, k], len(blocks)) for k in range(3)])
+    return blocks, np.bincount(where, counts, len(blocks)), summed
+
+
 def flight_means(name: str, t_ns: np.ndarray, accel_mps2: np.ndarray, gyro_radps: np.ndarray | None,
                  flying: np.ndarray) -> FlightMeans:
     """The per-second means of the samples in flight (a few numbers per second kept, not the samples)."""
-    t = np.asarray(t_ns, dtype=np.int64)[flying]
-    blocks, where = np.unique(t // BLOCK_NS, return_inverse=True)
-    counts = np.bincount(where, minlength=len(blocks)).astype(float)[:, None]
-
-    def means(values: np.ndarray) -> np.ndarray:
-        chosen = np.asarray(values, dtype=float)[flying]
-        sums: np.ndarray = np.column_stack([np.bincount(where, chosen[:, k], len(blocks)) for k in range(3)])
-        result: np.ndarray = sums / counts
-        return result
-
-    return FlightMeans(name, blocks, means(accel_mps2), None if gyro_radps is None else means(gyro_radps))
+    accel = SecondSums()
+    accel.add(t_ns, accel_mps2, flying)
+    blocks, accel_means = accel.means()
+    gyro_means = None
+    if gyro_radps is not None:
+        gyro = SecondSums()
+        gyro.add(t_ns, gyro_radps, flying)
+        gyro_means = gyro.means()[1]
+    return FlightMeans(name, blocks, accel_means, gyro_means)
 
 
 def _pair(mine: FlightMeans, other: FlightMeans) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,

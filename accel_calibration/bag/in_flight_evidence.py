@@ -115,46 +115,48 @@ def _flight_means(path: str, devices: dict[int, int | None]) -> tuple[dict[int, 
 
 
 def _ulog_flight_means(path: str) -> tuple[Any, dict[int, int | None], dict[int, Any], Any]:
-    """A ULog read once for all of it (its sensor_accel and sensor_gyro instances, the flight state, the
-    filter's bias): (the log, {instance: device}, each IMU's per-second means in flight, the flight state).
-    Each gyro's means are taken on its own stamps (the seconds line up; no interpolation)."""
+    """A ULog read once for all of it: (the log's small topics (the flight state, the filter's bias), {instance:
+    device}, each IMU's per-second means in flight, the flight state). Its sensor_accel and sensor_gyro
+    instances are read a block at a time and summed per second (ulog_reader.topic_blocks): memory bounded
+    whatever the log's length. The calibration in force is affine (a = M (raw - b), a gyro's offset), so it
+    is applied to the means; each gyro's means are taken on its own stamps (the seconds line up)."""
     from .correction_in_force import calibration_in_force
     from .estimator_bias import in_flight
     from .flight_sources import ULOG_TOPICS, ulog_flight_state
-    from .imu_agreement import flight_means
+    from .imu_agreement import FlightMeans, SecondSums
     from .logged_correction import px4_correction
-    from .ulog_reader import ACCEL, GYRO, VEHICLE_IMU, _datasets, _device_id, _load, _xyz, paired_gyro
+    from .ulog_reader import ACCEL, GYRO, VEHICLE_IMU, _Dataset, _device_id, _load, _xyz, paired_gyro, topic_blocks
 
-    log = _load(Path(path), [ACCEL, GYRO, VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS])
-    accels = {d.multi_id: d for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
-    devices = {n: _device_id(d.data) for n, d in accels.items()}
-    if not accels:
-        return log, {}, {}, ulog_flight_state(log)
+    log = _load(Path(path), [VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS])
     flight_state = ulog_flight_state(log)
+    sums: dict[tuple[str, int], SecondSums] = {}
+    first: dict[tuple[str, int], dict[str, np.ndarray]] = {}
+    for block in topic_blocks(path, {ACCEL, GYRO}):
+        for subscription, columns in block:
+            key = (subscription.name, subscription.multi_id)
+            first.setdefault(key, {k: v[:1] for k, v in columns.items()})
+            stamps = columns["timestamp_sample"] if "timestamp_sample" in columns else columns["timestamp"]
+            t_ns = np.asarray(stamps, dtype=np.int64) * 1000
+            sums.setdefault(key, SecondSums()).add(t_ns, _xyz(columns, ("x", "y", "z")), in_flight(t_ns, flight_state))
+    log.data_list.extend(_Dataset(name, multi_id, columns) for (name, multi_id), columns in first.items())
+    devices = {n: _device_id(first[(name, n)]) for name, n in sorted(first) if name == ACCEL}
+    if not devices:
+        return log, {}, {}, flight_state
     params = {str(k): float(v) for k, v in log.initial_parameters.items()}
     means = {}
-    for instance, dataset in accels.items():
-        data, device = dataset.data, devices[instance]
-        t_ns = np.asarray(data["timestamp_sample"] if "timestamp_sample" in data else data["timestamp"],
-                          dtype=np.int64) * 1000
+    for instance, device in devices.items():
         gyro_set = paired_gyro(log, instance, device)
         correction = px4_correction(params, device, None if gyro_set is None else _device_id(gyro_set.data), path)
-        accel = _xyz(data, ("x", "y", "z"))
-        if correction is not None:
+        blocks, accel = sums[(ACCEL, instance)].means()
+        if correction is not None and len(accel):
             accel = calibration_in_force(correction).apply(accel)
-        gyro = gyro_t_ns = None
+        name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
+        means[instance] = FlightMeans(name, blocks, accel, None)
         if gyro_set is not None:
-            g = gyro_set.data
-            gyro_t_ns = np.asarray(g["timestamp_sample"] if "timestamp_sample" in g else g["timestamp"],
-                                   dtype=np.int64) * 1000
-            gyro = _xyz(g, ("x", "y", "z"))
+            gyro_blocks, gyro = sums[(GYRO, gyro_set.multi_id)].means()
             if correction is not None and correction.gyro_offset_radps is not None:
                 gyro = gyro - correction.gyro_offset_radps
-        name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
-        means[instance] = flight_means(name, t_ns, accel, None, in_flight(t_ns, flight_state))
-        if gyro is not None and gyro_t_ns is not None:  # the gyro's means, taken as flight_means takes any triple
-            means[instance] = with_gyro(means[instance], flight_means(name, gyro_t_ns, gyro, None,
-                                                                     in_flight(gyro_t_ns, flight_state)))
+            means[instance] = with_gyro(means[instance], FlightMeans(name, gyro_blocks, gyro, None))
     return log, devices, means, flight_state
 
 

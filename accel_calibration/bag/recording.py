@@ -70,6 +70,10 @@ class Recording:
     imu_instances: tuple[int, ...] = ()  # a log's IMU instances (ULog sensor_accel, DataFlash IMU), when read
     accel_device_id: int | None = None  # the device IDs of the accelerometer and gyro read, where a log says them
     gyro_device_id: int | None = None
+    # A log read for its ground only (open_recording's ground_margin_s): the samples of the stream in the whole
+    # log and their first and last stamps (ns), for saying what was read; None where every sample was kept.
+    samples_read: int | None = None
+    first_last_ns: tuple[int, int] | None = None
 
     @property
     def unit(self) -> str:
@@ -120,10 +124,12 @@ def _regular_file(path: Path) -> None:
 def open_recording(path: str | os.PathLike[str], format: str | None = None, *, imu_topic: str | None = None,
                    temperature_topic: str | None = None, instance: int | None = None, time_unit: str | None = None,
                    units: str | None = None, counts_per_g: float | None = None, progress: bool = False,
-                   through_rosbags: bool = False) -> Recording:
+                   through_rosbags: bool = False, ground_margin_s: float | None = None) -> Recording:
     """The recording at `path` as sample arrays. Options that do not apply to its format are refused
     (one line), not ignored. `through_rosbags`: read a bag with rosbags' reader, message by message, instead
-    of its storage directly."""
+    of its storage directly. `ground_margin_s`: of an autopilot log keep only the samples on the ground and
+    next to its flights (FlightState.ground_kept; what the still moments need, memory bounded by the time on
+    the ground); other recordings are read as they are."""
     if format is not None and format not in FORMATS:
         raise RecordingError(f"--format {format!r} is not a known format; known: {KNOWN}")
     kind = format or detect_format(path)
@@ -141,9 +147,9 @@ def open_recording(path: str | os.PathLike[str], format: str | None = None, *, i
     if kind in BAGS:
         return _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags)
     if kind == "ulog":
-        return _read_ulog(path, instance, progress)
+        return _read_ulog(path, instance, progress, ground_margin_s)
     if kind == "dataflash":
-        return _read_dataflash(path, instance, progress)
+        return _read_dataflash(path, instance, progress, ground_margin_s)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
 
 
@@ -204,6 +210,7 @@ def stream_bag(path: str | os.PathLike[str], format: str | None = None, *, imu_t
     from .bag_io import declares_other_definition, metadata_topics, refuse_special_files, storage_of, stream_sqlite
     from .mcap_scan import stream_topics
 
+    other.pop("ground_margin_s", None)  # of autopilot logs only: a bag is streamed whole
     if any(value is not None for value in other.values()):
         return None  # options of other formats: open_recording refuses them in one line
     if format is not None and format not in BAGS:
@@ -351,7 +358,8 @@ def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, tempe
     return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
-def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
+def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool,
+               ground_margin_s: float | None = None) -> Recording:
     from .logged_correction import raw_or_said
     from .ulog_reader import read_ulog
 
@@ -359,7 +367,7 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = read_ulog(path, instance, bar)
+        log = read_ulog(path, instance, bar, ground_margin_s)
     finally:
         if bar is not None:
             bar.close()
@@ -377,10 +385,11 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
                      log.temperature_stream, sensor_id=log.sensor_id, vehicle=log.vehicle,
                      flight_state=log.flight_state, fitted_to=fitted_to, logged_correction=log.logged_correction,
                      imu_instances=log.imu_instances, accel_device_id=log.accel_device_id,
-                     gyro_device_id=log.gyro_device_id)
+                     gyro_device_id=log.gyro_device_id, samples_read=log.samples_read, first_last_ns=log.first_last_ns)
 
 
-def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool) -> Recording:
+def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool,
+                    ground_margin_s: float | None = None) -> Recording:
     from .dataflash import read_dataflash
     from .logged_correction import raw_or_said
 
@@ -388,7 +397,8 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = read_dataflash(path, instance, bar)
+        log = (read_dataflash(path, instance, bar) if ground_margin_s is None
+               else read_dataflash(path, instance, bar, ground_margin_s=ground_margin_s))
     finally:
         if bar is not None:
             bar.close()
@@ -399,7 +409,8 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
                      log.temperature_stream, sensor_id=log.sensor_id, flight_state=log.flight_state,
                      autopilot_calibration=log.autopilot_calibration, fitted_to=fitted_to,
                      logged_correction=log.logged_correction, imu_instances=log.imu_instances,
-                     accel_device_id=log.accel_device_id, gyro_device_id=log.gyro_device_id)
+                     accel_device_id=log.accel_device_id, gyro_device_id=log.gyro_device_id,
+                     samples_read=getattr(log, "samples_read", None), first_last_ns=getattr(log, "first_last_ns", None))
 
 
 LOGS = ("ulog", "dataflash")  # the formats with IMU instances (--instance)

@@ -60,6 +60,9 @@ class ReplaySettings:
     armed_field: str | None = None  # its field or test, e.g. "arming_state == 2" (flight_sources.field_test)
     armed_margin_s: float = 2.0
     ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
+    # An autopilot log's ground only (fleet's flight evidence): what the still moments need, memory bounded by
+    # the time on the ground (recording.open_recording's ground_margin_s); the same poses as the whole log.
+    ground_only: bool = False
     prior: Prior | None = None  # recalibrate against it (--prior): the poses fit what they observe
     prior_path: str | None = None  # where it came from, written beside the parameters' sources
     part_rows: int = RecordingFeed.PART_ROWS  # samples per detector call (the poses do not depend on it)
@@ -67,7 +70,8 @@ class ReplaySettings:
     def reader_options(self) -> dict[str, Any]:
         return {"format": self.format, "imu_topic": self.imu_topic, "temperature_topic": self.temperature_topic,
                 "instance": self.instance, "time_unit": self.time_unit, "units": self.units,
-                "counts_per_g": self.counts_per_g}
+                "counts_per_g": self.counts_per_g,
+                "ground_margin_s": self.armed_margin_s if self.ground_only and not self.ignore_flight_state else None}
 
 
 @dataclass(frozen=True)
@@ -248,11 +252,13 @@ def replay_recording(recording: Recording, settings: ReplaySettings | None = Non
     collecting = None if flight is None else flight.collecting(t, s.armed_margin_s)
     poses = session.add_recording(t, recording.accel_mps2, gyro, temperature_stamps, temperature_values,
                                   collecting=collecting, part_rows=s.part_rows)
-    duration = (int(t.max()) - int(t.min())) / 1e9 if len(t) > 1 else 0.0
-    start = int(t.min()) if len(t) else None
-    result = _verdict(session, poses, recording, len(t), duration, start, s, started,
+    # A log read for its ground only says the whole log's extent, as a whole read does.
+    first, last = recording.first_last_ns or ((int(t.min()), int(t.max())) if len(t) else (None, None))
+    samples = len(t) if recording.samples_read is None else recording.samples_read
+    duration = (last - first) / 1e9 if first is not None and last is not None and samples > 1 else 0.0
+    result = _verdict(session, poses, recording, samples, duration, first, s, started,
                       has_gyro=recording.gyro_radps is not None, temperature_readings=recording.temperature)
-    return _with_flight_state(result, flight, start, int(t.max()) if len(t) else None, s)
+    return _with_flight_state(result, flight, first, last, s)
 
 
 def flight_state_of(path: str | os.PathLike[str], recording_format: str, carried: FlightState | None,

@@ -21,7 +21,7 @@ import io
 import os
 import re
 import struct
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -72,26 +72,109 @@ class UlogSamples:
     imu_instances: tuple[int, ...] = ()  # the sensor_accel instances the log holds (read with instance=N)
     accel_device_id: int | None = None  # the device IDs of what was read, where the log says them
     gyro_device_id: int | None = None
+    # A read of the ground only (ground_margin_s): the samples the whole log holds and their first and last
+    # stamps (ns); None where every sample was kept.
+    samples_read: int | None = None
+    first_last_ns: tuple[int, int] | None = None
 
 
-def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
-              ) -> UlogSamples:
-    """`progress`: a tqdm bar counting bytes read."""
+def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None,
+              ground_margin_s: float | None = None) -> UlogSamples:
+    """`progress`: a tqdm bar counting bytes read. `ground_margin_s`: keep only the samples on the ground and
+    next to it (FlightState.ground_kept with this margin), read a block at a time (ulog_stream.py): memory
+    bounded by the time on the ground, not by the log's length; the whole log where it shows no flight."""
     from .flight_sources import ULOG_TOPICS, ulog_flight_state
 
     path = Path(path)
     topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO, VEHICLE_IMU]
-    log = _load(path, topics + list(ULOG_TOPICS), progress)
+    log: Any = None
+    read = None
+    if ground_margin_s is not None:
+        log = _load(path, [SELECTION, VEHICLE_IMU, *ULOG_TOPICS], progress)
+        read = _ground_rows(path, log, {COMBINED, ACCEL} if instance is None else {ACCEL, GYRO}, ground_margin_s)
+    if read is None:
+        log = _load(path, topics + list(ULOG_TOPICS), progress)
     samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
+    if read is not None:
+        stream = (COMBINED, 0) if instance is None else (ACCEL, instance)
+        counted = read.get(stream)
+        if counted is not None and counted.first_us is not None and counted.last_us is not None:
+            samples.samples_read = counted.rows
+            samples.first_last_ns = (counted.first_us * 1000, counted.last_us * 1000)
     samples.flight_state = ulog_flight_state(log)
     samples.vehicle = logged_vehicle(log.msg_info_dict)
     return samples
 
 
+def topic_blocks(path: str | os.PathLike[str], names: set[str]) -> Iterator[list[tuple[Any, dict[str, np.ndarray]]]]:
+    """Every instance of the topics `names`, a block of the file at a time (ulog_stream.stream_topics); a log
+    that cannot be streamed, whole through pyulog as one block. One UlogError line for a log cut short."""
+    from .ulog_stream import CutShort, NotStreamable, Subscription, stream_topics
+
+    path = Path(path)
+    _check_definitions(path)
+    try:
+        yield from stream_topics(path, names)
+    except NotStreamable:
+        log = _load(path, sorted(names))
+        yield [(Subscription(d.name, d.multi_id, len(d.data["timestamp"])), d.data) for d in log.data_list
+               if d.name in names]
+    except CutShort:
+        raise UlogError(_truncation(path)) from None
+    except OSError as error:
+        raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
+
+
+@dataclass
+class _Dataset:
+    """A topic instance's rows as pyulog gives them (name, multi_id, {field: values})."""
+
+    name: str
+    multi_id: int
+    data: dict[str, np.ndarray]
+
+
+def _ground_rows(path: Path, log: Any, topics: set[str], margin_s: float) -> dict[tuple[str, int], Any] | None:
+    """The rows of `topics` on the ground and next to it (FlightState.ground_kept), added to `log` as pyulog's
+    datasets; {(topic, instance): its subscription, counting the whole log's rows}. None where the log shows no
+    flight (nothing to leave out) or cannot be streamed: the caller reads it whole."""
+    from .flight_sources import ulog_flight_state
+    from .ulog_stream import NotStreamable, kept_rows
+
+    flight = ulog_flight_state(log)
+    if not flight.found or not len(flight.spans_ns):
+        return None
+
+    def keep(_: str, columns: dict[str, np.ndarray]) -> np.ndarray:
+        stamps = columns["timestamp_sample"] if "timestamp_sample" in columns else columns["timestamp"]
+        return flight.ground_kept(_stamps_us(path, stamps, "sample") * 1000, margin_s)
+
+    try:
+        kept = kept_rows(path, topics, keep)
+    except NotStreamable:
+        return None
+    log.data_list.extend(_Dataset(k.subscription.name, k.subscription.multi_id, k.columns) for k in kept)
+    return {(k.subscription.name, k.subscription.multi_id): k.subscription for k in kept}
+
+
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
-    """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds."""
-    log = _load(Path(path), [ACCEL])
-    return {d.multi_id: _device_id(d.data) for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
+    """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds (the first
+    row of each instance, read a block at a time)."""
+    from .ulog_stream import CutShort, NotStreamable, first_rows
+
+    path = Path(path)
+    _check_definitions(path)
+    try:
+        found = first_rows(path, {ACCEL})
+    except NotStreamable:
+        log = _load(path, [ACCEL])
+        return {d.multi_id: _device_id(d.data) for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
+    except CutShort:
+        raise UlogError(_truncation(path)) from None
+    except OSError as error:
+        raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
+    return {k.subscription.multi_id: _device_id(k.columns)
+            for k in sorted(found, key=lambda k: k.subscription.multi_id)}
 
 
 # pyulog stops without a word at a record cut short by the end of the file. So the file is read with one
@@ -104,12 +187,7 @@ def _load(path: Path, topics: list[str], progress: ProgressBar | None = None) ->
     from pyulog import ULog
     from pyulog.exceptions import ULogException
 
-    head = read_head(path, lambda stream: stream.read(len(MAGIC)), UlogError, "a .ulg file")
-    if head != MAGIC:
-        raise UlogError(f"{path}: not a PX4 ULog (no ULog header)")
-    problem = _definitions_problem(path)
-    if problem is not None:
-        raise UlogError(f"{path}: {problem}")
+    _check_definitions(path)
     marker = _record(b"L", struct.pack("<BQ", ord("6"), 0) + END_MARKER.encode())
     chatter = io.StringIO()  # pyulog prints warnings on stdout; they must not interleave with ours
     source = None
@@ -132,6 +210,16 @@ def _load(path: Path, topics: list[str], progress: ProgressBar | None = None) ->
     messages.pop()
     log.formats_defined = sorted(log.message_formats)  # for saying what the log has
     return log
+
+
+def _check_definitions(path: Path) -> None:
+    """One UlogError line for a file that is no ULog, or whose definitions are cut short or corrupt."""
+    head = read_head(path, lambda stream: stream.read(len(MAGIC)), UlogError, "a .ulg file")
+    if head != MAGIC:
+        raise UlogError(f"{path}: not a PX4 ULog (no ULog header)")
+    problem = _definitions_problem(path)
+    if problem is not None:
+        raise UlogError(f"{path}: {problem}")
 
 
 class _MarkedFile(io.RawIOBase):

@@ -176,9 +176,13 @@ def _start_ns(path: Path, replay: ReplayResult) -> int | None:
 
 
 def _replay(path: str, settings: ReplaySettings | None) -> ReplayResult:
-    """Replay one recording (the same session as the node) into a ReplayResult."""
-    from ..bag.replay import replay_bag
+    """Replay one recording (the same session as the node) into a ReplayResult. An autopilot log is read for
+    its ground only (ReplaySettings.ground_only): the same poses as the whole log, a worker's memory bounded by
+    the time on the ground, not by the hours of flight."""
+    from ..bag.replay import ReplaySettings, replay_bag
 
+    if Path(path).suffix.lower() in FLIGHT_LOG_SUFFIXES:
+        settings = dataclasses.replace(settings or ReplaySettings(), ground_only=True)
     return replay_bag(path, settings)
 
 

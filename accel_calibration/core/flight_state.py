@@ -18,6 +18,7 @@ from .errors import CalibrationError
 
 EARLIEST = int(np.iinfo(np.int64).min)  # a span that began before the recording did
 LATEST = int(np.iinfo(np.int64).max)  # a span still open when the recording ended
+GROUND_BORDER_S = 1.0  # of a flight kept beside the ground by a read for the still moments (ground_kept)
 
 
 def _no_spans() -> np.ndarray:
@@ -46,6 +47,23 @@ class FlightState:
     def left_out_s(self, first_ns: int, last_ns: int, margin_s: float) -> float:
         """Seconds of [first_ns, last_ns] (the recording's span) that are flight or its margin."""
         return left_out_s(first_ns, last_ns, self.spans_ns, margin_s)
+
+    def ground_kept(self, t_ns: np.ndarray, margin_s: float, border_s: float = GROUND_BORDER_S) -> np.ndarray:
+        """One bool per stamp: what a read for the still moments on the ground keeps of a long log. Every
+        sample `collecting` takes, and `border_s` of each flight (margin included) next to them: the session
+        then sees each flight begin and end as it would in the whole log, and a gyro interpolated at the
+        accelerometer's stamps has its neighbours. The rest of a flight can never be a pose."""
+        t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+        spans = widened(self.spans_ns, margin_s)
+        border = int(round(float(border_s) * 1e9))
+        starts = np.where(spans[:, 0] == EARLIEST, EARLIEST, spans[:, 0] + border)
+        ends = np.where(spans[:, 1] == LATEST, LATEST, spans[:, 1] - border)
+        inner = np.column_stack([starts, ends])[starts <= ends]
+        if not len(inner) or not len(t):
+            return np.ones(len(t), dtype=bool)
+        at = np.searchsorted(inner[:, 0], t, side="right") - 1
+        inside: np.ndarray = (at >= 0) & (t <= inner[np.maximum(at, 0), 1])
+        return ~inside
 
 
 def spans_from_states(stamps_ns: np.ndarray, flying: np.ndarray, initial: bool | None = None) -> np.ndarray:

@@ -1,0 +1,110 @@
+"""A PX4 ULog read a block at a time (bag/ulog_stream.py) gives every field pyulog gives, and a read of the
+ground only (the fleet's flight evidence) gives the same poses as the whole log while keeping a fraction of it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_path
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pyulog import ULog
+
+from accel_calibration.bag.replay import ReplaySettings, replay_bag
+from accel_calibration.bag.ulog_reader import UlogError, read_ulog
+from accel_calibration.bag.ulog_stream import kept_rows, stream_topics
+
+import helpers.flight_logs as logs
+from helpers.flight_logs import fly, sensors, true_in_force, write_ulog_flight
+
+TOPICS = ["sensor_accel", "sensor_gyro", "sensor_combined", "vehicle_status", "estimator_sensor_bias",
+          "vehicle_land_detected"]
+
+
+@pytest.fixture(scope="module")
+def flight_ulog(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("ground") / "flight.ulg"
+    truths = sensors(41, 3)
+    write_ulog_flight(path, fly(truths, 41), [true_in_force(t) for t in truths])
+    return path
+
+
+def _streamed(path: Path, block_bytes: int) -> dict[tuple[str, int], dict[str, np.ndarray]]:
+    parts: dict[tuple[str, int], list[dict[str, np.ndarray]]] = {}
+    for block in stream_topics(path, set(TOPICS), block_bytes):
+        for subscription, columns in block:
+            parts.setdefault((subscription.name, subscription.multi_id), []).append(columns)
+    return {key: {k: np.concatenate([p[k] for p in found]) for k in found[0]} for key, found in parts.items()}
+
+
+def _assert_as_pyulog(path: Path, block_bytes: int) -> int:
+    log = ULog(str(path), TOPICS)
+    mine = _streamed(path, block_bytes)
+    compared = 0
+    for dataset in log.data_list:
+        columns = mine.pop((dataset.name, dataset.multi_id))
+        assert set(columns) == set(dataset.data), dataset.name
+        for name, values in dataset.data.items():
+            np.testing.assert_array_equal(columns[name], values, err_msg=f"{dataset.name}.{name}")
+            compared += 1
+    assert not mine, f"topics pyulog does not give: {sorted(mine)}"
+    return compared
+
+
+@pytest.mark.parametrize("name", ["sample.ulg", "sample_logging_tagged_and_default_params.ulg"])
+def test_real_px4_logs_read_a_block_at_a_time_equal_pyulog_field_by_field(name: str) -> None:
+    path = shared_path(f"real/px4_ulog/{name}")
+    assert _assert_as_pyulog(path, 1 << 14) > 30  # nested formats and arrays included (estimator_sensor_bias)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(block_bytes=st.integers(min_value=64, max_value=1 << 18))
+def test_the_block_size_changes_nothing(flight_ulog: Path, block_bytes: int) -> None:
+    assert _assert_as_pyulog(flight_ulog, block_bytes) >= 40
+
+
+@pytest.mark.parametrize("instance", [None, 0, 2])
+def test_a_ground_read_gives_the_poses_of_the_whole_log(flight_ulog: Path, instance: int | None) -> None:
+    whole = replay_bag(flight_ulog, ReplaySettings(instance=instance))
+    ground = replay_bag(flight_ulog, ReplaySettings(instance=instance, ground_only=True))
+    kept = len(ground.source.recording.t_ns)
+    assert kept < 0.8 * len(whole.source.recording.t_ns)  # the flight is left out
+    assert ground.source.messages == whole.source.messages  # and still counted, as the whole log's
+    assert ground.source.duration_s == pytest.approx(whole.source.duration_s)
+    assert len(whole.poses) >= 1 and len(ground.poses) == len(whole.poses)
+    for a, b in zip(whole.poses, ground.poses, strict=True):
+        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+        np.testing.assert_allclose(b.accel_mps2, a.accel_mps2, rtol=0, atol=1e-9)  # m/s^2: summed in other parts
+        np.testing.assert_allclose(b.gyro_radps, a.gyro_radps, rtol=0, atol=1e-12)
+        assert b.temperature_degc == pytest.approx(a.temperature_degc, abs=1e-6)
+    assert ground.problem == whole.problem
+
+
+def test_an_hour_in_flight_is_not_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long flight keeps the ground seconds and a border of the flight, not the flight."""
+    monkeypatch.setattr(logs, "FLIGHT_S", 300.0)
+    truths = sensors(42, 3)
+    path = tmp_path / "long.ulg"
+    write_ulog_flight(path, fly(truths, 42), [true_in_force(t) for t in truths])
+    samples = read_ulog(path, 1, ground_margin_s=2.0)
+    ground_s = 2 * (logs.GROUND_S - 2.0 + 1.0)  # each side: the ground less the margin, and a 1 s border
+    assert len(samples.t_ns) <= (ground_s + 2.0) * logs.RATE_HZ
+    assert samples.samples_read is not None and samples.samples_read > 300 * logs.RATE_HZ
+
+
+def test_each_instance_keeps_its_first_row_even_in_flight(flight_ulog: Path) -> None:
+    """Its device ID: an instance whose rows all fall in a flight still says which IMU it is."""
+    kept = kept_rows(flight_ulog, {"sensor_accel"}, lambda _, columns: np.zeros(len(columns["timestamp"]), bool))
+    assert sorted(k.subscription.multi_id for k in kept) == [0, 1, 2]
+    assert all(len(k.columns["device_id"]) == 1 and k.columns["device_id"][0] > 0 for k in kept)
+    assert all(k.subscription.rows > 1000 for k in kept)
+
+
+def test_a_cut_log_read_for_its_ground_is_refused_in_one_line(flight_ulog: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "cut.ulg"
+    data = flight_ulog.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(UlogError, match="truncated ULog") as raised:
+        read_ulog(cut, 0, ground_margin_s=2.0)
+    assert "\n" not in str(raised.value)
