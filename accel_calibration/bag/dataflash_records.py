@@ -276,7 +276,7 @@ class RecordReader:
         if head1 != HEAD1 or head2 != HEAD2 or fmt is None:
             return self._bad_bytes(buffer, base, pos, head1, head2, type_id)
         if fmt.problem is not None:
-            raise self._fail(f"damaged DataFlash log: a {fmt.name} record at offset {base + pos} cannot be read "
+            raise self._fail(f"damaged DataFlash log: a record of {fmt.name} at offset {base + pos} cannot be read "
                              f"({fmt.problem}); its FMT records do not match its data")
         if pos + fmt.length > len(buffer):
             return None
@@ -329,16 +329,20 @@ class RecordReader:
         found: dict[str, np.ndarray] = {}
         for type_id in present.tolist():
             fmt = self._state.formats[type_id]
-            follow = _FOLLOWED.get(fmt.name)
-            if fmt.name not in self.names and follow is None:
+            asked, follow = fmt.name in self.names, _FOLLOWED.get(fmt.name)
+            if not (asked or follow or fmt.name in IMU_TYPES):
+                continue
+            mine = at[types == type_id] + 3
+            if fmt.name in IMU_TYPES:
+                _imu_instances(self._state, fmt, data, mine)
+            if not (asked or follow):
                 continue
             assert fmt.raw_dtype is not None
-            mine = at[types == type_id] + 3
-            raw = _bodies(data, mine, fmt.raw_dtype)
+            rows = decoded(_bodies(data, mine, fmt.raw_dtype), fmt)
             if follow is not None:
-                follow(self._state, fmt, raw)
-            if fmt.name in self.names:
-                found[fmt.name] = decoded(raw, fmt)
+                follow(self._state, fmt, rows)
+            if asked:
+                found[fmt.name] = rows
         return found
 
 
@@ -350,29 +354,30 @@ def _bodies(data: np.ndarray, starts: np.ndarray, raw_dtype: np.dtype) -> np.nda
     return np.ascontiguousarray(windows[starts]).view(raw_dtype).reshape(-1)
 
 
-def _follow_params(state: _State, fmt: RecordFormat, raw: np.ndarray) -> None:
-    if "Name" not in fmt.columns or "Value" not in fmt.columns:
-        return
-    rows = decoded(raw, fmt)
-    state.params.update(zip(rows["Name"].tolist(), (float(v) for v in rows["Value"].tolist())))
+def _follow_params(state: _State, fmt: RecordFormat, rows: np.ndarray) -> None:
+    if "Name" in fmt.columns and "Value" in fmt.columns:
+        state.params.update(zip(rows["Name"].tolist(), (float(v) for v in rows["Value"].tolist())))
 
 
-def _follow_units(state: _State, fmt: RecordFormat, raw: np.ndarray) -> None:
+def _follow_units(state: _State, fmt: RecordFormat, rows: np.ndarray) -> None:
     if "FmtType" in fmt.columns and "UnitIds" in fmt.columns:
-        rows = decoded(raw, fmt)
         state.units.extend(zip((int(v) for v in rows["FmtType"].tolist()), rows["UnitIds"].tolist()))
 
 
-def _follow_imu(state: _State, fmt: RecordFormat, raw: np.ndarray) -> None:
-    if fmt.name == "IMU" and "I" in fmt.columns:
-        state.imu_instances.update(int(v) for v in np.unique(raw["I"]).tolist())
+def _imu_instances(state: _State, fmt: RecordFormat, data: np.ndarray, starts: np.ndarray) -> None:
+    """The instances of IMU records at `starts`: today's field I (read alone, not the whole bodies), or the
+    older logs' type IMU, IMU2, IMU3."""
+    if fmt.name == "IMU" and fmt.raw_dtype is not None and "I" in fmt.columns:
+        kind, offset = fmt.raw_dtype.fields["I"][:2]  # type: ignore[index]
+        values = data[starts + offset].view(kind) if kind.itemsize == 1 else _bodies(data, starts, fmt.raw_dtype)["I"]
+        state.imu_instances.update(int(v) for v in np.unique(values).tolist())
     else:
         state.imu_instances.add(IMU_TYPES.index(fmt.name))
 
 
-# What every read follows, asked for or not: the parameters, the FMTU units, the IMU instances.
+# What every read follows, asked for or not: the parameters, the FMTU units (and the IMU instances).
 _FOLLOWED: dict[str, Callable[[_State, RecordFormat, np.ndarray], None]] = {
-    "PARM": _follow_params, "FMTU": _follow_units, **{name: _follow_imu for name in IMU_TYPES}}
+    "PARM": _follow_params, "FMTU": _follow_units}
 
 
 def iter_records(path: str | os.PathLike[str], names: Iterable[str], block_bytes: int = BLOCK_BYTES

@@ -250,3 +250,20 @@ def test_the_ground_read_of_a_long_flight_keeps_the_ground_seconds(tmp_path, mon
     assert ground.samples_read == len(flight.t_us)
     assert abs(len(ground.t_ns) - ground_s * rate) <= 4  # the ground's, not the flight's 90,000
     assert ground.first_last_ns == (int(flight.t_us[0]) * 1000, int(flight.t_us[-1]) * 1000)
+
+
+def test_an_fmt_record_that_redefines_a_type_after_its_records_is_refused_in_one_line(tmp_path):
+    """pymavlink reads the records after it with the new layout and those before with the old: two tables
+    of one name that no array holds together. Said, not read half one way."""
+    path = tmp_path / "redefined.bin"
+    two_imu_flight(path)
+    data = path.read_bytes()
+    fmt_of_imu = data.find(b"\xa3\x95\x80\x82")  # FORMATS_4X's second type: IMU
+    redefined = bytearray(data[fmt_of_imu:fmt_of_imu + 89])
+    assert redefined[5:25] == b"IMU\0" + b"QBffffffIIfBBHH".ljust(16, b"\0")  # Name, Format
+    redefined[25:89] = b"TimeUS,J,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz".ljust(64, b"\0")  # Columns
+    middle = data.find(b"\xa3\x95", len(data) // 2)
+    path.write_bytes(data[:middle] + bytes(redefined) + data[middle:])
+    count, said = read_whole_or_error(path)
+    assert count == -1 and said == (f"{path}: damaged DataFlash log: the FMT record at offset {middle} redefines "
+                                    "IMU (type 130) after records of it")
