@@ -267,3 +267,25 @@ def test_an_fmt_record_that_redefines_a_type_after_its_records_is_refused_in_one
     count, said = read_whole_or_error(path)
     assert count == -1 and said == (f"{path}: damaged DataFlash log: the FMT record at offset {middle} redefines "
                                     "IMU (type 130) after records of it")
+
+
+def test_fmtu_names_the_instance_field_and_mult_scales_no_value_as_in_pymavlink(tmp_path):
+    """FMTU's unit `#` marks a type's instance field; MULT and UNIT records only name units: pymavlink
+    scales no value by them, nor do we."""
+    from pymavlink import DFReader
+
+    from msg_tools.dataflash_writer import FORMATS_4X, imu_records
+
+    formats = {**FORMATS_4X, "UNIT": ("QbZ", "TimeUS,Id,Label"), "MULT": ("Qbd", "TimeUS,Id,Mult"),
+               "FMTU": ("QBNN", "TimeUS,FmtType,UnitIds,MultIds")}
+    imu_type = 0x81 + list(formats).index("IMU")
+    t_us = 1_000_000 + np.arange(50, dtype=np.int64) * 1000
+    records = [("UNIT", (900_000, ord("E"), "rad/s")), ("MULT", (900_000, ord("B"), 1e-2)),
+               ("FMTU", (900_000, imu_type, "s#EEEnnn--O--zz", "F-BBBBBB--B----")),
+               *imu_records(t_us, np.full((50, 3), 9.8), np.full((50, 3), 0.25), np.full(50, 30.0), instance=1)]
+    path = tmp_path / "units.bin"
+    write_dataflash(path, formats, records)
+    assert_same_as_pymavlink(path)
+    reference = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    assert read_records(path, []).formats["IMU"].instance_field == reference.formats[imu_type].instance_field == "I"
+    assert read_records(path, ["IMU"]).records["IMU"]["GyrX"].tolist() == [0.25] * 50
