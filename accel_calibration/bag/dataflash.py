@@ -143,6 +143,9 @@ class _ImuRead:
         rows = _instance_rows(block, self.wanted)
         if rows is None or not len(rows):
             return
+        missing = [c for c in ("TimeUS", *IMU_COLUMNS) if c not in (rows.dtype.names or ())]
+        if missing:
+            raise DataflashError(f"{self.path}: unreadable DataFlash log (its IMU records have no {missing[0]} field)")
         t_ns = _stamps_ns(self.path, rows["TimeUS"], "IMU")
         self.read += len(rows)
         self.first_ns = int(t_ns[0]) if self.first_ns is None else self.first_ns

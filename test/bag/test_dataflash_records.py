@@ -289,3 +289,11 @@ def test_fmtu_names_the_instance_field_and_mult_scales_no_value_as_in_pymavlink(
     reference = DFReader.DFReader_binary(str(path), zero_time_base=False)
     assert read_records(path, []).formats["IMU"].instance_field == reference.formats[imu_type].instance_field == "I"
     assert read_records(path, ["IMU"]).records["IMU"]["GyrX"].tolist() == [0.25] * 50
+
+
+def test_imu_records_without_an_acceleration_field_are_one_line(tmp_path):
+    formats = {"IMU": ("QBfff", "TimeUS,I,GyrX,GyrY,GyrZ")}
+    path = tmp_path / "gyro_only.bin"
+    write_dataflash(path, formats, [("IMU", (1_000_000 + 1000 * k, 0, 0.0, 0.0, 0.0)) for k in range(20)])
+    count, said = read_whole_or_error(path)
+    assert count == -1 and said == f"{path}: unreadable DataFlash log (its IMU records have no AccX field)"
