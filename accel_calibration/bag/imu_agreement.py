@@ -47,8 +47,8 @@ class Agreement:
 
 
 class SecondSums:
-    """Per-second sums of a triple over the samples in flight, added a piece at a time (a log read a block at
-    a time): a few numbers per second kept, never the samples."""
+    """Per-second sums of values (a triple, or any columns) over the samples in flight, added a piece at a
+    time (a log read a block at a time): a few numbers per second kept, never the samples."""
 
     def __init__(self) -> None:
         self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (blocks, counts, sums (K, 3))
@@ -57,24 +57,28 @@ class SecondSums:
         t = np.asarray(t_ns, dtype=np.int64)[flying]
         if not len(t):
             return
-        chosen = np.asarray(values, dtype=float)[flying]
+        chosen = np.asarray(values, dtype=float).reshape(len(flying), -1)[flying]
         blocks, where = np.unique(t // BLOCK_NS, return_inverse=True)
         self._parts.append(_summed(blocks, where, np.ones(len(t)), chosen))
 
     def means(self) -> tuple[np.ndarray, np.ndarray]:
         """(the seconds' indices, their means (K, 3)), the pieces' sums of one second added together."""
         if not self._parts:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))  # no second in flight
         blocks, where = np.unique(np.concatenate([p[0] for p in self._parts]), return_inverse=True)
         _, counts, sums = _summed(blocks, where, np.concatenate([p[1] for p in self._parts]),
                                   np.concatenate([p[2] for p in self._parts]))
         means: np.ndarray = sums / counts[:, None]
         return blocks, means
 
+    @property
+    def empty(self) -> bool:
+        return not self._parts
+
 
 def _summed(blocks: np.ndarray, where: np.ndarray, counts: np.ndarray, values: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    summed = np.column_stack([np.bincount(where, values[:, k], len(blocks)) for k in range(3)])
+    summed = np.column_stack([np.bincount(where, values[:, k], len(blocks)) for k in range(values.shape[1])])
     return blocks, np.bincount(where, counts, len(blocks)), summed
 
 

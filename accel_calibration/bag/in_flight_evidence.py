@@ -49,7 +49,7 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
     """Per IMU instance of the log: its estimator's bias and its agreement, read once (keyed by the file's
     size and time too, so a log rewritten in place is read again)."""
     from ..core.errors import AccelCalibrationError
-    from .recording import detect_format, log_accel_devices
+    from .recording import detect_format
 
     del size, mtime_ns  # the cache's key only
     log = None
@@ -59,8 +59,7 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
             if not devices:  # sensor_combined alone: its selected IMU, as replay reads it
                 means, flight_state = _flight_means(path, devices)
         else:
-            devices = log_accel_devices(path)
-            means, flight_state = _flight_means(path, devices)
+            devices, means, flight_state = _dataflash_flight_means(path)
     except AccelCalibrationError as error:
         reason = {"reason": str(error)}
         return {0: reason}, {0: reason}, {0: None}
@@ -115,49 +114,81 @@ def _flight_means(path: str, devices: dict[int, int | None]) -> tuple[dict[int, 
 
 
 def _ulog_flight_means(path: str) -> tuple[Any, dict[int, int | None], dict[int, Any], Any]:
-    """A ULog read once for all of it: (the log's small topics (the flight state, the filter's bias), {instance:
-    device}, each IMU's per-second means in flight, the flight state). Its sensor_accel and sensor_gyro
-    instances are read a block at a time and summed per second (ulog_reader.topic_blocks): memory bounded
-    whatever the log's length. The calibration in force is affine (a = M (raw - b), a gyro's offset), so it
-    is applied to the means; each gyro's means are taken on its own stamps (the seconds line up)."""
+    """A ULog's (small topics' log (the flight state, the filter's bias), {instance: device}, each IMU's
+    per-second means in flight, the flight state), from its one pass (ulog_pass.py: the fleet's replays made it;
+    made now otherwise). The calibration in force is affine (a = M (raw - b), a gyro's offset), so it is
+    applied to the means; each gyro's means are taken on its own stamps (the seconds line up)."""
     from .correction_in_force import calibration_in_force
-    from .estimator_bias import in_flight
-    from .flight_sources import ULOG_TOPICS, ulog_flight_state
-    from .imu_agreement import FlightMeans, SecondSums
+    from .imu_agreement import FlightMeans
     from .logged_correction import px4_correction
-    from .ulog_reader import ACCEL, GYRO, VEHICLE_IMU, _Dataset, _device_id, _load, _xyz, paired_gyro, topic_blocks
+    from .replay import ReplaySettings
+    from .ulog_pass import cached_pass, log_pass
+    from .ulog_reader import ACCEL, GYRO, _device_id, paired_gyro
 
-    log = _load(Path(path), [VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS])
-    flight_state = ulog_flight_state(log)
-    sums: dict[tuple[str, int], SecondSums] = {}
-    first: dict[tuple[str, int], dict[str, np.ndarray]] = {}
-    for block in topic_blocks(path, {ACCEL, GYRO}):
-        for subscription, columns in block:
-            key = (subscription.name, subscription.multi_id)
-            first.setdefault(key, {k: v[:1] for k, v in columns.items()})
-            stamps = columns["timestamp_sample"] if "timestamp_sample" in columns else columns["timestamp"]
-            t_ns = np.asarray(stamps, dtype=np.int64) * 1000
-            sums.setdefault(key, SecondSums()).add(t_ns, _xyz(columns, ("x", "y", "z")), in_flight(t_ns, flight_state))
-    log.data_list.extend(_Dataset(name, multi_id, columns) for (name, multi_id), columns in first.items())
-    devices = {n: _device_id(first[(name, n)]) for name, n in sorted(first) if name == ACCEL}
-    if not devices:
-        return log, {}, {}, flight_state
+    passed = cached_pass(path) or log_pass(path, ReplaySettings().armed_margin_s)
+    log = passed.log_of_first_rows()
+    devices = {n: _device_id(columns) for (name, n), columns in sorted(passed.first.items()) if name == ACCEL}
     params = {str(k): float(v) for k, v in log.initial_parameters.items()}
     means = {}
     for instance, device in devices.items():
         gyro_set = paired_gyro(log, instance, device)
         correction = px4_correction(params, device, None if gyro_set is None else _device_id(gyro_set.data), path)
-        blocks, accel = sums[(ACCEL, instance)].means()
+        flying = passed.flying.get((ACCEL, instance))
+        blocks, accel = flying.means() if flying is not None else (np.zeros(0, np.int64), np.zeros((0, 3)))
         if correction is not None and len(accel):
             accel = calibration_in_force(correction).apply(accel)
         name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
         means[instance] = FlightMeans(name, blocks, accel, None)
-        if gyro_set is not None:
-            gyro_blocks, gyro = sums[(GYRO, gyro_set.multi_id)].means()
+        gyro_flying = None if gyro_set is None else passed.flying.get((GYRO, gyro_set.multi_id))
+        if gyro_flying is not None:
+            gyro_blocks, gyro = gyro_flying.means()
             if correction is not None and correction.gyro_offset_radps is not None:
                 gyro = gyro - correction.gyro_offset_radps
             means[instance] = with_gyro(means[instance], FlightMeans(name, gyro_blocks, gyro, None))
-    return log, devices, means, flight_state
+    return log, devices, means, passed.flight
+
+
+def _dataflash_flight_means(path: str) -> tuple[dict[int, int | None], dict[int, Any], Any]:
+    """A DataFlash log's ({instance: device}, each IMU's per-second means in flight, the flight state): its
+    IMU records read a block at a time and summed per second as logged, with their temperature; the log's
+    correction undone on each second's means (at its mean temperature: affine in the samples, the thermal
+    part barely moves within a second) and the calibration in force applied, as the whole read does per sample."""
+    from .correction_in_force import calibration_in_force
+    from .dataflash import IMU_COLUMNS, IMU_TYPES, _device_ids, _flight_state, _instance_rows, _stamps_ns
+    from .dataflash_records import iter_records, read_records
+    from .estimator_bias import in_flight
+    from .imu_agreement import FlightMeans, SecondSums
+    from .logged_correction import ardupilot_correction
+
+    where = Path(path)
+    small = read_records(path, ["ARM", "EV"])
+    flight_state = _flight_state(where, small.records.get("ARM"), small.records.get("EV"))
+    instances = small.imu_instances
+    sums = {n: SecondSums() for n in instances}
+    for block in iter_records(path, IMU_TYPES):
+        for instance in instances:
+            rows = _instance_rows(block, instance)
+            if rows is None or not len(rows):
+                continue
+            t_ns = _stamps_ns(where, rows["TimeUS"], "IMU")
+            temperature = rows["T"] if "T" in (rows.dtype.names or ()) else np.full(len(rows), np.nan)
+            values = np.column_stack([*(rows[c] for c in IMU_COLUMNS), temperature]).astype(float)
+            sums[instance].add(t_ns, values, in_flight(t_ns, flight_state))
+    devices = {n: _device_ids(small.params, n)[0] for n in instances}
+    means = {}
+    for instance, device in devices.items():
+        blocks, logged = sums[instance].means()
+        accel, gyro = (logged[:, 0:3], logged[:, 3:6]) if len(logged) else (np.zeros((0, 3)), np.zeros((0, 3)))
+        correction = ardupilot_correction(small.params, instance, path)
+        if correction is not None and len(logged):
+            raw = correction.raw_accel(accel, logged[:, 6])
+            accel = calibration_in_force(correction).apply(raw)
+            gyro = correction.raw_gyro(gyro)
+            if correction.gyro_offset_radps is not None:
+                gyro = gyro - correction.gyro_offset_radps
+        name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
+        means[instance] = FlightMeans(name, blocks, accel, gyro)
+    return devices, means, flight_state
 
 
 def with_gyro(accel: Any, gyro: Any) -> Any:

@@ -397,8 +397,7 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = (read_dataflash(path, instance, bar) if ground_margin_s is None
-               else read_dataflash(path, instance, bar, ground_margin_s=ground_margin_s))
+        log = read_dataflash(path, instance, bar, ground_margin_s)
     finally:
         if bar is not None:
             bar.close()
@@ -410,7 +409,7 @@ def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress
                      autopilot_calibration=log.autopilot_calibration, fitted_to=fitted_to,
                      logged_correction=log.logged_correction, imu_instances=log.imu_instances,
                      accel_device_id=log.accel_device_id, gyro_device_id=log.gyro_device_id,
-                     samples_read=getattr(log, "samples_read", None), first_last_ns=getattr(log, "first_last_ns", None))
+                     samples_read=log.samples_read, first_last_ns=log.first_last_ns)
 
 
 LOGS = ("ulog", "dataflash")  # the formats with IMU instances (--instance)

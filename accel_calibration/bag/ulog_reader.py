@@ -88,19 +88,20 @@ def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progres
     path = Path(path)
     topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO, VEHICLE_IMU]
     log: Any = None
-    read = None
+    counted = None
     if ground_margin_s is not None:
-        log = _load(path, [SELECTION, VEHICLE_IMU, *ULOG_TOPICS], progress)
-        read = _ground_rows(path, log, {COMBINED, ACCEL} if instance is None else {ACCEL, GYRO}, ground_margin_s)
-    if read is None:
+        from .ulog_pass import log_pass
+
+        passed = log_pass(path, ground_margin_s, progress)
+        if passed.kept is not None:
+            log = passed.log_with({COMBINED, ACCEL} if instance is None else {ACCEL, GYRO})
+            counted = passed.subscriptions.get((COMBINED, 0) if instance is None else (ACCEL, instance))
+    if log is None:
         log = _load(path, topics + list(ULOG_TOPICS), progress)
     samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
-    if read is not None:
-        stream = (COMBINED, 0) if instance is None else (ACCEL, instance)
-        counted = read.get(stream)
-        if counted is not None and counted.first_us is not None and counted.last_us is not None:
-            samples.samples_read = counted.rows
-            samples.first_last_ns = (counted.first_us * 1000, counted.last_us * 1000)
+    if counted is not None and counted.first_us is not None and counted.last_us is not None:
+        samples.samples_read = counted.rows
+        samples.first_last_ns = (counted.first_us * 1000, counted.last_us * 1000)
     samples.flight_state = ulog_flight_state(log)
     samples.vehicle = logged_vehicle(log.msg_info_dict)
     return samples
@@ -134,35 +135,16 @@ class _Dataset:
     data: dict[str, np.ndarray]
 
 
-def _ground_rows(path: Path, log: Any, topics: set[str], margin_s: float) -> dict[tuple[str, int], Any] | None:
-    """The rows of `topics` on the ground and next to it (FlightState.ground_kept), added to `log` as pyulog's
-    datasets; {(topic, instance): its subscription, counting the whole log's rows}. None where the log shows no
-    flight (nothing to leave out) or cannot be streamed: the caller reads it whole."""
-    from .flight_sources import ulog_flight_state
-    from .ulog_stream import NotStreamable, kept_rows
-
-    flight = ulog_flight_state(log)
-    if not flight.found or not len(flight.spans_ns):
-        return None
-
-    def keep(_: str, columns: dict[str, np.ndarray]) -> np.ndarray:
-        stamps = columns["timestamp_sample"] if "timestamp_sample" in columns else columns["timestamp"]
-        return flight.ground_kept(_stamps_us(path, stamps, "sample") * 1000, margin_s)
-
-    try:
-        kept = kept_rows(path, topics, keep)
-    except NotStreamable:
-        return None
-    log.data_list.extend(_Dataset(k.subscription.name, k.subscription.multi_id, k.columns) for k in kept)
-    return {(k.subscription.name, k.subscription.multi_id): k.subscription for k in kept}
-
-
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
     """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds (the first
     row of each instance, read a block at a time)."""
+    from .ulog_pass import cached_pass
     from .ulog_stream import CutShort, NotStreamable, first_rows
 
     path = Path(path)
+    passed = cached_pass(path)
+    if passed is not None:  # the fleet's pass of this log: its first rows say it
+        return {n: _device_id(columns) for (name, n), columns in sorted(passed.first.items()) if name == ACCEL}
     _check_definitions(path)
     try:
         found = first_rows(path, {ACCEL})

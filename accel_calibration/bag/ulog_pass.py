@@ -1,0 +1,117 @@
+"""One pass over a PX4 ULog for all that the fleet asks of it, kept for the asks that follow: the fleet replays
+each IMU of a log in turn and then reads its flight, and every pass over an hour-long log costs a walk of its
+tens of millions of records. The pass reads the small topics through pyulog (parameters, flight state, the
+filter's bias, sensor_selection, vehicle_imu), then the high-rate ones a block at a time (ulog_stream.py),
+keeping of sensor_combined, sensor_accel and sensor_gyro only the rows on the ground and next to it
+(FlightState.ground_kept), the first row of each instance (its device ID), and per second in flight the sums
+of each instance's x, y, z (imu_agreement.SecondSums). Memory: the time on the ground, not the flight."""
+from __future__ import annotations
+
+import copy
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .imu_agreement import SecondSums
+from .ulog_stream import KeptRows, Subscription
+
+Key = tuple[str, int]  # (topic, instance)
+
+
+@dataclass
+class LogPass:
+    """What one pass read of a log (see the module's text)."""
+
+    identity: tuple[str, int, int]  # path, size, mtime: a log rewritten in place is read again
+    log: Any  # pyulog's ULog of the small topics
+    flight: Any  # FlightState
+    margin_s: float
+    kept: dict[Key, KeptRows] | None  # None: the log shows no flight to leave out (read it whole)
+    first: dict[Key, dict[str, np.ndarray]]
+    subscriptions: dict[Key, Subscription]  # the whole log's rows and first and last stamps of each
+    flying: dict[Key, SecondSums]
+
+    def log_with(self, topics: set[str]) -> Any:
+        """The small topics' log with the kept rows of `topics` as pyulog's datasets (a copy: the pass stays)."""
+        from .ulog_reader import _Dataset
+
+        log = copy.copy(self.log)
+        log._data_list = [*self.log.data_list, *(_Dataset(name, multi_id, rows.columns) for (name, multi_id), rows
+                                                 in (self.kept or {}).items() if name in topics)]
+        return log
+
+    def log_of_first_rows(self) -> Any:
+        """The small topics' log with each high-rate instance's first row (what pairs an IMU's gyro)."""
+        from .ulog_reader import _Dataset
+
+        log = copy.copy(self.log)
+        log._data_list = [*self.log.data_list, *(_Dataset(name, multi_id, columns)
+                                                 for (name, multi_id), columns in self.first.items())]
+        return log
+
+
+_last: list[LogPass] = []  # the last log's pass (a fleet task reads its logs one after another)
+
+
+def _identity(path: str | os.PathLike[str]) -> tuple[str, int, int]:
+    stat = os.stat(path)
+    return str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns
+
+
+def cached_pass(path: str | os.PathLike[str]) -> LogPass | None:
+    """The pass of this file kept from an earlier ask (whatever its margin), None when there is none."""
+    try:
+        identity = _identity(path)
+    except OSError:
+        return None
+    return next((p for p in _last if p.identity == identity), None)
+
+
+def log_pass(path: str | os.PathLike[str], margin_s: float, progress: Any = None) -> LogPass:
+    """The pass of this file for this margin: kept from the last ask, or read now (replacing it)."""
+    found = cached_pass(path)
+    if found is not None and found.margin_s == margin_s:
+        return found
+    made = _read(Path(path), margin_s, progress)
+    _last[:] = [made]
+    return made
+
+
+def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
+    from .estimator_bias import in_flight
+    from .flight_sources import ULOG_TOPICS, ulog_flight_state
+    from .ulog_reader import ACCEL, COMBINED, GYRO, SELECTION, VEHICLE_IMU, _load, _stamps_us, _xyz, topic_blocks
+
+    identity = _identity(path)
+    log = _load(path, [SELECTION, VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS], progress)
+    flight = ulog_flight_state(log)
+    leaves_out = flight.found and len(flight.spans_ns) > 0
+    parts: dict[Key, list[dict[str, np.ndarray]]] = {}
+    first: dict[Key, dict[str, np.ndarray]] = {}
+    subscriptions: dict[Key, Subscription] = {}
+    flying: dict[Key, SecondSums] = {}
+    for block in topic_blocks(path, {COMBINED, ACCEL, GYRO}):
+        for subscription, columns in block:
+            key = (subscription.name, subscription.multi_id)
+            subscriptions[key] = subscription
+            new = key not in first
+            if new:
+                first[key] = {k: v[:1] for k, v in columns.items()}
+            if not leaves_out:
+                continue
+            stamps = columns["timestamp_sample"] if "timestamp_sample" in columns else columns["timestamp"]
+            t_ns = _stamps_us(path, stamps, "sample") * 1000
+            kept = flight.ground_kept(t_ns, margin_s)
+            kept[0] |= new  # each instance's first row: it says which device it is, even where all of it flew
+            if kept.any():
+                parts.setdefault(key, []).append({k: v[kept] for k, v in columns.items()})
+            if subscription.name != COMBINED:
+                flying.setdefault(key, SecondSums()).add(t_ns, _xyz(columns, ("x", "y", "z")), in_flight(t_ns, flight))
+    kept_rows = None
+    if leaves_out:
+        kept_rows = {key: KeptRows(subscriptions[key], {k: np.concatenate([p[k] for p in found]) for k in found[0]})
+                     for key, found in parts.items()}
+    return LogPass(identity, log, flight, margin_s, kept_rows, first, subscriptions, flying)
