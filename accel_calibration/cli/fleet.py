@@ -559,6 +559,7 @@ def run(args: argparse.Namespace) -> int:
           f"({per_minute:.1f} recordings/min on {cores} worker thread{'s' if cores != 1 else ''})")
     if counts["evidence"] or counts["no evidence"]:
         print(f"flight evidence: {counts['evidence'] + counts['no evidence']} IMU rows, {counts['evidence']} with "
-              f"evidence from the still moments on the ground, {counts['no evidence']} without (see "
-              "'accel-calib history')")
+              f"evidence from the still moments on the ground, {counts['no evidence']} without; in flight, "
+              f"{counts['estimator']} with the filter's settled bias, {counts['agreement']} with "
+              "their agreement with their siblings (see 'accel-calib history')")
     return 0 if counts["calibrated"] == total and not problems else 1

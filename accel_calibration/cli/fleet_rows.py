@@ -38,7 +38,8 @@ class HistoryWriter:
     def __init__(self, history: Any) -> None:
         self.history = history
         self.rows: dict[str, list[str]] = {}
-        self.counts = {"calibrated": 0, "refused": 0, "failed": 0, "evidence": 0, "no evidence": 0}
+        self.counts = {"calibrated": 0, "refused": 0, "failed": 0, "evidence": 0, "no evidence": 0,
+                       "estimator": 0, "agreement": 0}
         self._pending: list[RecordingOutcome] = []
         self._since = 0.0
 
@@ -105,6 +106,8 @@ class HistoryWriter:
     def _count_evidence(self, evidence: list[Any]) -> None:
         for record in evidence:
             self.counts["evidence" if record.status == "evidence" else "no evidence"] += 1
+            self.counts["estimator"] += _said_in_flight(record.estimator)
+            self.counts["agreement"] += _said_in_flight(record.agreement)
 
     def _said(self, outcome: RecordingOutcome, row_written: bool) -> None:
         from tqdm import tqdm
@@ -136,3 +139,16 @@ def _unwritten(outcome: RecordingOutcome, error: Exception) -> RecordingOutcome:
     unwritten: RecordingOutcome = dataclasses.replace(outcome, status="failed", reason=reason,  # type: ignore[type-var]
                                                       summary=f"failed     {reason}", others=())
     return unwritten
+
+
+def _said_in_flight(stored: str | None) -> bool:
+    """An in-flight column (JSON) that holds a measurement, not the reason there is none."""
+    import json
+
+    if not stored:
+        return False
+    try:
+        said = json.loads(stored)
+    except ValueError:
+        return False
+    return isinstance(said, dict) and "reason" not in said

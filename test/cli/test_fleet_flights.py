@@ -55,7 +55,8 @@ def test_fleet_writes_a_row_of_evidence_per_imu_and_flight(tmp_path, capsys):
     for _ in range(2):  # the rerun updates the same rows
         assert main(["fleet", *named, "--history", target, "--workers", "1"]) == 1
         out = capsys.readouterr().out
-        assert "flight evidence: 11 IMU rows, 10 with evidence from the still moments on the ground, 1 without" in out
+        assert ("flight evidence: 11 IMU rows, 10 with evidence from the still moments on the ground, 1 without; in "
+                "flight, 4 with the filter's settled bias, 10 with their agreement with their siblings") in out
     with open_history(target) as history:
         rows = history.evidence()
     assert len(rows) == 11
