@@ -12,9 +12,9 @@
    of its own (the history keys rows by content: hard links would collapse into 16 rows).
 2. Memory: the flight-evidence path (`calibrate_recording`, what a worker runs per log) on a 1-hour, 1 kHz,
    three-IMU log, ULog and DataFlash, each in a fresh process: its peak RSS against the 500 MB target.
-   BENCH_FLIGHTS_MEMORY_S (default 3600) sets the log's length (the logs are read whole today: the hour's
-   DataFlash log takes over an hour of CPU and several GB; 360 measures 6 minutes in ~15 min);
-   BENCH_FLIGHTS_SKIP_MEMORY=1 skips part 2, BENCH_FLIGHTS_SKIP_SCALING=1 part 1.
+   BENCH_FLIGHTS_MEMORY_S (default 3600) sets the log's length (the hour's two logs, 1.2 GB and 0.6 GB, take
+   about 3 minutes to write and under a minute each to read); BENCH_FLIGHTS_SKIP_MEMORY=1 skips part 2,
+   BENCH_FLIGHTS_SKIP_SCALING=1 part 1.
 """
 from __future__ import annotations
 

@@ -361,13 +361,16 @@ def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, tempe
 def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool,
                ground_margin_s: float | None = None) -> Recording:
     from .logged_correction import raw_or_said
+    from .ulog_pass import ground_samples
     from .ulog_reader import read_ulog
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = read_ulog(path, instance, bar, ground_margin_s)
+        log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
+        if log is None:
+            log = read_ulog(path, instance, bar)
     finally:
         if bar is not None:
             bar.close()
@@ -423,9 +426,10 @@ def log_accel_devices(path: str | os.PathLike[str], format: str | None = None) -
         return {}
     _regular_file(Path(path))
     if kind == "ulog":
+        from .ulog_pass import cached_devices
         from .ulog_reader import accel_devices
 
-        return accel_devices(path)
+        return cached_devices(path) or accel_devices(path)  # the fleet's pass of this log says it
     from .dataflash import accel_devices as dataflash_devices
 
     return dataflash_devices(path)

@@ -53,6 +53,34 @@ class LogPass:
         return log
 
 
+def ground_samples(path: str | os.PathLike[str], instance: int | None, margin_s: float, progress: Any = None
+                   ) -> Any:
+    """ulog_reader.UlogSamples of sensor_combined (`instance` None) or sensor_accel `instance` on the ground
+    and next to it, from the log's pass; None where the log shows no flight to leave out (read it whole)."""
+    from .ulog_reader import ACCEL, COMBINED, GYRO, samples_of_log
+
+    passed = log_pass(path, margin_s, progress)
+    if passed.kept is None:
+        return None
+    samples = samples_of_log(Path(path), passed.log_with({COMBINED, ACCEL} if instance is None else {ACCEL, GYRO}),
+                             instance)
+    counted = passed.subscriptions.get((COMBINED, 0) if instance is None else (ACCEL, instance))
+    if counted is not None and counted.first_us is not None and counted.last_us is not None:
+        samples.samples_read = counted.rows
+        samples.first_last_ns = (counted.first_us * 1000, counted.last_us * 1000)
+    return samples
+
+
+def cached_devices(path: str | os.PathLike[str]) -> dict[int, int | None] | None:
+    """{sensor_accel instance: its device ID} from this log's pass kept from an earlier ask, None without one."""
+    from .ulog_reader import ACCEL, _device_id
+
+    passed = cached_pass(path)
+    if passed is None:
+        return None
+    return {n: _device_id(columns) for (name, n), columns in sorted(passed.first.items()) if name == ACCEL}
+
+
 _last: list[LogPass] = []  # the last log's pass (a fleet task reads its logs one after another)
 
 

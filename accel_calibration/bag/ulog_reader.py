@@ -72,36 +72,28 @@ class UlogSamples:
     imu_instances: tuple[int, ...] = ()  # the sensor_accel instances the log holds (read with instance=N)
     accel_device_id: int | None = None  # the device IDs of what was read, where the log says them
     gyro_device_id: int | None = None
-    # A read of the ground only (ground_margin_s): the samples the whole log holds and their first and last
-    # stamps (ns); None where every sample was kept.
+    # A read of the ground only (ulog_pass.ground_samples): the samples the whole log holds and their first and
+    # last stamps (ns); None where every sample was kept.
     samples_read: int | None = None
     first_last_ns: tuple[int, int] | None = None
 
 
-def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None,
-              ground_margin_s: float | None = None) -> UlogSamples:
-    """`progress`: a tqdm bar counting bytes read. `ground_margin_s`: keep only the samples on the ground and
-    next to it (FlightState.ground_kept with this margin), read a block at a time (ulog_stream.py): memory
-    bounded by the time on the ground, not by the log's length; the whole log where it shows no flight."""
-    from .flight_sources import ULOG_TOPICS, ulog_flight_state
+def read_ulog(path: str | os.PathLike[str], instance: int | None = None, progress: ProgressBar | None = None
+              ) -> UlogSamples:
+    """`progress`: a tqdm bar counting bytes read. (A read of the ground only, a block at a time: ulog_pass.py.)"""
+    from .flight_sources import ULOG_TOPICS
 
     path = Path(path)
     topics = [COMBINED, ACCEL, SELECTION] if instance is None else [ACCEL, GYRO, VEHICLE_IMU]
-    log: Any = None
-    counted = None
-    if ground_margin_s is not None:
-        from .ulog_pass import log_pass
+    return samples_of_log(path, _load(path, topics + list(ULOG_TOPICS), progress), instance)
 
-        passed = log_pass(path, ground_margin_s, progress)
-        if passed.kept is not None:
-            log = passed.log_with({COMBINED, ACCEL} if instance is None else {ACCEL, GYRO})
-            counted = passed.subscriptions.get((COMBINED, 0) if instance is None else (ACCEL, instance))
-    if log is None:
-        log = _load(path, topics + list(ULOG_TOPICS), progress)
+
+def samples_of_log(path: Path, log: Any, instance: int | None) -> UlogSamples:
+    """The samples of sensor_combined (`instance` None) or of sensor_accel `instance`, from a log read with
+    their topics and the flight state's (pyulog's, or its datasets as ulog_pass.py keeps them)."""
+    from .flight_sources import ulog_flight_state
+
     samples = _from_combined(path, log) if instance is None else _from_instance(path, log, instance)
-    if counted is not None and counted.first_us is not None and counted.last_us is not None:
-        samples.samples_read = counted.rows
-        samples.first_last_ns = (counted.first_us * 1000, counted.last_us * 1000)
     samples.flight_state = ulog_flight_state(log)
     samples.vehicle = logged_vehicle(log.msg_info_dict)
     return samples
@@ -138,13 +130,9 @@ class _Dataset:
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
     """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds (the first
     row of each instance, read a block at a time)."""
-    from .ulog_pass import cached_pass
     from .ulog_stream import CutShort, NotStreamable, first_rows
 
     path = Path(path)
-    passed = cached_pass(path)
-    if passed is not None:  # the fleet's pass of this log: its first rows say it
-        return {n: _device_id(columns) for (name, n), columns in sorted(passed.first.items()) if name == ACCEL}
     _check_definitions(path)
     try:
         found = first_rows(path, {ACCEL})

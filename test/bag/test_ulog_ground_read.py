@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from pyulog import ULog
 
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
-from accel_calibration.bag.ulog_reader import UlogError, read_ulog
+from accel_calibration.bag.ulog_pass import ground_samples
+from accel_calibration.bag.ulog_reader import UlogError
 from accel_calibration.bag.ulog_stream import kept_rows, stream_topics
 
 import helpers.flight_logs as logs
@@ -87,7 +88,7 @@ def test_an_hour_in_flight_is_not_kept(tmp_path: Path, monkeypatch: pytest.Monke
     truths = sensors(42, 3)
     path = tmp_path / "long.ulg"
     write_ulog_flight(path, fly(truths, 42), [true_in_force(t) for t in truths])
-    samples = read_ulog(path, 1, ground_margin_s=2.0)
+    samples = ground_samples(path, 1, 2.0)
     ground_s = 2 * (logs.GROUND_S - 2.0 + 1.0)  # each side: the ground less the margin, and a 1 s border
     assert len(samples.t_ns) <= (ground_s + 2.0) * logs.RATE_HZ
     assert samples.samples_read is not None and samples.samples_read > 300 * logs.RATE_HZ
@@ -106,5 +107,5 @@ def test_a_cut_log_read_for_its_ground_is_refused_in_one_line(flight_ulog: Path,
     data = flight_ulog.read_bytes()
     cut.write_bytes(data[: len(data) * 2 // 3])
     with pytest.raises(UlogError, match="truncated ULog") as raised:
-        read_ulog(cut, 0, ground_margin_s=2.0)
+        ground_samples(cut, 0, 2.0)
     assert "\n" not in str(raised.value)
