@@ -19,7 +19,7 @@ own variance (where logged), the wander of the estimate and the logged resolutio
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -97,19 +97,30 @@ def px4_biases(path: str, flight_state: FlightState | None, log: Any = None) -> 
     name = Path(path).name
     if not found:
         return f"{name}: the log has no estimator_sensor_bias topic (the filter's bias estimates were not logged)"
+    return px4_settled([(np.asarray(d.data["timestamp"], dtype=np.int64) * 1000, d.data) for d in found],
+                       flight_state, name)
+
+
+def px4_settled(datasets: Sequence[tuple[np.ndarray, Mapping[str, np.ndarray]]], flight_state: FlightState | None,
+                name: str) -> dict[int, EstimatedBias] | str:
+    """{accelerometer device ID: its settled bias} from estimator_sensor_bias as columns, whatever carried them
+    (a ULog's datasets, a bag's messages): per dataset its stamps (ns, the flight state's clock) and its fields
+    as the ULog names them (accel_bias[0], accel_bias_valid, ...); or why there is none."""
     per_device: dict[int, list[dict[str, np.ndarray]]] = {}
-    for dataset in found:
-        data = dataset.data
+    for t_ns, data in datasets:
         if "accel_device_id" not in data:
             continue
-        for device in np.unique(np.asarray(data["accel_device_id"], dtype=np.int64)):
+        devices = np.asarray(data["accel_device_id"], dtype=np.int64)
+        stamps = np.asarray(t_ns, dtype=np.int64)
+        for device in np.unique(devices):
             if device:
-                rows = np.asarray(data["accel_device_id"]) == device
-                per_device.setdefault(int(device), []).append({k: np.asarray(v)[rows] for k, v in data.items()})
+                rows = devices == device
+                part = {k: np.asarray(v)[rows] for k, v in data.items()}
+                per_device.setdefault(int(device), []).append({**part, "t_ns": stamps[rows]})
     out: dict[int, EstimatedBias] = {}
     for device, parts in per_device.items():
         data = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        t_ns = np.asarray(data["timestamp"], dtype=np.int64) * 1000
+        t_ns = data["t_ns"]
         flying = in_flight(t_ns, flight_state)
         rows = len(t_ns)
         accel = _px4_part(data, "accel", t_ns, flying, rows)
@@ -119,13 +130,9 @@ def px4_biases(path: str, flight_state: FlightState | None, log: Any = None) -> 
         out[device] = EstimatedBias("PX4 estimator_sensor_bias", max(p[2] for p in (accel, gyro) if p is not None),
                                     *(accel[:2] if accel else (None, None)), *(gyro[:2] if gyro else (None, None)))
     if not out:
-        return (f"{name}: estimator_sensor_bias holds no valid{' and stable' if _has_stable(found) else ''} "
-                "estimate in flight")
+        stable = any("accel_bias_stable" in data for _, data in datasets)
+        return f"{name}: estimator_sensor_bias holds no valid{' and stable' if stable else ''} estimate in flight"
     return out
-
-
-def _has_stable(found: list[Any]) -> bool:
-    return any("accel_bias_stable" in d.data for d in found)
 
 
 def _px4_part(data: Mapping[str, np.ndarray], part: str, t_ns: np.ndarray, flying: np.ndarray, rows: int

@@ -23,7 +23,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..core.calibration import Calibration
     from .flight_evidence import FlightEvidence
-    from .replay import ReplayResult
+    from .replay import ReplayResult, ReplaySettings
 
 NOMINAL = "nominal (no bias, unit gains): a bag carries no calibration in force; give one with --calibration"
 NO_FLIGHT_STATE = ("no flight state in the bag (an arming or landed topic): the still moments are the "
@@ -45,9 +45,24 @@ def is_bag(replay: ReplayResult) -> bool:
     return str(getattr(replay.source.recording, "format", "")) in BAGS
 
 
-def bag_evidence(replay: ReplayResult, given: GivenCalibration | None = None) -> FlightEvidence:
-    """The evidence of the bag's IMU (the Imu topic replay read); never raises for what the bag lacks: the
-    reason says it."""
+def bag_evidence(replay: ReplayResult, given: GivenCalibration | None = None,
+                 settings: ReplaySettings | None = None) -> FlightEvidence:
+    """The evidence of the bag's IMU (the Imu topic replay read): its still moments on the ground, then what
+    the bag says of it in flight (bag_in_flight.py; the flight state as `settings` read it for the replay);
+    never raises for what the bag lacks: the reason says it."""
+    import dataclasses
+
+    from .bag_in_flight import bag_in_flight
+
+    source = replay.source
+    estimator, agreement = bag_in_flight(
+        source.path, source.imu_topic, None if given is None else given.calibration,
+        "" if given is None else given.path, None if settings is None else settings.armed_topic,
+        None if settings is None else settings.armed_field, source.temperature_topic)
+    return dataclasses.replace(_ground_evidence(replay, given), estimator=estimator, agreement=agreement)
+
+
+def _ground_evidence(replay: ReplayResult, given: GivenCalibration | None) -> FlightEvidence:
     from ..core.calibration import Calibration
     from ..core.check import check_calibration
     from .flight_evidence import FlightEvidence, _observed

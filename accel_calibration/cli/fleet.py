@@ -245,7 +245,7 @@ def calibrate_recording(path: str, settings: ReplaySettings | None = None, vehic
                                                               vehicle_source, outcome))
 
     first_row = _with_evidence(_described(replay, identity, vehicle, vehicle_source, where, outcome), replay,
-                               _first_instance(replay, settings), given)
+                               _first_instance(replay, settings), given, settings)
     return dataclasses.replace(first_row, others=_other_rows(path, settings, replay, identity, vehicle,
                                                              vehicle_source, outcome))
 
@@ -296,9 +296,9 @@ def keeps_evidence(where: Path) -> bool:
 
 
 def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | None,
-                   given: GivenCalibration | None = None) -> RecordingOutcome:
+                   given: GivenCalibration | None = None, settings: ReplaySettings | None = None) -> RecordingOutcome:
     """An autopilot log's or a bag's row with its IMU's flight evidence (bag/flight_evidence.py), keyed as
-    the row."""
+    the row; `settings`: the replay's (a bag's flight state is read again for its flight as they say)."""
     from ..bag.flight_evidence import evidence_of
     from ..bag.flight_evidence_bag import bag_evidence, is_bag
     from ..bag.recording import LOGS, Recording
@@ -311,7 +311,7 @@ def _with_evidence(row: RecordingOutcome, replay: ReplayResult, instance: int | 
     if row.record is None or not (log or flight_bag):
         return row
     try:
-        evidence = bag_evidence(replay, given) if flight_bag else evidence_of(replay)
+        evidence = bag_evidence(replay, given, settings) if flight_bag else evidence_of(replay)
     except AccelCalibrationError as error:  # its parameters unreadable: a row with the reason
         from ..bag.flight_evidence import FlightEvidence
 
