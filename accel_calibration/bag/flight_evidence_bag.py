@@ -11,7 +11,10 @@ sensor's, not a verdict on a calibration.
 
 Flight state: the bag's (bag/flight_sources.py: `--armed-topic`, or /mavros/state, /fmu/out/vehicle_status
 or vehicle_land_detected), which keeps the flight out. A bag without one still gives the detector's still
-moments, and the row says so: a steady hover may count among them."""
+moments, and the row says so: a steady hover may count among them.
+
+In flight (bag_in_flight.py): the replayed topic's agreement with the bag's other Imu topics, and PX4's
+filter bias where the bag records /fmu/out/estimator_sensor_bias."""
 from __future__ import annotations
 
 from dataclasses import dataclass

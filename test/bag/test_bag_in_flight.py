@@ -99,3 +99,21 @@ def test_a_bag_without_estimator_sensor_bias_says_why(tmp_path):
     said = evidence(path, "/imu").estimator
     assert said == {"reason": "plain.mcap: the bag records no estimator_sensor_bias (the filter's bias estimates: "
                               "px4_msgs/msg/EstimatorSensorBias, e.g. /fmu/out/estimator_sensor_bias)"}
+
+
+def test_a_bag_without_the_definition_of_estimator_sensor_bias_says_so(tmp_path):
+    """A sqlite3 bag from before Iron records no message definitions: px4_msgs cannot be decoded here."""
+    import sqlite3
+
+    flight = fly(sensors(103, 1), 104)
+    path = write_flight_bag(tmp_path / "old", flight, {"/imu": flight.raw[0]}, "sqlite3",
+                            estimator=(FILTER_BIAS, ALL_DEVICES[0]))
+    connection = sqlite3.connect(next(path.glob("*.db3")))
+    try:
+        connection.execute("DELETE FROM message_definitions WHERE topic_type = 'px4_msgs/msg/EstimatorSensorBias'")
+        connection.commit()
+    finally:
+        connection.close()
+    said = evidence(path, "/imu").estimator
+    assert said["reason"].startswith("old: cannot decode /fmu/out/estimator_sensor_bias "
+                                     "(px4_msgs/msg/EstimatorSensorBias) with the definitions recorded in the bag")
