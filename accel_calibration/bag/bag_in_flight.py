@@ -92,6 +92,8 @@ def _agreement(path: str | os.PathLike[str], imu_topic: str, topics: list[str], 
                                     temperature_topic if topic == imu_topic else None)
         except AccelCalibrationError as error:
             return {"reason": f"{name}: cannot read {topic} for the agreement ({error})"}
+        except Exception as error:  # noqa: BLE001 - a damaged storage makes the readers raise their own types
+            return {"reason": f"{name}: cannot read {topic} for the agreement ({_first_line(error)})"}
     try:
         said = agreement(means)[topics.index(imu_topic)]
     except (np.linalg.LinAlgError, ValueError) as error:  # degenerate seconds (a dead IMU's zeros): its reason
@@ -151,7 +153,10 @@ def _estimator(path: str | os.PathLike[str], flight_state: Any) -> Said:
     recorded = recorded_definitions(path)  # the storage's own list: no rosbags reader to open where it is absent
     if recorded is not None and not any(msgtype == ESTIMATOR_TYPE for msgtype, _, _ in recorded.values()):
         return no_topic
-    reader = open_reader(path)
+    try:
+        reader = open_reader(path)
+    except AccelCalibrationError as error:
+        return {"reason": str(error)}
     try:
         connections = [c for c in reader.connections if c.msgtype == ESTIMATOR_TYPE]
         if not connections:
@@ -159,6 +164,8 @@ def _estimator(path: str | os.PathLike[str], flight_state: Any) -> Said:
         datasets = [_columns(reader, connection, name) for connection in connections]
     except AccelCalibrationError as error:
         return {"reason": str(error)}
+    except Exception as error:  # noqa: BLE001 - a damaged storage makes the readers raise their own types
+        return {"reason": f"{name}: cannot read {ESTIMATOR_TOPIC} ({_first_line(error)})"}
     finally:
         reader.close()
     found = px4_settled(datasets, flight_state, name)
@@ -192,3 +199,8 @@ def _columns(reader: Any, connection: Any, name: str) -> tuple[np.ndarray, dict[
             else:
                 rows.setdefault(field, []).append(value)
     return np.array(stamps, dtype=np.int64), {k: np.asarray(v) for k, v in rows.items()}
+
+
+def _first_line(error: Exception) -> str:
+    first = str(error).splitlines()[0][:100] if str(error) else ""
+    return f"{type(error).__name__}: {first}" if first else type(error).__name__
