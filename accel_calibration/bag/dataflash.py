@@ -140,9 +140,15 @@ class _ImuRead:
     last_ns: int | None = None
 
     def add(self, block: Mapping[str, np.ndarray]) -> None:
+        found = self.rows(block)
+        if found is not None:
+            self.keep_rows(*found)
+
+    def rows(self, block: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+        """This instance's records of one block as (stamps ns, values (n, 7)), counted; None where it has none."""
         rows = _instance_rows(block, self.wanted)
         if rows is None or not len(rows):
-            return
+            return None
         missing = [c for c in ("TimeUS", *IMU_COLUMNS) if c not in (rows.dtype.names or ())]
         if missing:
             raise DataflashError(f"{self.path}: unreadable DataFlash log (its IMU records have no {missing[0]} field)")
@@ -150,12 +156,16 @@ class _ImuRead:
         self.read += len(rows)
         self.first_ns = int(t_ns[0]) if self.first_ns is None else self.first_ns
         self.last_ns = int(t_ns[-1])
+        temperature = rows["T"] if "T" in (rows.dtype.names or ()) else np.full(len(rows), np.nan)
+        return t_ns, np.column_stack([*(rows[c] for c in IMU_COLUMNS), temperature]).astype(float)
+
+    def keep_rows(self, t_ns: np.ndarray, values: np.ndarray) -> None:
+        """Of the rows `rows` gave, those `keep` keeps (every one without it)."""
         if self.keep is not None:
             kept = self.keep(t_ns)
-            rows, t_ns = rows[kept], t_ns[kept]
-        temperature = rows["T"] if "T" in (rows.dtype.names or ()) else np.full(len(rows), np.nan)
+            t_ns, values = t_ns[kept], values[kept]
         self.stamps.append(t_ns)
-        self.values.append(np.column_stack([*(rows[c] for c in IMU_COLUMNS), temperature]).astype(float))
+        self.values.append(values)
 
 
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
@@ -193,7 +203,7 @@ def read_dataflash(path: str | os.PathLike[str], instance: int | None = None, pr
         reader = RecordReader(path, IMU_TYPES)
         for block in _progressed(reader, progress):
             imu.add(block)
-    return _samples(path, imu, reader, flight)
+    return _samples(path, imu, reader.params, reader.imu_instances, flight)
 
 
 def _progressed(reader: RecordReader, progress: ProgressBar | None) -> Iterator[dict[str, np.ndarray]]:
@@ -207,8 +217,10 @@ def _progressed(reader: RecordReader, progress: ProgressBar | None) -> Iterator[
         progress.update(reader.bytes_read - done)
 
 
-def _samples(path: Path, imu: _ImuRead, reader: RecordReader, flight: FlightState) -> DataflashSamples:
-    wanted, params, instances = imu.wanted, reader.params, reader.imu_instances
+def _samples(path: Path, imu: _ImuRead, params: dict[str, float], instances: tuple[int, ...],
+             flight: FlightState) -> DataflashSamples:
+    """The samples `imu` gathered (its lists emptied as they are joined), with what the log says of them."""
+    wanted = imu.wanted
     if not imu.read:
         if not instances:
             raise DataflashError(f"{path}: no accelerometer data (IMU records) in this DataFlash log")

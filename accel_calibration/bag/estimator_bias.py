@@ -31,6 +31,7 @@ from ..core.flight_state import FlightState, collecting_mask
 XKF_RESOLUTION_MPS2 = 0.01  # 100 x m/s^2 as an integer
 XKF_GYRO_RESOLUTION_RADPS = math.radians(0.01)  # 100 x deg/s as an integer
 MIN_SETTLED = 5  # estimates in the settled stretch needed for a value
+ARDUPILOT_FILTER_TYPES = tuple(f"{p}{n}" for p in ("XKF", "NKF") for n in (1, 2, 6, 7))  # what ardupilot_biases reads
 
 
 @dataclass(frozen=True)
@@ -150,11 +151,14 @@ def core_imus(params: Mapping[str, float], mask_name: str) -> list[int]:
     return [bit for bit in range(8) if mask >> bit & 1]
 
 
-def ardupilot_biases(path: str, flight_state: FlightState | None) -> dict[int, EstimatedBias] | str:
-    """{IMU instance: its settled bias} from EKF3's XKF2/XKF1, else EKF2's NKF2/NKF1, or why there is none."""
+def ardupilot_biases(path: str, flight_state: FlightState | None,
+                     read: tuple[Mapping[str, np.ndarray], Mapping[str, float]] | None = None
+                     ) -> dict[int, EstimatedBias] | str:
+    """{IMU instance: its settled bias} from EKF3's XKF2/XKF1, else EKF2's NKF2/NKF1, or why there is none;
+    `read`: the records of ARDUPILOT_FILTER_TYPES and the parameters already read (the fleet's pass of the log)."""
     from .dataflash import scan_messages
 
-    found, params = scan_messages(Path(path), [f"{p}{n}" for p in ("XKF", "NKF") for n in (1, 2, 6, 7)])
+    found, params = read if read is not None else scan_messages(Path(path), list(ARDUPILOT_FILTER_TYPES))
     name = Path(path).name
     ekf3 = bool(len(found.get("XKF2", ())) or len(found.get("XKF1", ())))
     if not ekf3 and not (len(found.get("NKF2", ())) or len(found.get("NKF1", ()))):

@@ -59,7 +59,7 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
             if not devices:  # sensor_combined alone: its selected IMU, as replay reads it
                 means, flight_state = _flight_means(path, devices)
         else:
-            devices, means, flight_state = _dataflash_flight_means(path)
+            log, devices, means, flight_state = _dataflash_flight_means(path)
     except AccelCalibrationError as error:
         reason = {"reason": str(error)}
         return {0: reason}, {0: reason}, {0: None}
@@ -148,38 +148,28 @@ def _ulog_flight_means(path: str) -> tuple[Any, dict[int, int | None], dict[int,
     return log, devices, means, passed.flight
 
 
-def _dataflash_flight_means(path: str) -> tuple[dict[int, int | None], dict[int, Any], Any]:
-    """A DataFlash log's ({instance: device}, each IMU's per-second means in flight, the flight state): its
-    IMU records read a block at a time and summed per second as logged, with their temperature; the log's
-    correction undone on each second's means (at its mean temperature: affine in the samples, the thermal
-    part barely moves within a second) and the calibration in force applied, as the whole read does per sample."""
+def _dataflash_flight_means(path: str) -> tuple[Any, dict[int, int | None], dict[int, Any], Any]:
+    """A DataFlash log's (pass (the filter's records, the parameters), {instance: device}, each IMU's per-second
+    means in flight, the flight state), from its one pass (dataflash_pass.py: the fleet's replays made it; made
+    now otherwise): its IMU records summed per second as logged, with their temperature; the log's correction
+    undone on each second's means (at its mean temperature: affine in the samples, the thermal part barely
+    moves within a second) and the calibration in force applied, as the whole read does per sample."""
     from .correction_in_force import calibration_in_force
-    from .dataflash import IMU_COLUMNS, IMU_TYPES, _device_ids, _flight_state, _instance_rows, _stamps_ns
-    from .dataflash_records import iter_records, read_records
-    from .estimator_bias import in_flight
-    from .imu_agreement import FlightMeans, SecondSums
+    from .dataflash import _device_ids
+    from .dataflash_pass import cached_pass, log_pass
+    from .imu_agreement import FlightMeans
     from .logged_correction import ardupilot_correction
+    from .replay import ReplaySettings
 
-    where = Path(path)
-    small = read_records(path, ["ARM", "EV"])
-    flight_state = _flight_state(where, small.records.get("ARM"), small.records.get("EV"))
-    instances = small.imu_instances
-    sums = {n: SecondSums() for n in instances}
-    for block in iter_records(path, IMU_TYPES):
-        for instance in instances:
-            rows = _instance_rows(block, instance)
-            if rows is None or not len(rows):
-                continue
-            t_ns = _stamps_ns(where, rows["TimeUS"], "IMU")
-            temperature = rows["T"] if "T" in (rows.dtype.names or ()) else np.full(len(rows), np.nan)
-            values = np.column_stack([*(rows[c] for c in IMU_COLUMNS), temperature]).astype(float)
-            sums[instance].add(t_ns, values, in_flight(t_ns, flight_state))
-    devices = {n: _device_ids(small.params, n)[0] for n in instances}
+    passed = cached_pass(path) or log_pass(path, ReplaySettings().armed_margin_s)
+    passed.check_instances()
+    devices = {n: _device_ids(passed.params, n)[0] for n in passed.imu_instances}
     means = {}
     for instance, device in devices.items():
-        blocks, logged = sums[instance].means()
+        flying = passed.flying.get(instance)
+        blocks, logged = flying.means() if flying is not None else (np.zeros(0, np.int64), np.zeros((0, 3)))
         accel, gyro = (logged[:, 0:3], logged[:, 3:6]) if len(logged) else (np.zeros((0, 3)), np.zeros((0, 3)))
-        correction = ardupilot_correction(small.params, instance, path)
+        correction = ardupilot_correction(passed.params, instance, path)
         if correction is not None and len(logged):
             raw = correction.raw_accel(accel, logged[:, 6])
             accel = calibration_in_force(correction).apply(raw)
@@ -188,7 +178,7 @@ def _dataflash_flight_means(path: str) -> tuple[dict[int, int | None], dict[int,
                 gyro = gyro - correction.gyro_offset_radps
         name = f"IMU {instance + 1}" + (f" (device {device})" if device is not None else "")
         means[instance] = FlightMeans(name, blocks, accel, gyro)
-    return devices, means, flight_state
+    return passed, devices, means, passed.flight
 
 
 def with_gyro(accel: Any, gyro: Any) -> Any:
@@ -215,7 +205,7 @@ def _estimators(path: str, devices: dict[int, int | None], flight_state: Any, lo
             found = by_device if isinstance(by_device, str) else {
                 k: by_device[d] for k, d in devices.items() if d is not None and d in by_device}
         else:
-            found = ardupilot_biases(path, flight_state)
+            found = ardupilot_biases(path, flight_state, None if log is None else log.filter_read())
     except AccelCalibrationError as error:
         found = str(error)
     if isinstance(found, str):

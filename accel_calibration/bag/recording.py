@@ -394,13 +394,16 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
 def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool,
                     ground_margin_s: float | None = None) -> Recording:
     from .dataflash import read_dataflash
+    from .dataflash_pass import ground_samples
     from .logged_correction import raw_or_said
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = read_dataflash(path, instance, bar, ground_margin_s)
+        log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
+        if log is None:
+            log = read_dataflash(path, instance, bar)
     finally:
         if bar is not None:
             bar.close()
@@ -431,8 +434,10 @@ def log_accel_devices(path: str | os.PathLike[str], format: str | None = None) -
 
         return cached_devices(path) or accel_devices(path)  # the fleet's pass of this log says it
     from .dataflash import accel_devices as dataflash_devices
+    from .dataflash_pass import cached_devices as cached_dataflash_devices
 
-    return dataflash_devices(path)
+    found = cached_dataflash_devices(path)  # the fleet's pass of this log says it
+    return dataflash_devices(path) if found is None else found
 
 
 def _read_csv(path: str | os.PathLike[str], time_unit: str | None, units: str, counts_per_g: float | None,
