@@ -8,10 +8,11 @@ IMU records, keeping of each instance its rows on the ground and next to it (Fli
 many it has and its first and last stamps, and per second in flight the sums of its AccX..Z, GyrX..Z, T
 (imu_agreement.SecondSums). Two walks, not one: a row can be left out only once the flight state around it
 is known, and the ARM and EV records lie among the IMU records; one walk would hold every row not yet decided
-(a whole flight, until its DISARMED is read: some 400 MB for an hour of three IMUs at 1 kHz), or decide by
-the events read so far, which the order of the records in a log does not promise. The small walk costs less
-than the IMU walk (its step per record, not the gather, is most of a walk). Memory: the time on the ground,
-not the flight."""
+(a whole flight until its DISARMED is read: about the file, 583 MB for an hour of three IMUs at 1 kHz), or
+decide by the events read so far, which the order of the records in a log does not promise. Measured on that
+hour: the small walk 2.1 s (its step per record is most of a walk), the IMU walk 4.7 s; calibrate_recording
+of its three IMUs 8 s, where a walk per ask (nine) took 24 to 28 s. Memory: the time on the ground, not the
+flight."""
 from __future__ import annotations
 
 import dataclasses

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 
 from accel_calibration.bag import dataflash_pass, in_flight_evidence
 from accel_calibration.bag.dataflash import accel_devices
-from accel_calibration.bag.dataflash_records import RecordReader
+from accel_calibration.bag.dataflash_records import RecordReader, read_records
 from accel_calibration.bag.recording import log_accel_devices
 from accel_calibration.cli.fleet import calibrate_recording
 from msg_tools.synthetic_imu import SensorErrors, SyntheticImu, spread_orientations
@@ -174,3 +175,21 @@ def test_a_log_rewritten_in_place_is_read_again(tmp_path, monkeypatch, imus):
     assert len(again) == imus
     assert again[0]["record"]["bias"] != before[0]["record"]["bias"]
     assert again[0]["evidence"]["agreement"] != before[0]["evidence"]["agreement"]
+
+
+def test_an_imu_whose_records_cannot_be_read_is_refused_alone(tmp_path, monkeypatch):
+    """One record of IMU 1 with a TimeUS no nanosecond stamp holds: IMU 1's row fails with that reason, its
+    siblings are calibrated from the same pass, and the in-flight evidence says why, as read whole."""
+    path = tmp_path / "00000003.BIN"
+    write_flight(path, 71)
+    data = bytearray(path.read_bytes())
+    imu = read_records(path, []).formats["IMU"]
+    record = re.compile(b"\xa3\x95" + bytes([imu.type_id]) + b".{8}\x01", re.DOTALL).search(bytes(data))
+    assert record is not None
+    data[record.start() + 3:record.start() + 11] = (2**64 - 1).to_bytes(8, "little")
+    path.write_bytes(bytes(data))
+    got = rows_of(calibrate_recording(str(path)))
+    assert [row["status"] for row in got] == ["calibrated", "failed", "calibrated"]
+    assert "IMU TimeUS reaches" in got[1]["reason"] and "\n" not in got[1]["reason"]
+    assert "IMU TimeUS reaches" in got[0]["evidence"]["agreement"]["reason"]
+    assert_same(got, rows_of(read_whole(path, monkeypatch)))
