@@ -102,7 +102,7 @@ def samples_of_log(path: Path, log: Any, instance: int | None) -> UlogSamples:
 def topic_blocks(path: str | os.PathLike[str], names: set[str]) -> Iterator[list[tuple[Any, dict[str, np.ndarray]]]]:
     """Every instance of the topics `names`, a block of the file at a time (ulog_stream.stream_topics); a log
     that cannot be streamed, whole through pyulog as one block. One UlogError line for a log cut short."""
-    from .ulog_stream import CutShort, NotStreamable, Subscription, stream_topics
+    from .ulog_stream import Corrupt, CutShort, NotStreamable, Subscription, stream_topics
 
     path = Path(path)
     _check_definitions(path)
@@ -114,6 +114,8 @@ def topic_blocks(path: str | os.PathLike[str], names: set[str]) -> Iterator[list
                if d.name in names]
     except CutShort:
         raise UlogError(_truncation(path)) from None
+    except Corrupt as error:
+        raise UlogError(f"{path}: {error}") from None
     except OSError as error:
         raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
 
@@ -130,7 +132,7 @@ class _Dataset:
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
     """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds (the first
     row of each instance, read a block at a time)."""
-    from .ulog_stream import CutShort, NotStreamable, first_rows
+    from .ulog_stream import Corrupt, CutShort, NotStreamable, first_rows
 
     path = Path(path)
     _check_definitions(path)
@@ -141,6 +143,8 @@ def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
         return {d.multi_id: _device_id(d.data) for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
     except CutShort:
         raise UlogError(_truncation(path)) from None
+    except Corrupt as error:
+        raise UlogError(f"{path}: {error}") from None
     except OSError as error:
         raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
     return {k.subscription.multi_id: _device_id(k.columns)

@@ -30,6 +30,10 @@ class NotStreamable(Exception):
     """A log this reader does not take (data appended after its end): read it whole."""
 
 
+class Corrupt(Exception):
+    """A record that contradicts the log's own definitions: one line saying which, at which byte."""
+
+
 class CutShort(Exception):
     """The file ends inside a record (cut short while logging): `args[0]` the bytes left over."""
 
@@ -52,6 +56,8 @@ class _Walk:
     subscriptions: dict[int, Subscription] = field(default_factory=dict)  # msg_id: subscription
     wanted: dict[int, str | None] = field(default_factory=dict)  # msg_id: its topic (None: not wanted)
     dtypes: dict[int, np.dtype] = field(default_factory=dict)  # msg_id: its rows, from its first data record
+    sizes: dict[int, int] = field(default_factory=dict)  # msg_id: its data records' size (all alike)
+    offset: int = HEADER_BYTES  # the file's byte at the start of the block walked
 
 
 def stream_topics(path: str | os.PathLike[str], names: set[str], block_bytes: int = BLOCK_BYTES
@@ -69,6 +75,7 @@ def stream_topics(path: str | os.PathLike[str], names: set[str], block_bytes: in
                 break
             buffer = pending + chunk if pending else chunk
             positions, used = _walk_block(buffer, walk, names)
+            walk.offset += used
             pending = buffer[used:]
             found = []
             array = np.frombuffer(buffer, dtype=np.uint8)
@@ -101,13 +108,19 @@ def _walk_block(buffer: bytes, walk: _Walk, names: set[str]) -> tuple[dict[int, 
         after = pos + 3 + size
         if after > end:
             break
-        if kind == _D:
+        if kind == _D and size >= 2:
             msg_id = msg_id_of(buffer, pos + 3)[0]
             if wanted.get(msg_id) is not None:
+                if walk.sizes.setdefault(msg_id, size) != size:
+                    raise Corrupt(f"corrupt ULog: a data record of {_said(str(wanted[msg_id]))} at byte "
+                                  f"{walk.offset + pos} is {size} bytes, its earlier ones {walk.sizes[msg_id]}")
                 positions.setdefault(msg_id, []).append(pos + 5)
-        elif kind == _A:
+        elif kind == _A and size >= 3:
             multi_id, msg_id = struct.unpack_from("<BH", buffer, pos + 3)
             name = buffer[pos + 6:after].decode("ascii", "replace")
+            if msg_id in walk.subscriptions and (positions.get(msg_id) or msg_id in walk.dtypes):
+                raise Corrupt(f"corrupt ULog: msg_id {msg_id} subscribed again at byte {walk.offset + pos} "
+                              f"({_said(walk.subscriptions[msg_id].name)}, then {_said(name)})")
             walk.subscriptions[msg_id] = Subscription(name, multi_id)
             wanted[msg_id] = name if name in names else None
         elif kind == _F:
@@ -126,9 +139,15 @@ def _dtype(name: str, formats: dict[str, str], body: int) -> np.dtype:
     names: list[str] = []
     kinds: list[str] = []
     offsets: list[int] = []
-    _flatten(name, formats, "", 0, names, kinds, offsets)
+    try:
+        _flatten(name, formats, "", 0, names, kinds, offsets)
+    except (KeyError, ValueError, RecursionError) as error:
+        raise Corrupt(f"corrupt ULog: the format of {_said(name)} cannot be read ({type(error).__name__}: "
+                      f"{_said(str(error))})") from None
     kept = [(n, k, o) for n, k, o in zip(names, kinds, offsets, strict=True)
             if not n.split(".")[-1].startswith("_padding") and o + np.dtype(k).itemsize <= body - 2]
+    if not any(n == "timestamp" for n, _, _ in kept):
+        raise Corrupt(f"corrupt ULog: the data records of {_said(name)} ({body} bytes) hold no timestamp field")
     return np.dtype({"names": [n for n, _, _ in kept], "formats": [k for _, k, _ in kept],
                      "offsets": [o for _, _, o in kept], "itemsize": body - 2})
 
@@ -153,6 +172,11 @@ def _flatten(name: str, formats: dict[str, str], prefix: str, offset: int, names
             offsets.append(offset)
             offset += np.dtype(_TYPES[kind]).itemsize
     return offset
+
+
+def _said(name: str) -> str:
+    """A name read from a damaged log as one short line of printable ASCII (its other bytes escaped)."""
+    return ascii(name[:40] + ("..." if len(name) > 40 else ""))
 
 
 def _gather(array: np.ndarray, at: np.ndarray, dtype: np.dtype) -> np.ndarray:

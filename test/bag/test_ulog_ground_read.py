@@ -109,3 +109,50 @@ def test_a_cut_log_read_for_its_ground_is_refused_in_one_line(flight_ulog: Path,
     with pytest.raises(UlogError, match="truncated ULog") as raised:
         ground_samples(cut, 0, 2.0)
     assert "\n" not in str(raised.value)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_a_damaged_log_read_for_its_ground_gives_samples_or_one_line(flight_ulog: Path, tmp_path_factory,
+                                                                    data: st.DataObject) -> None:
+    """Bytes of the data section overwritten (a record's size, a msg_id, a subscription's name): the ground read
+    and the fleet's task give samples or one UlogError line, never another exception."""
+    from accel_calibration.cli.fleet import calibrate_recording
+    from accel_calibration.core.errors import AccelCalibrationError
+
+    raw = bytearray(flight_ulog.read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(len(raw) // 20, len(raw) - 1))
+        raw[at:at + 2] = data.draw(st.binary(min_size=2, max_size=2))
+    path = tmp_path_factory.mktemp("damaged") / "flight.ulg"
+    path.write_bytes(bytes(raw))
+    try:
+        ground_samples(path, data.draw(st.sampled_from([None, 0, 2])), 2.0)
+    except AccelCalibrationError as error:
+        assert "\n" not in str(error)
+    outcome = calibrate_recording(str(path))  # the task boundary: rows with reasons, never a raise
+    for row in (outcome, *outcome.others):
+        assert row.reason is None or "\n" not in row.reason
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_a_damaged_dataflash_log_through_the_fleets_pass_gives_rows_with_reasons(tmp_path_factory,
+                                                                                 data: st.DataObject) -> None:
+    """The same for an ArduPilot log read by the fleet's pass (bag/dataflash_pass.py)."""
+    from accel_calibration.cli.fleet import calibrate_recording
+
+    from helpers.flight_logs import write_dataflash_flight
+
+    folder = tmp_path_factory.mktemp("damaged_bin")
+    truths = sensors(43, 3)
+    write_dataflash_flight(folder / "whole.bin", fly(truths, 43), [true_in_force(t) for t in truths])
+    raw = bytearray((folder / "whole.bin").read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        at = data.draw(st.integers(0, len(raw) - 1))
+        raw[at:at + 2] = data.draw(st.binary(min_size=2, max_size=2))
+    path = folder / "flight.bin"
+    path.write_bytes(bytes(raw))
+    outcome = calibrate_recording(str(path))
+    for row in (outcome, *outcome.others):
+        assert row.reason is None or "\n" not in row.reason
