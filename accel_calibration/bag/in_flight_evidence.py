@@ -29,7 +29,9 @@ def in_flight_of(recording: object) -> tuple[Said | None, Said | None]:
     except OSError as error:
         reason = {"reason": f"{Path(recording.path).name}: cannot read ({error.strerror or error})"}
         return reason, reason
-    estimators, agreements, devices = _log_wide(recording.path, stat.st_size, stat.st_mtime_ns)
+    estimators, agreements, devices, unreadable = _log_wide(recording.path, stat.st_size, stat.st_mtime_ns)
+    if unreadable is not None:  # the log's one reason, for each of its IMUs
+        return unreadable, unreadable
     instance = _instance_of(recording, devices)
     missing = {"reason": f"{Path(recording.path).name}: no IMU instance of this device in the log"}
     return estimators.get(instance, missing), agreements.get(instance, missing)
@@ -45,9 +47,11 @@ def _instance_of(recording: Any, devices: dict[int, int | None]) -> int:
 
 
 @functools.lru_cache(maxsize=2)
-def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dict[int, Said], dict[int, int | None]]:
+def _log_wide(path: str, size: int, mtime_ns: int
+              ) -> tuple[dict[int, Said], dict[int, Said], dict[int, int | None], Said | None]:
     """Per IMU instance of the log: its estimator's bias and its agreement, read once (keyed by the file's
-    size and time too, so a log rewritten in place is read again)."""
+    size and time too, so a log rewritten in place is read again); or, last, why the log's flight cannot be
+    read at all (then for every IMU of it)."""
     from ..core.errors import AccelCalibrationError
     from .recording import detect_format
 
@@ -61,18 +65,17 @@ def _log_wide(path: str, size: int, mtime_ns: int) -> tuple[dict[int, Said], dic
         else:
             log, devices, means, flight_state = _dataflash_flight_means(path)
     except AccelCalibrationError as error:
-        reason = {"reason": str(error)}
-        return {0: reason}, {0: reason}, {0: None}
+        return {}, {}, {}, {"reason": str(error)}
     devices = devices or {0: None}  # a ULog of sensor_combined alone: its selected IMU
     no_flight = _no_flight(Path(path).name, flight_state)
     if no_flight is not None:
-        return {k: {"reason": no_flight} for k in devices}, {k: {"reason": no_flight} for k in devices}, devices
+        return {k: {"reason": no_flight} for k in devices}, {k: {"reason": no_flight} for k in devices}, devices, None
     estimators = _estimators(path, devices, flight_state, log)
     try:
         agreements = _agreements(path, means)
     except (np.linalg.LinAlgError, ValueError) as error:  # degenerate seconds (a dead IMU's zeros): its reason
         agreements = {k: {"reason": f"{Path(path).name}: agreement not measurable ({error})"} for k in devices}
-    return estimators, agreements, devices
+    return estimators, agreements, devices, None
 
 
 def _no_flight(name: str, flight_state: Any) -> str | None:

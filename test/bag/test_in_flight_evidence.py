@@ -168,3 +168,24 @@ def test_the_real_ardupilot_logs_filter_records_read_per_core(shared):
         assert bias.accel_mps2 is not None and np.isnan(bias.accel_mps2[:2]).all()
         assert 0.0 < abs(bias.accel_mps2[2]) < 0.5
         assert bias.gyro_radps is not None and np.all(np.abs(bias.gyro_radps) < np.radians(1.0))
+
+
+def test_a_log_whose_flight_cannot_be_read_gives_every_imu_that_reason(tmp_path, monkeypatch):
+    """Not "no IMU instance of this device" for the IMUs after the first: the one reason the log gave."""
+    import accel_calibration.bag.in_flight_evidence as in_flight
+    from accel_calibration.bag.dataflash import DataflashError
+
+    truths = sensors(64)
+    path = tmp_path / "flight.bin"
+    write_dataflash_flight(path, fly(truths, 64), [true_in_force(t) for t in truths])
+
+    def unreadable(where):
+        raise DataflashError(f"{where}: damaged DataFlash log: the flight's records cannot be read")
+
+    monkeypatch.setattr(in_flight, "_dataflash_flight_means", unreadable)
+    in_flight._log_wide.cache_clear()
+    found = log_evidence(str(path))
+    assert len(found) == 2
+    for evidence in found:
+        assert evidence.estimator == evidence.agreement
+        assert "the flight's records cannot be read" in evidence.estimator["reason"]
