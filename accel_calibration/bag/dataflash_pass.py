@@ -46,6 +46,8 @@ class LogPass:
     flying: dict[int, SecondSums]
     filter_records: dict[str, np.ndarray]
     filter_refused: str | None  # why the filter's records cannot be read (said when they are asked for)
+    counted: dict[int, _ImuRead] = dataclasses.field(default_factory=dict)  # each instance's count, its rows
+    # dropped where `kept` is None: a ground too long to keep (KEEP_BYTES) is streamed to each replay
 
     def filter_read(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """The filter's records and the parameters, as dataflash.scan_messages gives them."""
@@ -72,6 +74,41 @@ def ground_samples(path: str | os.PathLike[str], instance: int | None, margin_s:
     found = passed.kept.get(wanted) or _ImuRead(Path(path), wanted)
     imu = dataclasses.replace(found, stamps=list(found.stamps), values=list(found.values))  # the pass keeps its own
     return _samples(Path(path), imu, passed.params, passed.imu_instances, passed.flight)
+
+
+KEEP_BYTES = 64 << 20  # ground rows a pass keeps at most (ulog_pass.KEEP_BYTES: beyond, each replay streams)
+
+
+def streamed_samples(path: str | os.PathLike[str], instance: int | None, margin_s: float, progress: Any = None
+                     ) -> Iterator[DataflashSamples] | None:
+    """A log read for its ground whose ground the pass did not keep (it never flew: all of it is ground; or its
+    ground outgrew KEEP_BYTES): its samples on the ground and next to it come a block at a time, each block's
+    dataflash.DataflashSamples of IMU `instance` (default 0), never the whole log at once; None where the pass
+    kept them (ground_samples gives them) or the log has no such instance (the whole read says so)."""
+    passed = log_pass(path, margin_s, progress)
+    wanted = 0 if instance is None else instance
+    if passed.kept is not None or wanted not in passed.imu_instances:
+        return None
+    if wanted in passed.refused:
+        raise DataflashError(passed.refused[wanted])
+    where, flight = Path(path), passed.flight
+    flown = flight.found and len(flight.spans_ns) > 0
+    counted = passed.counted.get(wanted)
+
+    def blocks() -> Iterator[DataflashSamples]:
+        from . import dataflash_records
+
+        for block in RecordReader(where, IMU_TYPES, dataflash_records.BLOCK_BYTES).blocks():
+            imu = _ImuRead(where, wanted, keep=(lambda t_ns: flight.ground_kept(t_ns, margin_s)) if flown else None)
+            imu.add(block)
+            if imu.stamps and len(imu.stamps[0]):
+                if counted is not None:  # the whole log's count and extent, as a whole read says them
+                    imu.read, imu.first_ns, imu.last_ns = counted.read, counted.first_ns, counted.last_ns
+                found = _samples(where, imu, passed.params, passed.imu_instances, passed.flight)
+                # Uncounted (a log that never flew: no walk before), the replay counts what it is fed: all of it.
+                yield found if counted is not None else dataclasses.replace(found, first_last_ns=None)
+
+    return blocks()
 
 
 def cached_devices(path: str | os.PathLike[str]) -> dict[int, int | None] | None:
@@ -122,19 +159,27 @@ def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
     made = LogPass(identity, margin_s, dict(small.params), small.imu_instances, flight, None, {}, {}, filter_records,
                    filter_refused)
     if flight.found and len(flight.spans_ns):
-        made.kept, made.refused, made.flying = _imu_walk(path, made, progress)
+        reads, made.refused, made.flying, overflowed = _imu_walk(path, made, progress)
+        made.counted = reads
+        made.kept = None if overflowed else reads
     return made
 
 
 def _imu_walk(path: Path, made: LogPass, progress: Any
-              ) -> tuple[dict[int, _ImuRead], dict[int, str], dict[int, SecondSums]]:
-    """Each instance's kept rows, why an instance cannot be read, its per-second sums in flight: one walk."""
+              ) -> tuple[dict[int, _ImuRead], dict[int, str], dict[int, SecondSums], bool]:
+    """Each instance's kept rows, why an instance cannot be read, its per-second sums in flight, and whether
+    the ground outgrew KEEP_BYTES (then no rows are kept, the counts are): one walk."""
     flight, margin_s = made.flight, made.margin_s
     reads = {n: _ImuRead(path, n, keep=lambda t_ns: flight.ground_kept(t_ns, margin_s)) for n in made.imu_instances}
     flying = {n: SecondSums() for n in made.imu_instances}
     refused: dict[int, str] = {}
+    held = 0
     for block in _counted(RecordReader(path, IMU_TYPES), progress, 1):
         for instance, imu in reads.items():
+            if held > KEEP_BYTES:  # a long time on the ground: the replays stream it; only the counts go on
+                imu.keep = lambda t_ns: np.zeros(len(t_ns), dtype=bool)
+                imu.stamps.clear()
+                imu.values.clear()
             if instance in refused:
                 continue
             try:
@@ -145,10 +190,11 @@ def _imu_walk(path: Path, made: LogPass, progress: Any
             if found is not None:
                 flying[instance].add(found[0], found[1], in_flight(found[0], flight))
                 imu.keep_rows(*found)
+                held += sum(v.nbytes for v in imu.values[-1:])
     for imu in reads.values():  # one array each: a block's piece per list item would hold the blocks' overhead
         if imu.stamps:
             imu.stamps[:], imu.values[:] = [np.concatenate(imu.stamps)], [np.concatenate(imu.values)]
-    return {n: imu for n, imu in reads.items() if n not in refused}, refused, flying
+    return {n: imu for n, imu in reads.items() if n not in refused}, refused, flying, held > KEEP_BYTES
 
 
 def _joined(path: Path, parts: dict[str, list[np.ndarray]]) -> tuple[dict[str, np.ndarray], dict[str, str]]:

@@ -6,6 +6,8 @@ in the input's own format.
 """
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import os
 import sys
 from collections.abc import Iterable, Iterator, Sequence
@@ -21,11 +23,12 @@ if TYPE_CHECKING:
     from ..core.flight_state import FlightState
     from .bag_io import TopicInfo, TopicLike, TopicT
     from .csv_stream import CsvLayout
-    from .dataflash import AutopilotCalibration
+    from .dataflash import AutopilotCalibration, DataflashSamples
     from .imu_messages import ImuData, Temperatures
     from .logged_correction import LoggedCorrection
     from .mcap_scan import PackedMessages
     from .progress import ClosableProgressBar
+    from .ulog_reader import UlogSamples
 
     Groups = Iterator[dict[str, PackedMessages]]
 
@@ -360,8 +363,7 @@ def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, tempe
 
 def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool,
                ground_margin_s: float | None = None) -> Recording:
-    from .logged_correction import raw_or_said
-    from .ulog_pass import ground_samples
+    from .ulog_pass import ground_samples, streamed_samples
     from .ulog_reader import read_ulog
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
@@ -369,11 +371,22 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
     bar = _bar(path, _size(path), "B", progress)
     try:
         log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
+        if log is None and ground_margin_s is not None:  # a log that never flew: all ground, a block at a time
+            blocks = streamed_samples(path, instance, ground_margin_s)
+            if blocks is not None:
+                return _streamed(path, "ulog", (_ulog_recording(path, block) for block in blocks))
         if log is None:
             log = read_ulog(path, instance, bar)
     finally:
         if bar is not None:
             bar.close()
+    return _ulog_recording(path, log)
+
+
+def _ulog_recording(path: str | os.PathLike[str], log: UlogSamples) -> Recording:
+    """A ULog's samples as the session takes them: a corrected stream's correction undone (raw_or_said)."""
+    from .logged_correction import raw_or_said
+
     accel, gyro = log.accel_mps2, log.gyro_radps
     if log.raw:
         fitted_to = f"raw: {log.stream}" + (f" ({log.sensor_id})" if log.sensor_id else "") + "; sensor axes"
@@ -391,22 +404,59 @@ def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: boo
                      gyro_device_id=log.gyro_device_id, samples_read=log.samples_read, first_last_ns=log.first_last_ns)
 
 
+@dataclass
+class StreamedLog(Recording):
+    """An autopilot log that never flew, read for its ground (the fleet's reads): every sample is needed, so
+    `blocks` gives them a block at a time, each a Recording of its samples as the session takes them, for
+    replay to feed the session (replay._replay_stream), never the whole log at once. Its own arrays are the
+    first block's only: enough for what looks at the output's grid (core/quantisation.py)."""
+
+    blocks: Iterator[Recording] | None = None
+
+    def pieces(self) -> Iterator[tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, Temperatures | None]]:
+        """As BagStream.pieces: (IMU (stamps ns, accel, gyro), temperature readings) per block, the first block's
+        (these arrays) first."""
+        for block in itertools.chain([self], self.blocks or ()):
+            gyro = block.gyro_radps if block.gyro_radps is not None else np.zeros_like(block.accel_mps2)
+            yield (block.t_ns, block.accel_mps2, gyro), block.temperature
+
+
+def _streamed(path: str | os.PathLike[str], kind: str, blocks: Iterator[Recording]) -> Recording:
+    """The log's first block as a StreamedLog whose `blocks` give the rest; a log of no block, its whole read's
+    word (by the caller's reader: here an empty first block is read whole)."""
+    first = next(blocks, None)
+    if first is None:
+        raise RecordingError(f"{path}: no samples of this IMU in the {kind} log")
+    fields = {f.name: getattr(first, f.name) for f in dataclasses.fields(Recording)}
+    return StreamedLog(**fields, blocks=blocks)
+
+
 def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool,
                     ground_margin_s: float | None = None) -> Recording:
     from .dataflash import read_dataflash
-    from .dataflash_pass import ground_samples
-    from .logged_correction import raw_or_said
+    from .dataflash_pass import ground_samples, streamed_samples
 
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
         log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
+        if log is None and ground_margin_s is not None:  # a log that never flew: all ground, a block at a time
+            blocks = streamed_samples(path, instance, ground_margin_s)
+            if blocks is not None:
+                return _streamed(path, "dataflash", (_dataflash_recording(path, block) for block in blocks))
         if log is None:
             log = read_dataflash(path, instance, bar)
     finally:
         if bar is not None:
             bar.close()
+    return _dataflash_recording(path, log)
+
+
+def _dataflash_recording(path: str | os.PathLike[str], log: DataflashSamples) -> Recording:
+    """A DataFlash log's samples as the session takes them: the logged correction undone (raw_or_said)."""
+    from .logged_correction import raw_or_said
+
     temperature_at_samples = None if log.temperature is None else log.temperature[1]  # T of each IMU record
     accel, gyro, fitted_to = raw_or_said(log.logged_correction, log.accel_mps2, log.gyro_radps, temperature_at_samples,
                                          f"DataFlash {log.stream}", str(path), "INS_ACC*OFFS/SCAL PARM records")

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ..core.gyro_fit import GyroFitResult
     from ..core.prior import Prior
     from .dataflash import AutopilotCalibration
-    from .recording import BagStream, Recording
+    from .recording import BagStream, Recording, StreamedLog
 
 
 def distinct_directions(poses: list[Pose], merge_angle_deg: float) -> int:
@@ -176,7 +176,7 @@ def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = N
     whatever its length), the rest read whole. `through_rosbags`: read a bag whole with rosbags' reader,
     message by message (what the direct reads are checked against)."""
     from .mcap_scan import DamagedChunk, NotStreamable
-    from .recording import open_recording, stream_bag
+    from .recording import StreamedLog, open_recording, stream_bag
 
     s = settings or ReplaySettings()
     started = time.perf_counter()
@@ -189,6 +189,8 @@ def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = N
             except NotStreamable:
                 pass  # read whole below: the same poses, or the reason it cannot be read
         recording = open_recording(path, progress=progress, through_rosbags=through_rosbags, **s.reader_options())
+        if isinstance(recording, StreamedLog):  # a log that never flew, read for its ground: a block at a time
+            return _replay_stream(recording, s, started)
     except BagError as error:
         raise ReplayError(str(error)) from None
     except DamagedChunk as error:
@@ -204,9 +206,12 @@ def replay_bag(path: str | os.PathLike[str], settings: ReplaySettings | None = N
     return replay_recording(recording, s, started)
 
 
-def _replay_stream(bag: BagStream, s: ReplaySettings, started: float) -> ReplayResult:
-    """A streamed bag (recording.BagStream) through a fresh session, piece by piece."""
-    flight = flight_state_of(bag.path, bag.format, None, s)
+def _replay_stream(bag: BagStream | StreamedLog, s: ReplaySettings, started: float) -> ReplayResult:
+    """A streamed bag (recording.BagStream), or a log read for its ground a block at a time
+    (recording.StreamedLog), through a fresh session, piece by piece."""
+    from .recording import Recording
+
+    flight = flight_state_of(bag.path, bag.format, getattr(bag, "flight_state", None), s)
     session = CalibrationSession(s.session)
     feed = session.recording_feed(has_temperature=bag.temperature_stream is not None, part_rows=s.part_rows)
     low = high = None
@@ -224,12 +229,16 @@ def _replay_stream(bag: BagStream, s: ReplaySettings, started: float) -> ReplayR
                 low = int(t.min()) if low is None else min(low, int(t.min()))
                 high = int(t.max()) if high is None else max(high, int(t.max()))
     poses = feed.finish()
-    duration = (high - low) / 1e9 if low is not None and high is not None and feed.samples > 1 else 0.0
+    samples = feed.samples
+    if isinstance(bag, Recording) and bag.first_last_ns is not None:  # a log fed its ground: the whole log's
+        (low, high), samples = bag.first_last_ns, bag.samples_read or samples
+    duration = (high - low) / 1e9 if low is not None and high is not None and samples > 1 else 0.0
     temperature_readings = None
     if bag.temperature_stream is not None:
         temperature_readings = (np.concatenate([t for t, _ in readings] or [np.zeros(0, np.int64)]),
                                 np.concatenate([v for _, v in readings] or [np.zeros(0)]))
-    result = _verdict(session, poses, bag, feed.samples, duration, low, s, started, has_gyro=True,
+    has_gyro = getattr(bag, "gyro_radps", True) is not None  # a bag's Imu messages always carry one
+    result = _verdict(session, poses, bag, samples, duration, low, s, started, has_gyro=has_gyro,
                       temperature_readings=temperature_readings)
     return _with_flight_state(result, flight, low, high, s)
 

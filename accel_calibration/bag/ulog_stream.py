@@ -60,11 +60,12 @@ class _Walk:
     offset: int = HEADER_BYTES  # the file's byte at the start of the block walked
 
 
-def stream_topics(path: str | os.PathLike[str], names: set[str], block_bytes: int = BLOCK_BYTES
+def stream_topics(path: str | os.PathLike[str], names: set[str], block_bytes: int | None = None
                   ) -> Iterator[list[tuple[Subscription, dict[str, np.ndarray]]]]:
-    """The rows of every instance of the topics `names`, a block of the file at a time, in file order: per
-    block [(subscription, {field: values})] of the subscriptions with rows in it. The subscription's
-    `rows`, `first_us` and `last_us` count what has been read up to and including the block."""
+    """The rows of every instance of the topics `names`, a block of the file at a time (`block_bytes`, default
+    BLOCK_BYTES), in file order: per block [(subscription, {field: values})] of the subscriptions with rows in
+    it. The subscription's `rows`, `first_us` and `last_us` count what has been read up to and including it."""
+    block_bytes = block_bytes or BLOCK_BYTES
     walk = _Walk()
     pending = b""
     with open(path, "rb") as stream:

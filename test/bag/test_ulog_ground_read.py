@@ -156,3 +156,93 @@ def test_a_damaged_dataflash_log_through_the_fleets_pass_gives_rows_with_reasons
     outcome = calibrate_recording(str(path))
     for row in (outcome, *outcome.others):
         assert row.reason is None or "\n" not in row.reason
+
+
+@pytest.mark.parametrize("instance", [None, 0, 1])
+def test_a_log_that_never_flew_is_streamed_to_the_poses_and_calibration_of_the_whole_read(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, instance: int | None) -> None:
+    """A turned calibration session logged with no flight state: all of it is ground, so the ground read gives
+    its samples a block at a time (small blocks here: a gyro interpolated across their edges), to the same poses
+    and calibration as the whole read, and never holds the log whole."""
+    import accel_calibration.bag.ulog_stream as ulog_stream
+    from accel_calibration.bag.recording import StreamedLog, open_recording
+
+    from helpers.autopilot_logs import simulate, write_px4_log
+
+    path = tmp_path / "session.ulg"
+    write_px4_log(path, simulate(44))
+    monkeypatch.setattr(ulog_stream, "BLOCK_BYTES", 1 << 15)
+    streamed = open_recording(path, instance=instance, ground_margin_s=2.0)
+    assert isinstance(streamed, StreamedLog) and len(streamed.t_ns) < 2000  # a block's, not the log's
+    whole = replay_bag(path, ReplaySettings(instance=instance))
+    ground = replay_bag(path, ReplaySettings(instance=instance, ground_only=True))
+    assert ground.source.messages == whole.source.messages
+    assert ground.source.duration_s == pytest.approx(whole.source.duration_s)
+    assert len(whole.poses) >= 12 and len(ground.poses) == len(whole.poses)
+    for a, b in zip(whole.poses, ground.poses, strict=True):
+        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+        np.testing.assert_allclose(b.accel_mps2, a.accel_mps2, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(b.gyro_radps, a.gyro_radps, rtol=0, atol=1e-9)
+    assert whole.calibration is not None and ground.calibration is not None
+    np.testing.assert_allclose(ground.calibration.matrix, whole.calibration.matrix, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ground.calibration.bias, whole.calibration.bias, rtol=0, atol=1e-9)
+    said = ("stream", "fitted_to", "sensor_id", "vehicle", "imu_instances", "accel_device_id", "gyro_device_id",
+            "temperature_stream", "format")
+    assert [getattr(ground.source.recording, k) for k in said] == [getattr(whole.source.recording, k) for k in said]
+
+
+@pytest.mark.parametrize("instance", [0, 1])
+def test_a_dataflash_log_that_never_flew_is_streamed_to_the_whole_reads_calibration(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, instance: int) -> None:
+    import accel_calibration.bag.dataflash_records as records
+    from accel_calibration.bag.recording import StreamedLog, open_recording
+
+    from helpers.autopilot_logs import simulate, write_ardupilot_log
+
+    path = tmp_path / "session.bin"
+    write_ardupilot_log(path, simulate(45), devices=(1310988, 1442060))
+    monkeypatch.setattr(records, "BLOCK_BYTES", 1 << 14)
+    streamed = open_recording(path, instance=instance, ground_margin_s=2.0)
+    assert isinstance(streamed, StreamedLog) and len(streamed.t_ns) < 1000
+    whole = replay_bag(path, ReplaySettings(instance=instance))
+    ground = replay_bag(path, ReplaySettings(instance=instance, ground_only=True))
+    assert ground.source.messages == whole.source.messages
+    assert len(whole.poses) >= 12 and len(ground.poses) == len(whole.poses)
+    for a, b in zip(whole.poses, ground.poses, strict=True):
+        np.testing.assert_allclose(b.accel_mps2, a.accel_mps2, rtol=0, atol=1e-9)
+    assert whole.calibration is not None and ground.calibration is not None
+    np.testing.assert_allclose(ground.calibration.matrix, whole.calibration.matrix, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ground.calibration.bias, whole.calibration.bias, rtol=0, atol=1e-9)
+    said = ("stream", "fitted_to", "sensor_id", "imu_instances", "accel_device_id", "gyro_device_id",
+            "temperature_stream", "format")
+    assert [getattr(ground.source.recording, k) for k in said] == [getattr(whole.source.recording, k) for k in said]
+
+
+@pytest.mark.parametrize("suffix", ["ulg", "bin"])
+@pytest.mark.parametrize("instance", [None, 1])
+def test_a_ground_too_long_to_keep_is_streamed_to_the_same_poses(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                  suffix: str, instance: int | None) -> None:
+    """A flight log whose ground outgrows what a pass keeps (KEEP_BYTES, tiny here: an hour on the ground and a
+    minute of flight) is streamed to each replay, its flight's inside left out: the poses of the whole read."""
+    import accel_calibration.bag.dataflash_pass as dataflash_pass
+    import accel_calibration.bag.ulog_pass as ulog_pass
+    from accel_calibration.bag.recording import StreamedLog, open_recording
+
+    from helpers.flight_logs import write_dataflash_flight
+
+    monkeypatch.setattr(ulog_pass, "KEEP_BYTES", 1000)
+    monkeypatch.setattr(dataflash_pass, "KEEP_BYTES", 1000)
+    truths = sensors(46, 3)
+    path = tmp_path / f"flight.{suffix}"
+    write = write_ulog_flight if suffix == "ulg" else write_dataflash_flight
+    write(path, fly(truths, 46), [true_in_force(t) for t in truths])
+    assert isinstance(open_recording(path, instance=instance, ground_margin_s=2.0), StreamedLog)
+    whole = replay_bag(path, ReplaySettings(instance=instance))
+    ground = replay_bag(path, ReplaySettings(instance=instance, ground_only=True))
+    assert ground.source.messages == whole.source.messages
+    assert ground.source.duration_s == pytest.approx(whole.source.duration_s)
+    assert len(whole.poses) >= 1 and len(ground.poses) == len(whole.poses)
+    for a, b in zip(whole.poses, ground.poses, strict=True):
+        assert (a.start_ns, a.end_ns, a.samples) == (b.start_ns, b.end_ns, b.samples)
+        np.testing.assert_allclose(b.accel_mps2, a.accel_mps2, rtol=0, atol=1e-9)
+    assert ground.problem == whole.problem
