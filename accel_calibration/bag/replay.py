@@ -61,7 +61,9 @@ class ReplaySettings:
     armed_margin_s: float = 2.0
     ignore_flight_state: bool = False  # a bench log armed on purpose: every sample is collected
     # An autopilot log's ground only (fleet's flight evidence): what the still moments need, memory bounded by
-    # the time on the ground (recording.open_recording's ground_margin_s); the same poses as the whole log.
+    # the time on the ground (recording.open_recording's ground_margin_s), or by a block where that is long; the
+    # same poses as the whole log. A streamed log's temperature readings are not kept (ReplayResult.temperatures:
+    # what a corrected copy needs).
     ground_only: bool = False
     prior: Prior | None = None  # recalibrate against it (--prior): the poses fit what they observe
     prior_path: str | None = None  # where it came from, written beside the parameters' sources
@@ -219,7 +221,8 @@ def _replay_stream(bag: BagStream | StreamedLog, s: ReplaySettings, started: flo
     for imu, temperatures in bag.pieces():
         if temperatures is not None:
             feed.add_temperatures(*temperatures)
-            readings.append(temperatures)
+            if not s.ground_only:  # what a corrected copy corrects at (ReplayResult.temperatures); the fleet
+                readings.append(temperatures)  # makes none, and an hour's readings at 1 kHz are 58 MB
         if imu is not None:
             t, accel, gyro = imu
             if not session.frame_id:
@@ -234,7 +237,7 @@ def _replay_stream(bag: BagStream | StreamedLog, s: ReplaySettings, started: flo
         (low, high), samples = bag.first_last_ns, bag.samples_read or samples
     duration = (high - low) / 1e9 if low is not None and high is not None and samples > 1 else 0.0
     temperature_readings = None
-    if bag.temperature_stream is not None:
+    if bag.temperature_stream is not None and not s.ground_only:
         temperature_readings = (np.concatenate([t for t, _ in readings] or [np.zeros(0, np.int64)]),
                                 np.concatenate([v for _, v in readings] or [np.zeros(0)]))
     has_gyro = getattr(bag, "gyro_radps", True) is not None  # a bag's Imu messages always carry one
