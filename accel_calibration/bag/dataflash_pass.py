@@ -12,7 +12,7 @@ is known, and the ARM and EV records lie among the IMU records; one walk would h
 decide by the events read so far, which the order of the records in a log does not promise. Measured on that
 hour: the small walk 2.1 s (its step per record is most of a walk), the IMU walk 4.7 s; calibrate_recording
 of its three IMUs 8 s, where a walk per ask (nine) took 24 to 28 s. Memory: the time on the ground, not the
-flight."""
+flight; a ground longer than KEEP_BYTES is not kept but streamed to each IMU's replay (streamed_samples)."""
 from __future__ import annotations
 
 import dataclasses
@@ -31,6 +31,8 @@ from .estimator_bias import ARDUPILOT_FILTER_TYPES, in_flight
 from .imu_agreement import SecondSums
 from .ulog_pass import _identity
 
+KEEP_BYTES = 64 << 20  # ground rows a pass keeps at most (ulog_pass.KEEP_BYTES: beyond, each replay streams)
+
 
 @dataclass
 class LogPass:
@@ -41,7 +43,7 @@ class LogPass:
     params: dict[str, float]
     imu_instances: tuple[int, ...]
     flight: FlightState
-    kept: dict[int, _ImuRead] | None  # None: the log shows no flight to leave out (read an instance whole)
+    kept: dict[int, _ImuRead] | None  # None: no flight to leave out, or more ground than KEEP_BYTES (streamed)
     refused: dict[int, str]  # an instance whose records cannot be read: why (said when it is asked for)
     flying: dict[int, SecondSums]
     filter_records: dict[str, np.ndarray]
@@ -64,7 +66,7 @@ class LogPass:
 def ground_samples(path: str | os.PathLike[str], instance: int | None, margin_s: float, progress: Any = None
                    ) -> DataflashSamples | None:
     """dataflash.DataflashSamples of IMU `instance` (default 0) on the ground and next to it, from the log's
-    pass; None where the log shows no flight to leave out (read it whole)."""
+    pass; None where the pass kept none (streamed_samples gives them)."""
     passed = log_pass(path, margin_s, progress)
     if passed.kept is None:
         return None
@@ -74,9 +76,6 @@ def ground_samples(path: str | os.PathLike[str], instance: int | None, margin_s:
     found = passed.kept.get(wanted) or _ImuRead(Path(path), wanted)
     imu = dataclasses.replace(found, stamps=list(found.stamps), values=list(found.values))  # the pass keeps its own
     return _samples(Path(path), imu, passed.params, passed.imu_instances, passed.flight)
-
-
-KEEP_BYTES = 64 << 20  # ground rows a pass keeps at most (ulog_pass.KEEP_BYTES: beyond, each replay streams)
 
 
 def streamed_samples(path: str | os.PathLike[str], instance: int | None, margin_s: float, progress: Any = None

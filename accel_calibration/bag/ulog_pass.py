@@ -4,7 +4,8 @@ tens of millions of records. The pass reads the small topics through pyulog (par
 filter's bias, sensor_selection, vehicle_imu), then the high-rate ones a block at a time (ulog_stream.py),
 keeping of sensor_combined, sensor_accel and sensor_gyro only the rows on the ground and next to it
 (FlightState.ground_kept), the first row of each instance (its device ID), and per second in flight the sums
-of each instance's x, y, z (imu_agreement.SecondSums). Memory: the time on the ground, not the flight."""
+of each instance's x, y, z (imu_agreement.SecondSums). Memory: the time on the ground, not the flight; a
+ground longer than KEEP_BYTES is not kept but streamed to each IMU's replay (streamed_samples)."""
 from __future__ import annotations
 
 import copy
@@ -33,7 +34,7 @@ class LogPass:
     log: Any  # pyulog's ULog of the small topics
     flight: Any  # FlightState
     margin_s: float
-    kept: dict[Key, KeptRows] | None  # None: the log shows no flight to leave out (read it whole)
+    kept: dict[Key, KeptRows] | None  # None: no flight to leave out, or more ground than KEEP_BYTES (streamed)
     first: dict[Key, dict[str, np.ndarray]]
     subscriptions: dict[Key, Subscription]  # the whole log's rows and first and last stamps of each
     flying: dict[Key, SecondSums]
@@ -60,7 +61,7 @@ class LogPass:
 def ground_samples(path: str | os.PathLike[str], instance: int | None, margin_s: float, progress: Any = None
                    ) -> Any:
     """ulog_reader.UlogSamples of sensor_combined (`instance` None) or sensor_accel `instance` on the ground
-    and next to it, from the log's pass; None where the log shows no flight to leave out (read it whole)."""
+    and next to it, from the log's pass; None where the pass kept none (streamed_samples gives them)."""
     from .ulog_reader import ACCEL, COMBINED, GYRO, samples_of_log
 
     passed = log_pass(path, margin_s, progress)
