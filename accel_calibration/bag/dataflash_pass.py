@@ -29,7 +29,8 @@ from .dataflash import DataflashSamples, _check_head, _device_ids, _flight_state
 from .dataflash_records import IMU_TYPES, DataflashError, RecordReader
 from .estimator_bias import ARDUPILOT_FILTER_TYPES, in_flight
 from .imu_agreement import SecondSums
-from .ulog_pass import _identity
+from .last_pass import LastPass
+from .last_pass import identity as file_identity
 
 KEEP_BYTES = 64 << 20  # ground rows a pass keeps at most (ulog_pass.KEEP_BYTES: beyond, each replay streams)
 
@@ -118,30 +119,18 @@ def cached_devices(path: str | os.PathLike[str]) -> dict[int, int | None] | None
     return {n: _device_ids(passed.params, n)[0] for n in passed.imu_instances}
 
 
-_last: list[LogPass] = []  # the last log's pass (a fleet task reads its logs one after another)
-
-
 def cached_pass(path: str | os.PathLike[str]) -> LogPass | None:
     """The pass of this file kept from an earlier ask (whatever its margin), None when there is none."""
-    try:
-        identity = _identity(path)
-    except OSError:
-        return None
-    return next((p for p in _last if p.identity == identity), None)
+    return _passes.cached(path)
 
 
 def log_pass(path: str | os.PathLike[str], margin_s: float, progress: Any = None) -> LogPass:
     """The pass of this file for this margin: kept from the last ask, or read now (replacing it)."""
-    found = cached_pass(path)
-    if found is not None and found.margin_s == margin_s:
-        return found
-    made = _read(Path(path), margin_s, progress)
-    _last[:] = [made]
-    return made
+    return _passes.get(path, margin_s, progress)
 
 
 def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
-    identity = _identity(path)
+    identity = file_identity(path)
     _check_head(path)
     small = RecordReader(path, ["ARM", "EV", *ARDUPILOT_FILTER_TYPES])
     parts: dict[str, list[np.ndarray]] = {}
@@ -218,3 +207,6 @@ def _counted(reader: RecordReader, progress: Any, rounding: int) -> Iterator[dic
         yield block
     if progress is not None:
         progress.update((reader.bytes_read + rounding) // 2 - said)
+
+
+_passes: LastPass[LogPass] = LastPass(_read)  # the last log's (a fleet task reads its logs in turn)

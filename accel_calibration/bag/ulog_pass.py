@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from .imu_agreement import SecondSums
+from .last_pass import LastPass
+from .last_pass import identity as file_identity
 from .ulog_stream import KeptRows, Subscription
 
 Key = tuple[str, int]  # (topic, instance)
@@ -189,31 +191,14 @@ def cached_devices(path: str | os.PathLike[str]) -> dict[int, int | None] | None
     return {n: _device_id(columns) for (name, n), columns in sorted(passed.first.items()) if name == ACCEL}
 
 
-_last: list[LogPass] = []  # the last log's pass (a fleet task reads its logs one after another)
-
-
-def _identity(path: str | os.PathLike[str]) -> tuple[str, int, int]:
-    stat = os.stat(path)
-    return str(Path(path).resolve()), stat.st_size, stat.st_mtime_ns
-
-
 def cached_pass(path: str | os.PathLike[str]) -> LogPass | None:
     """The pass of this file kept from an earlier ask (whatever its margin), None when there is none."""
-    try:
-        identity = _identity(path)
-    except OSError:
-        return None
-    return next((p for p in _last if p.identity == identity), None)
+    return _passes.cached(path)
 
 
 def log_pass(path: str | os.PathLike[str], margin_s: float, progress: Any = None) -> LogPass:
     """The pass of this file for this margin: kept from the last ask, or read now (replacing it)."""
-    found = cached_pass(path)
-    if found is not None and found.margin_s == margin_s:
-        return found
-    made = _read(Path(path), margin_s, progress)
-    _last[:] = [made]
-    return made
+    return _passes.get(path, margin_s, progress)
 
 
 def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
@@ -221,7 +206,7 @@ def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
     from .flight_sources import ULOG_TOPICS, ulog_flight_state
     from .ulog_reader import ACCEL, COMBINED, GYRO, SELECTION, VEHICLE_IMU, _load, _stamps_us, _xyz, topic_blocks
 
-    identity = _identity(path)
+    identity = file_identity(path)
     log = _load(path, [SELECTION, VEHICLE_IMU, "estimator_sensor_bias", *ULOG_TOPICS], progress)
     flight = ulog_flight_state(log)
     leaves_out = flight.found and len(flight.spans_ns) > 0
@@ -256,3 +241,6 @@ def _read(path: Path, margin_s: float, progress: Any) -> LogPass:
         kept_rows = {key: KeptRows(subscriptions[key], {k: np.concatenate([p[k] for p in found]) for k in found[0]})
                      for key, found in parts.items()}
     return LogPass(identity, log, flight, margin_s, kept_rows, first, subscriptions, flying)
+
+
+_passes: LastPass[LogPass] = LastPass(_read)  # the last log's (a fleet task reads its logs in turn)

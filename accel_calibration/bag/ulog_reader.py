@@ -131,24 +131,13 @@ class _Dataset:
 
 def accel_devices(path: str | os.PathLike[str]) -> dict[int, int | None]:
     """{sensor_accel instance: its device ID, None where not logged} of the log: which IMUs it holds (the first
-    row of each instance, read a block at a time)."""
-    from .ulog_stream import Corrupt, CutShort, NotStreamable, first_rows
-
-    path = Path(path)
-    _check_definitions(path)
-    try:
-        found = first_rows(path, {ACCEL})
-    except NotStreamable:
-        log = _load(path, [ACCEL])
-        return {d.multi_id: _device_id(d.data) for d in sorted(_datasets(log, ACCEL), key=lambda d: d.multi_id)}
-    except CutShort:
-        raise UlogError(_truncation(path)) from None
-    except Corrupt as error:
-        raise UlogError(f"{path}: {error}") from None
-    except OSError as error:
-        raise UlogError(f"{path}: cannot read ({error.strerror or error})") from None
-    return {k.subscription.multi_id: _device_id(k.columns)
-            for k in sorted(found, key=lambda k: k.subscription.multi_id)}
+    row of each instance, the log read a block at a time)."""
+    devices: dict[int, int | None] = {}
+    for block in topic_blocks(path, {ACCEL}):
+        for subscription, columns in block:
+            if subscription.multi_id not in devices:
+                devices[subscription.multi_id] = _device_id({k: v[:1] for k, v in columns.items()})
+    return dict(sorted(devices.items()))
 
 
 # pyulog stops without a word at a record cut short by the end of the file. So the file is read with one

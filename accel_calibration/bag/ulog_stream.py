@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 import struct
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -207,32 +207,3 @@ class KeptRows:
 
     subscription: Subscription
     columns: dict[str, np.ndarray]
-
-
-def kept_rows(path: str | os.PathLike[str], names: set[str], keep: Callable[[str, dict[str, np.ndarray]], np.ndarray],
-              block_bytes: int = BLOCK_BYTES) -> list[KeptRows]:
-    """Every instance of the topics `names`, only the rows `keep(topic, columns)` is True for (and always each
-    instance's first row: its device ID), concatenated: memory bounded by what is kept and a block."""
-    kept: dict[tuple[str, int], tuple[Subscription, list[dict[str, np.ndarray]]]] = {}
-    for block in stream_topics(path, names, block_bytes):
-        for subscription, columns in block:
-            key = (subscription.name, subscription.multi_id)
-            mask = np.asarray(keep(subscription.name, columns), dtype=bool)
-            if key not in kept:
-                kept[key] = (subscription, [])
-                mask = mask.copy()
-                mask[0] = True
-            if mask.any():
-                kept[key][1].append({k: v[mask] for k, v in columns.items()})
-    out = []
-    for subscription, parts in kept.values():
-        columns = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
-        out.append(KeptRows(subscription, columns))
-    return out
-
-
-def first_rows(path: str | os.PathLike[str], names: set[str], block_bytes: int = BLOCK_BYTES) -> list[KeptRows]:
-    """The first row of every instance of the topics `names` (its device ID, its fields), and the rows each holds."""
-    return kept_rows(path, names, lambda _, columns: np.zeros(len(next(iter(columns.values()))), dtype=bool),
-                     block_bytes)
-

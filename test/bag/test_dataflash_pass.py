@@ -42,10 +42,10 @@ TOLERANCE = 1e-9
 @pytest.fixture(autouse=True)
 def no_pass_kept():
     """Each test starts and ends without a log's pass or its in-flight evidence kept from another."""
-    dataflash_pass._last.clear()
+    dataflash_pass._passes.forget()
     in_flight_evidence._log_wide.cache_clear()
     yield
-    dataflash_pass._last.clear()
+    dataflash_pass._passes.forget()
     in_flight_evidence._log_wide.cache_clear()
 
 
@@ -117,7 +117,7 @@ def read_whole(path, monkeypatch: pytest.MonkeyPatch) -> Any:
         patched.setattr(dataflash_pass, "ground_samples", lambda *args, **kwargs: None)
         patched.setattr(in_flight_evidence, "_dataflash_flight_means", whole_flight_means)
         outcome = calibrate_recording(str(path))
-    dataflash_pass._last.clear()
+    dataflash_pass._passes.forget()
     in_flight_evidence._log_wide.cache_clear()
     return outcome
 

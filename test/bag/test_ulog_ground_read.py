@@ -14,7 +14,7 @@ from pyulog import ULog
 from accel_calibration.bag.replay import ReplaySettings, replay_bag
 from accel_calibration.bag.ulog_pass import ground_samples
 from accel_calibration.bag.ulog_reader import UlogError
-from accel_calibration.bag.ulog_stream import kept_rows, stream_topics
+from accel_calibration.bag.ulog_stream import stream_topics
 
 import helpers.flight_logs as logs
 from helpers.flight_logs import fly, sensors, true_in_force, write_ulog_flight
@@ -96,10 +96,15 @@ def test_an_hour_in_flight_is_not_kept(tmp_path: Path, monkeypatch: pytest.Monke
 
 def test_each_instance_keeps_its_first_row_even_in_flight(flight_ulog: Path) -> None:
     """Its device ID: an instance whose rows all fall in a flight still says which IMU it is."""
-    kept = kept_rows(flight_ulog, {"sensor_accel"}, lambda _, columns: np.zeros(len(columns["timestamp"]), bool))
-    assert sorted(k.subscription.multi_id for k in kept) == [0, 1, 2]
-    assert all(len(k.columns["device_id"]) == 1 and k.columns["device_id"][0] > 0 for k in kept)
-    assert all(k.subscription.rows > 1000 for k in kept)
+    from accel_calibration.bag.ulog_pass import log_pass
+
+    passed = log_pass(flight_ulog, 1e5)  # a margin that takes the whole log for the flight's
+    assert passed.kept is not None
+    accels = sorted(n for name, n in passed.kept if name == "sensor_accel")
+    assert accels == [0, 1, 2]
+    assert all(len(passed.kept[("sensor_accel", n)].columns["device_id"]) == 1 for n in accels)
+    assert all(passed.kept[("sensor_accel", n)].columns["device_id"][0] > 0 for n in accels)
+    assert all(passed.subscriptions[("sensor_accel", n)].rows > 1000 for n in accels)
 
 
 def test_a_cut_log_read_for_its_ground_is_refused_in_one_line(flight_ulog: Path, tmp_path: Path) -> None:
