@@ -10,10 +10,10 @@ import dataclasses
 import itertools
 import os
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -149,10 +149,8 @@ def open_recording(path: str | os.PathLike[str], format: str | None = None, *, i
         _regular_file(Path(path))
     if kind in BAGS:
         return _read_bag(path, kind, imu_topic, temperature_topic, progress, through_rosbags)
-    if kind == "ulog":
-        return _read_ulog(path, instance, progress, ground_margin_s)
-    if kind == "dataflash":
-        return _read_dataflash(path, instance, progress, ground_margin_s)
+    if kind in LOGS:
+        return _read_log(path, kind, instance, progress, ground_margin_s)
     return _read_csv(path, time_unit, units or "mps2", counts_per_g, progress)
 
 
@@ -361,26 +359,32 @@ def _read_with_rosbags(path: str | os.PathLike[str], imu_name: str | None, tempe
     return imu, temperatures, temperature_connection.topic if temperature_connection else None
 
 
-def _read_ulog(path: str | os.PathLike[str], instance: int | None, progress: bool,
-               ground_margin_s: float | None = None) -> Recording:
-    from .ulog_pass import ground_samples, streamed_samples
-    from .ulog_reader import read_ulog
+def _read_log(path: str | os.PathLike[str], kind: str, instance: int | None, progress: bool,
+              ground_margin_s: float | None = None) -> Recording:
+    """An autopilot log (ULog, DataFlash) read whole, or for its ground (`ground_margin_s`): kept by the log's
+    pass (ulog_pass.py, dataflash_pass.py), or, where its ground is more than a pass keeps (it never flew, or
+    flew a minute of an hour), streamed a block at a time (StreamedLog)."""
+    from . import dataflash, dataflash_pass, ulog_pass, ulog_reader
 
+    readers: dict[str, tuple[Any, Any, Callable[..., Recording]]] = {
+        "ulog": (ulog_pass, ulog_reader.read_ulog, _ulog_recording),
+        "dataflash": (dataflash_pass, dataflash.read_dataflash, _dataflash_recording)}
+    log_pass, read_whole, as_recording = readers[kind]
     if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
         raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
     bar = _bar(path, _size(path), "B", progress)
     try:
-        log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
-        if log is None and ground_margin_s is not None:  # a log that never flew: all ground, a block at a time
-            blocks = streamed_samples(path, instance, ground_margin_s)
+        log = None if ground_margin_s is None else log_pass.ground_samples(path, instance, ground_margin_s, bar)
+        if log is None and ground_margin_s is not None:
+            blocks = log_pass.streamed_samples(path, instance, ground_margin_s)
             if blocks is not None:
-                return _streamed(path, "ulog", (_ulog_recording(path, block) for block in blocks))
+                return _streamed(path, kind, (as_recording(path, block) for block in blocks))
         if log is None:
-            log = read_ulog(path, instance, bar)
+            log = read_whole(path, instance, bar)
     finally:
         if bar is not None:
             bar.close()
-    return _ulog_recording(path, log)
+    return as_recording(path, log)
 
 
 def _ulog_recording(path: str | os.PathLike[str], log: UlogSamples) -> Recording:
@@ -429,28 +433,6 @@ def _streamed(path: str | os.PathLike[str], kind: str, blocks: Iterator[Recordin
         raise RecordingError(f"{path}: no samples of this IMU in the {kind} log")
     fields = {f.name: getattr(first, f.name) for f in dataclasses.fields(Recording)}
     return StreamedLog(**fields, blocks=blocks)
-
-
-def _read_dataflash(path: str | os.PathLike[str], instance: int | None, progress: bool,
-                    ground_margin_s: float | None = None) -> Recording:
-    from .dataflash import read_dataflash
-    from .dataflash_pass import ground_samples, streamed_samples
-
-    if instance is not None and (isinstance(instance, bool) or not isinstance(instance, int) or instance < 0):
-        raise RecordingError(f"{path}: --instance must be a non-negative integer, got {instance!r}")
-    bar = _bar(path, _size(path), "B", progress)
-    try:
-        log = None if ground_margin_s is None else ground_samples(path, instance, ground_margin_s, bar)
-        if log is None and ground_margin_s is not None:  # a log that never flew: all ground, a block at a time
-            blocks = streamed_samples(path, instance, ground_margin_s)
-            if blocks is not None:
-                return _streamed(path, "dataflash", (_dataflash_recording(path, block) for block in blocks))
-        if log is None:
-            log = read_dataflash(path, instance, bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    return _dataflash_recording(path, log)
 
 
 def _dataflash_recording(path: str | os.PathLike[str], log: DataflashSamples) -> Recording:
