@@ -414,11 +414,14 @@ def read_dataflash_parameters(path: str | Path) -> ParameterSet:
     try:
         with captured_output() as chatter:  # pymavlink prints, its C indexer on descriptor 2
             reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
-            while True:
-                message = reader.recv_match(type=["PARM"])
-                if message is None:
-                    break
-                values[str(message.Name)] = float(message.Value)
+            try:  # closed here: left to the garbage collector, the file stays open until it runs
+                while True:
+                    message = reader.recv_match(type=["PARM"])
+                    if message is None:
+                        break
+                    values[str(message.Name)] = float(message.Value)
+            finally:
+                reader.close()
     except Exception as error:  # pymavlink raises what it meets in a damaged log
         failure = f"{path}: not a readable DataFlash log ({type(error).__name__}: {str(error)[:80]})"
     damage = damage_said(chatter)

@@ -287,7 +287,11 @@ def test_fmtu_names_the_instance_field_and_mult_scales_no_value_as_in_pymavlink(
     write_dataflash(path, formats, records)
     assert_same_as_pymavlink(path)
     reference = DFReader.DFReader_binary(str(path), zero_time_base=False)
-    assert read_records(path, []).formats["IMU"].instance_field == reference.formats[imu_type].instance_field == "I"
+    try:  # closed here: left to the garbage collector, its file warns in whichever test runs then
+        instance_field = reference.formats[imu_type].instance_field
+    finally:
+        reference.close()
+    assert read_records(path, []).formats["IMU"].instance_field == instance_field == "I"
     assert read_records(path, ["IMU"]).records["IMU"]["GyrX"].tolist() == [0.25] * 50
 
 

@@ -406,9 +406,12 @@ def test_real_dataflash_log_gives_pymavlinks_values_and_says_too_few_poses(share
     path = shared("real/ardupilot/test.BIN")
     reference = DFReader.DFReader_binary(str(path))
     expected: dict[str, list] = {"IMU": [], "IMU2": []}
-    while (message := reference.recv_match(type=["IMU", "IMU2"])) is not None:
-        expected[message.get_type()].append([message.TimeUS, message.AccX, message.AccY, message.AccZ,
-                                             message.GyrX, message.GyrY, message.GyrZ, message.T])
+    try:  # closed here: left to the garbage collector, its file warns in whichever test runs then
+        while (message := reference.recv_match(type=["IMU", "IMU2"])) is not None:
+            expected[message.get_type()].append([message.TimeUS, message.AccX, message.AccY, message.AccZ,
+                                                 message.GyrX, message.GyrY, message.GyrZ, message.T])
+    finally:
+        reference.close()
     for instance, kind in ((0, "IMU"), (1, "IMU2")):
         samples = read_dataflash(path, instance=instance)
         want = np.array(expected[kind])
